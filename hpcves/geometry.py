@@ -1,0 +1,260 @@
+"""Geometry of a closed, inextensible membrane in tangent-angle variables.
+
+The membrane is described by the tangent angle theta(alpha) of N material
+points, equispaced in arclength s = L alpha, and the mean position ``center``
+of those points. theta = 2 pi alpha + theta_tilde with theta_tilde periodic; the
+unit tangent is s = e^{i theta} (counter-clockwise), the outward normal
+n = -i s = (sin theta, -cos theta) and the curvature H = d theta / ds (> 0 on
+a convex curve, so that d s/ds = -H n and d n/ds = H s).
+
+Positions are complex numbers z = x + i y:  z(alpha) = center + L * int e^{i theta},
+which closes only if mean(e^{i theta}) = 0; :func:`close_curve` restores
+that after each time step.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, special
+
+from .params import ConfigError
+from .spectral import Spectral
+
+
+# ---------------------------------------------------------------------------
+# initial shape: ellipse of given perimeter and excess length
+# ---------------------------------------------------------------------------
+def ellipse_perimeter(a: float, b: float) -> float:
+    """Perimeter 4 a E(1 - b^2/a^2) of the ellipse with semi-axes a >= b."""
+    return 4.0 * a * special.ellipe(1.0 - (b / a) ** 2)
+
+
+def excess_length_of_ellipse(q: float) -> float:
+    """Delta = L / R - 2 pi for the ellipse with axis ratio q = b/a (R = sqrt(A/pi))."""
+    return ellipse_perimeter(1.0, q) / np.sqrt(q) - 2.0 * np.pi
+
+
+def ellipse_for_excess_length(length: float, excess_length: float) -> tuple[float, float]:
+    """Semi-axes (a, b), a >= b, of the ellipse with perimeter ``length`` and excess length Delta."""
+    if excess_length < 0:
+        raise ConfigError(f"excess length {excess_length}: no ellipse has a negative excess length")
+    if excess_length == 0:
+        q = 1.0
+    else:
+        q_min = 1e-6
+        if excess_length_of_ellipse(q_min) < excess_length:
+            raise ConfigError(f"excess length {excess_length}: beyond any ellipse with axis ratio > 1e-6")
+        q = optimize.brentq(lambda x: excess_length_of_ellipse(x) - excess_length, q_min, 1.0,
+                            xtol=1e-15, rtol=1e-15, maxiter=200)
+    a = length / ellipse_perimeter(1.0, q)
+    return a, q * a
+
+
+def ellipse_equal_arclength(a: float, b: float, N: int) -> tuple[np.ndarray, np.ndarray]:
+    """Ellipse parameters t_j with equal arclength between x = a cos t, y = b sin t.
+
+    Returns (t, theta): t_j in [0, 2 pi) at arclength j P / N from (a, 0), and the
+    tangent angle theta_j of the curve there (continuous, theta_0 = pi/2).
+    The arclength S(t) = a [E(pi/2 | m) - E(pi/2 - t | m)], m = 1 - b^2/a^2, is
+    inverted by Newton's method to round-off.
+    """
+    m = 1.0 - (b / a) ** 2
+    E_quarter = special.ellipeinc(np.pi / 2, m)
+    perimeter = 4.0 * a * E_quarter
+    s_target = perimeter * np.arange(N) / N
+
+    def arclength(t):
+        return a * (E_quarter - special.ellipeinc(np.pi / 2 - t, m))
+
+    def speed(t):
+        return np.sqrt(a**2 * np.sin(t) ** 2 + b**2 * np.cos(t) ** 2)
+
+    t = 2.0 * np.pi * np.arange(N) / N
+    for _ in range(60):
+        step = (arclength(t) - s_target) / speed(t)
+        t = t - step
+        if np.max(np.abs(step)) < 1e-15:
+            break
+    theta = np.unwrap(np.arctan2(b * np.cos(t), -a * np.sin(t)))
+    theta += np.pi / 2 - theta[0]
+    return t, theta
+
+
+# ---------------------------------------------------------------------------
+# closed curves in tangent-angle form
+# ---------------------------------------------------------------------------
+def closure_defect(theta: np.ndarray) -> complex:
+    """mean(e^{i theta}) -- zero for a closed curve."""
+    return np.mean(np.exp(1j * theta))
+
+
+def _closure_step(theta: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """One Newton step towards mean(e^{i theta}) = 0 (e = e^{i theta}), minimal l2 norm.
+
+    Corrections delta theta = q cos theta - p sin theta are the gradient
+    directions of the two constraints.
+    """
+    n = theta.size
+    c, s = e.real, e.imag
+    defect = e.sum() / n
+    ss, cs, cc = np.dot(s, s) / n, np.dot(c, s) / n, np.dot(c, c) / n
+    det = ss * cc - cs * cs
+    p = -(cc * defect.real + cs * defect.imag) / det
+    q = -(cs * defect.real + ss * defect.imag) / det
+    return theta + (q * c - p * s)
+
+
+def close_curve(theta: np.ndarray, tol: float = 1e-15, max_iterations: int = 4) -> np.ndarray:
+    """The nearest (in the l2 sense) tangent angle whose curve closes: mean(e^{i theta}) = 0."""
+    theta = np.array(theta, dtype=float)
+    for _ in range(max_iterations):
+        e = np.exp(1j * theta)
+        if abs(e.sum()) < tol * theta.size:
+            break
+        theta = _closure_step(theta, e)
+    return theta
+
+
+def enclosed_area(theta: np.ndarray, sp: Spectral) -> float:
+    """Area of the closed curve with tangent angle theta (full angle) and length sp.length."""
+    tangent = np.exp(1j * theta)
+    z = sp.antiderivative_complex(tangent, 0.0)
+    return -0.5 * sp.length * float(np.imag(np.vdot(tangent, z))) / sp.N      # z . n = -Im(conj(e) z)
+
+
+def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
+    """Project a tangent angle (full angle theta) onto closed curves of a given area.
+
+    Closure: Newton steps on mean(e^{i theta}) = 0 (see :func:`close_curve`).
+    Area (when ``area`` is given): the periodic part of theta about its mean is
+    scaled, theta_tilde -> (1 + e) theta_tilde (at fixed length a larger deviation
+    from the circle encloses less area), with one Newton step on e using
+    dA/de = oint delta z . n ds, delta z = i int e^{i theta} theta_tilde ds, then
+    the curve is closed again; repeated while the relative area defect exceeds
+    1e-13 (after a time step the defects are of the size of the local error, and
+    one Newton step usually suffices). A circle has no scaling direction and
+    keeps its area. Returns (theta, area before the correction).
+    """
+    theta = _closure_step(theta, np.exp(1j * theta))
+    if area is None:
+        return theta, None
+    before = None
+    for _ in range(3):
+        e = np.exp(1j * theta)
+        direction = theta - 2.0 * np.pi * sp.alpha
+        direction -= direction.sum() / sp.N
+        z = sp.antiderivative_complex(e, 0.0)
+        # A = 1/2 oint z . n ds with n = -i e:  z . n = Re(conj(n) z) = -Im(conj(e) z)
+        A = -0.5 * sp.length * float(np.imag(np.vdot(e, z))) / sp.N
+        before = A if before is None else before
+        if abs(A - area) <= 1e-13 * area:
+            break
+        dz = sp.antiderivative_complex(e * direction, 0.0)
+        dA = -sp.length * float(np.real(np.vdot(e, dz))) / sp.N     # (i dz) . n = -Re(conj(e) dz)
+        if abs(dA) <= 1e-12 * area:
+            break
+        theta = theta + ((area - A) / dA) * direction
+        theta = _closure_step(theta, np.exp(1j * theta))
+    return theta, before
+
+
+@dataclass(frozen=True)
+class Shape:
+    """Material points of a closed curve and their local frame."""
+
+    z: np.ndarray            # positions x + i y
+    tangent: np.ndarray      # e^{i theta}
+    curvature: np.ndarray    # H = d theta / ds
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Outward normal n = -i s."""
+        return -1j * self.tangent
+
+
+def shape_from_angle(theta_tilde: np.ndarray, center: complex, sp: Spectral) -> Shape:
+    """Positions, tangent and curvature of the curve theta = 2 pi alpha + theta_tilde."""
+    theta = 2.0 * np.pi * sp.alpha + theta_tilde
+    tangent = np.exp(1j * theta)
+    z = sp.antiderivative_complex(tangent, center)
+    curvature = 2.0 * np.pi / sp.length + sp.ds(theta_tilde)
+    return Shape(z=z, tangent=tangent, curvature=curvature)
+
+
+# ---------------------------------------------------------------------------
+# measures of a closed curve (trapezoid rule: spectrally accurate)
+# ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Moments:
+    """Area moments of the enclosed region (about ``origin``)."""
+
+    area: float
+    centroid: complex
+    Ixx: float     # central second moments
+    Ixy: float
+    Iyy: float
+
+    @property
+    def inclination(self) -> float:
+        """Angle of the long principal axis with the x axis, in (-pi/2, pi/2]."""
+        return principal_angle(self.Ixx, self.Ixy, self.Iyy)
+
+
+def principal_angle(Ixx, Ixy, Iyy):
+    """1/2 atan2(2 Ixy, Ixx - Iyy): direction of the larger eigenvalue, in (-pi/2, pi/2]."""
+    return 0.5 * np.arctan2(2.0 * Ixy, Ixx - Iyy)
+
+
+def _flux_integrands(z, normal, origin):
+    """Integrands F . n of the fields whose divergence is 1, x, y, x^2, xy, y^2."""
+    x, y = (z - origin).real, (z - origin).imag
+    nx, ny = normal.real, normal.imag
+    return np.stack([
+        0.5 * (x * nx + y * ny),
+        0.5 * x * x * nx,
+        0.5 * y * y * ny,
+        x**3 / 3.0 * nx,
+        0.5 * x * x * y * nx,
+        y**3 / 3.0 * ny,
+    ])
+
+
+def moments(z: np.ndarray, normal: np.ndarray, length: float) -> Moments:
+    """Area, centroid and central second moments by the divergence theorem."""
+    origin = z.mean()
+    A, Sx, Sy, Sxx, Sxy, Syy = _flux_integrands(z, normal, origin).mean(axis=1) * length
+    cx, cy = Sx / A, Sy / A
+    return Moments(area=A, centroid=origin + complex(cx, cy),
+                   Ixx=Sxx - A * cx * cx, Ixy=Sxy - A * cx * cy, Iyy=Syy - A * cy * cy)
+
+
+def moment_rates(z, normal, normal_velocity, length, m: Moments):
+    """Time derivatives (dA, dcentroid, dIxx, dIxy, dIyy) of the moments.
+
+    Reynolds' transport theorem: d/dt int_Omega h dA = oint h (u . n) ds.
+    """
+    origin = z.mean()
+    x, y = (z - origin).real, (z - origin).imag
+    w = normal_velocity * length / z.size
+    dA = w.sum()
+    dSx, dSy = (x * w).sum(), (y * w).sum()
+    dSxx, dSxy, dSyy = (x * x * w).sum(), (x * y * w).sum(), (y * y * w).sum()
+    A = m.area
+    cx, cy = (m.centroid - origin).real, (m.centroid - origin).imag
+    dcx, dcy = (dSx - cx * dA) / A, (dSy - cy * dA) / A
+    dIxx = dSxx - dA * cx * cx - 2 * A * cx * dcx
+    dIxy = dSxy - dA * cx * cy - A * (dcx * cy + cx * dcy)
+    dIyy = dSyy - dA * cy * cy - 2 * A * cy * dcy
+    return dA, complex(dcx, dcy), dIxx, dIxy, dIyy
+
+
+def length_of(z: np.ndarray, sp: Spectral) -> float:
+    """Perimeter of the closed curve through the points z (spectral |dz/dalpha|)."""
+    dz_dalpha = sp.ds_complex(z) * sp.length
+    return float(np.mean(np.abs(dz_dalpha)))
+
+
+def excess_length(area: float, length: float) -> float:
+    """Delta = L / sqrt(A / pi) - 2 pi."""
+    return length / np.sqrt(area / np.pi) - 2.0 * np.pi

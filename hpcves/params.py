@@ -1,0 +1,222 @@
+"""Parameters of one case: typed, frozen, validated on construction.
+
+Three groups, one per concern:
+
+* :class:`Physics`  -- the model of SPEC section 1 (dimensionless), published defaults;
+* :class:`Numerics` -- resolution, time step and the stabilisation constants;
+* :class:`RunControl` -- end time, sampling, snapshot and checkpoint intervals,
+  divergence bounds.
+
+:class:`Case` bundles them. Every check raises :class:`ConfigError` with a
+message that names the offending key, so the command line can print it as is.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Literal
+
+#: Perimeter of the 1/2 : 1/3 ellipse, the published reference shape.
+REFERENCE_LENGTH = 2.6442
+
+PSI_COORDINATES = ("arclength", "ellipse_parameter")
+
+
+class ConfigError(ValueError):
+    """A parameter or input file is invalid; the message says which and why."""
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class Physics:
+    """The dimensionless model (SPEC section 1).
+
+    ``psi_bar`` is the mean soft-phase fraction; ``psi_bar`` of exactly 0 or 1
+    is a homogeneous vesicle (B = B1 or B2) whose phase field is not evolved.
+    ``psi_init_coordinate`` says what alpha means in the initial phase
+    psi(alpha, 0) = psi_bar + delta (3 cos 2 pi a + 0.5 cos 6 pi a + 0.5 cos 8 pi a):
+    ``"arclength"`` -- the normalised arclength of the node (the published formula;
+    the mean of psi is then exactly psi_bar); ``"ellipse_parameter"`` -- the
+    parameter t/(2 pi) of the ellipse x = a cos t, y = b sin t at the node (what
+    the authors' code does; the mean then differs from psi_bar by O(delta e^2)).
+    """
+
+    shear_rate: float = 10.0
+    psi_bar: float = 0.3
+    excess_length: float = 0.194
+    length: float = REFERENCE_LENGTH
+    B1: float = 1.0
+    B2: float = 0.1
+    a0: float = 100.0
+    epsilon: float = 0.04
+    delta: float = 0.05
+    mobility: float = 1.0
+    psi_init_coordinate: Literal["arclength", "ellipse_parameter"] = "arclength"
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _require(self.shear_rate >= 0, f"physics.shear_rate = {self.shear_rate}: must be >= 0")
+        _require(0.0 <= self.psi_bar <= 1.0, f"physics.psi_bar = {self.psi_bar}: must lie in [0, 1]")
+        _require(self.length > 0, f"physics.length = {self.length}: must be > 0")
+        _require(
+            self.excess_length >= 0,
+            f"physics.excess_length = {self.excess_length}: no ellipse reaches a negative "
+            "excess length (the circle has 0)",
+        )
+        _require(
+            self.excess_length <= 20,
+            f"physics.excess_length = {self.excess_length}: the ellipse with this excess length "
+            "has an aspect ratio beyond 1:1000; not supported",
+        )
+        _require(self.B1 > 0, f"physics.B1 = {self.B1}: bending stiffness must be > 0")
+        _require(self.B2 > 0, f"physics.B2 = {self.B2}: bending stiffness must be > 0")
+        _require(self.a0 >= 0, f"physics.a0 = {self.a0}: line-energy strength must be >= 0")
+        _require(self.epsilon > 0, f"physics.epsilon = {self.epsilon}: must be > 0")
+        _require(self.delta >= 0, f"physics.delta = {self.delta}: must be >= 0")
+        _require(self.mobility > 0, f"physics.mobility = {self.mobility}: must be > 0")
+        _require(
+            self.psi_init_coordinate in PSI_COORDINATES,
+            f"physics.psi_init_coordinate = {self.psi_init_coordinate!r}: must be one of "
+            + ", ".join(repr(c) for c in PSI_COORDINATES),
+        )
+
+    @property
+    def homogeneous(self) -> bool:
+        """True for psi_bar = 0 or 1: one lipid phase, no phase-field dynamics."""
+        return self.psi_bar in (0.0, 1.0)
+
+    def bending(self, psi):
+        """B(psi) = (1 - psi) B1 + psi B2."""
+        return self.B1 + (self.B2 - self.B1) * psi
+
+    @property
+    def dbending(self) -> float:
+        """B'(psi) = B2 - B1."""
+        return self.B2 - self.B1
+
+
+@dataclass(frozen=True)
+class Numerics:
+    """Discretisation.
+
+    ``N`` material points, equispaced in arclength (even, >= 16). ``dt`` the time
+    step. ``bending_stabilization`` multiplies max(B1, B2) in the implicit part
+    c |k|^3 / 4 of the tangent-angle equation (>= 1 keeps SBDF2 stable for every
+    local B). ``phase_stabilization`` is the constant s of the linear
+    stabilisation (a0/eps) s psi of the double-well term (>= max g'' = 1/2).
+    ``area_correction`` projects each new shape back onto the initial enclosed
+    area (the exact dynamics conserve it; the projection removes the O(dt^2)
+    drift of the time stepping without lowering its order, and its running sum
+    is recorded as the diagnostic ``area_correction``).
+    """
+
+    N: int = 128
+    dt: float = 1e-3
+    bending_stabilization: float = 1.0
+    phase_stabilization: float = 1.0
+    area_correction: bool = True
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.N, int) and not isinstance(self.N, bool),
+                 f"numerics.N = {self.N!r}: must be an integer")
+        _require(self.N >= 16, f"numerics.N = {self.N}: too small, use at least 16 points")
+        _require(self.N % 2 == 0, f"numerics.N = {self.N}: must be even")
+        _require(self.N <= 4096, f"numerics.N = {self.N}: more than 4096 points is not supported "
+                 "(the Stokeslet matrix is dense)")
+        _finite(self)
+        _require(self.dt > 0, f"numerics.dt = {self.dt}: must be > 0")
+        _require(self.bending_stabilization >= 1.0,
+                 f"numerics.bending_stabilization = {self.bending_stabilization}: must be >= 1 "
+                 "(smaller values make the time stepping unstable)")
+        _require(self.phase_stabilization >= 0.5,
+                 f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
+                 "(max g'' on [0, 1])")
+
+
+@dataclass(frozen=True)
+class RunControl:
+    """How long to run and what to record.
+
+    Intervals are in simulated time and are rounded to whole steps.
+    ``checkpoint_wall`` additionally writes a checkpoint whenever that many
+    wall-clock seconds have passed since the last one (0 disables it).
+    A run stops as diverged when the relative area or length error exceeds
+    ``max_area_error`` / ``max_length_error``, when psi leaves
+    [``psi_min``, ``psi_max``] or when anything becomes NaN.
+    """
+
+    t_end: float = 1.0
+    sample_interval: float = 0.01
+    snapshot_interval: float = 0.1
+    checkpoint_interval: float = 0.5
+    checkpoint_wall: float = 300.0
+    max_area_error: float = 1e-3
+    max_length_error: float = 1e-3
+    psi_min: float = -0.25
+    psi_max: float = 1.1
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _require(self.t_end > 0, f"run.t_end = {self.t_end}: must be > 0")
+        for name in ("sample_interval", "snapshot_interval", "checkpoint_interval"):
+            value = getattr(self, name)
+            _require(value > 0, f"run.{name} = {value}: must be > 0")
+        _require(self.checkpoint_wall >= 0, f"run.checkpoint_wall = {self.checkpoint_wall}: must be >= 0")
+        _require(self.max_area_error > 0, f"run.max_area_error = {self.max_area_error}: must be > 0")
+        _require(self.max_length_error > 0, f"run.max_length_error = {self.max_length_error}: must be > 0")
+        _require(self.psi_min < 0 < 1 < self.psi_max,
+                 f"run.psi_min, run.psi_max = {self.psi_min}, {self.psi_max}: need psi_min < 0 and psi_max > 1")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One simulation: physics, numerics and run control, checked together."""
+
+    physics: Physics = field(default_factory=Physics)
+    numerics: Numerics = field(default_factory=Numerics)
+    run: RunControl = field(default_factory=RunControl)
+
+    def __post_init__(self) -> None:
+        p, r = self.physics, self.run
+        if not p.homogeneous:
+            amplitude = 4.0 * p.delta  # max of |3 cos + 0.5 cos + 0.5 cos|
+            _require(
+                r.psi_min < p.psi_bar - amplitude and p.psi_bar + amplitude < r.psi_max,
+                f"physics.psi_bar = {p.psi_bar} with physics.delta = {p.delta}: the initial psi "
+                f"spans [{p.psi_bar - amplitude:.3g}, {p.psi_bar + amplitude:.3g}], outside the "
+                f"allowed range [{r.psi_min}, {r.psi_max}] (run.psi_min, run.psi_max)",
+            )
+        _require(self.run.sample_interval >= self.numerics.dt,
+                 f"run.sample_interval = {r.sample_interval} is shorter than numerics.dt = {self.numerics.dt}")
+        _require(self.run.t_end >= self.numerics.dt,
+                 f"run.t_end = {r.t_end} is shorter than numerics.dt = {self.numerics.dt}")
+
+    @property
+    def n_steps(self) -> int:
+        """Number of time steps to reach t_end (t_end rounded to a whole step)."""
+        return max(1, round(self.run.t_end / self.numerics.dt))
+
+    def every(self, interval: float) -> int:
+        """An interval in simulated time as a whole number of steps (>= 1)."""
+        return max(1, round(interval / self.numerics.dt))
+
+    def to_dict(self) -> dict:
+        return {"physics": asdict(self.physics), "numerics": asdict(self.numerics), "run": asdict(self.run)}
+
+    def flat(self) -> dict:
+        """``{"physics.shear_rate": 10.0, ...}``: one key per parameter (HDF5 attributes)."""
+        return {f"{group}.{key}": value for group, values in self.to_dict().items()
+                for key, value in values.items()}
+
+
+def _finite(obj) -> None:
+    group = type(obj).__name__.lower()
+    group = {"runcontrol": "run"}.get(group, group)
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, float):
+            _require(math.isfinite(value), f"{group}.{f.name} = {value}: must be a finite number")

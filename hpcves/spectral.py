@@ -1,0 +1,208 @@
+"""Fourier pseudo-spectral calculus on the periodic material coordinate.
+
+A field f(alpha) is sampled at alpha_j = j/N, j = 0..N-1, alpha in [0, 1); the
+arclength is s = L alpha (the membrane is inextensible, so L is constant and
+d/ds = (1/L) d/dalpha). Odd derivatives drop the Nyquist mode, even ones keep
+it, so derivatives of real fields stay real.
+
+Transforms are pre-planned FFTW objects (:mod:`pyfftw.builders`) for the few
+shapes a solver uses: at N ~ 100 the cost of a transform called from Python
+is mostly call overhead, where a planned FFTW object is 3-5x cheaper than
+:mod:`numpy.fft` (BENCHMARKS.md). Plans use FFTW_ESTIMATE, so they -- and
+every bit of every result -- are the same in every run, which bitwise
+restarts rely on. ``backend="numpy"`` gives the same API on numpy.fft.
+
+FFTW objects return their internal output buffer; every method here returns
+a fresh array.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+class _NumpyFFT:
+    name = "numpy"
+
+    def __init__(self, n: int):
+        self.n = n
+
+    def rfft(self, x):
+        return np.fft.rfft(x)
+
+    def irfft(self, x):
+        return np.fft.irfft(x, n=self.n)
+
+    def fft(self, x):
+        return np.fft.fft(x)
+
+    def ifft(self, x):
+        return np.fft.ifft(x)
+
+
+class _FFTW:
+    """Planned FFTW transforms of length n."""
+
+    name = "fftw"
+
+    def __init__(self, n: int):
+        import pyfftw
+        import pyfftw.builders as fb
+
+        kw = dict(planner_effort="FFTW_ESTIMATE", threads=1)
+        real = pyfftw.empty_aligned(n, dtype="float64")
+        cplx = pyfftw.empty_aligned(n, dtype="complex128")
+        half = pyfftw.empty_aligned(n // 2 + 1, dtype="complex128")
+        self.n = n
+        self._rfft = fb.rfft(real, **kw)
+        self._irfft = fb.irfft(half, n=n, **kw)
+        self._fft = fb.fft(cplx, **kw)
+        self._ifft = fb.ifft(cplx, **kw)
+
+    def rfft(self, x):
+        return self._rfft(x).copy()
+
+    def irfft(self, x):
+        return self._irfft(x).copy()
+
+    def fft(self, x):
+        return self._fft(x).copy()
+
+    def ifft(self, x):
+        return self._ifft(x).copy()
+
+
+def make_fft(n: int, backend: str = "fftw"):
+    if backend == "numpy":
+        return _NumpyFFT(n)
+    if backend == "fftw":
+        return _FFTW(n)
+    raise ValueError(f"unknown FFT backend {backend!r} (use 'fftw' or 'numpy')")
+
+
+class Spectral:
+    """Derivatives, antiderivatives and interpolation for N-periodic samples.
+
+    Wavenumbers are in arclength units: k_m = 2 pi m / L.
+    """
+
+    def __init__(self, N: int, length: float, backend: str = "fftw"):
+        if N % 2:
+            raise ValueError("N must be even")
+        self.N = N
+        self.length = float(length)
+        self.fft = make_fft(N, backend)
+        m = np.arange(N // 2 + 1)
+        self.k = 2.0 * np.pi * m / self.length                 # |k| for rfft modes
+        self.ik = 1j * self.k
+        self.ik[-1] = 0.0                                       # odd derivative: drop Nyquist
+        self.k2 = -self.k**2                                    # (ik)^2 with Nyquist kept
+        mc = np.fft.fftfreq(N, 1.0 / N)                        # full-FFT modes
+        self.kc = 2.0 * np.pi * mc / self.length
+        self.ikc = 1j * self.kc
+        self.ikc[N // 2] = 0.0
+        self._inv_ikc = np.zeros(N, dtype=complex)
+        self._inv_ikc[self.ikc != 0] = 1.0 / self.ikc[self.ikc != 0]
+        self.alpha = np.arange(N) / N
+
+    # -- real fields ------------------------------------------------------------
+    def ds(self, f):
+        """d f / ds."""
+        return self.fft.irfft(self.ik * self.fft.rfft(f))
+
+    def ds2(self, f):
+        """d^2 f / ds^2."""
+        return self.fft.irfft(self.k2 * self.fft.rfft(f))
+
+    def ds_many(self, f, orders):
+        """Several derivatives of one field from a single forward transform."""
+        fh = self.fft.rfft(f)
+        out = []
+        for p in orders:
+            symbol = self.k2 ** (p // 2) if p % 2 == 0 else self.ik * self.k2 ** (p // 2)
+            out.append(self.fft.irfft(symbol * fh))
+        return out
+
+    def shift_symbol(self, a):
+        """rfft multiplier that turns samples of f(alpha) into samples of f(alpha - a).
+
+        Mode m gets e^{-2 pi i m a}; the Nyquist mode, whose sine part is not
+        representable on the grid, gets cos(pi N a).
+        """
+        m = np.arange(self.N // 2 + 1)
+        symbol = np.exp(-2j * np.pi * m * a)
+        symbol[-1] = np.cos(np.pi * self.N * a)
+        return symbol
+
+    def shift(self, f, a):
+        """Samples of f(alpha - a) (trigonometric interpolation)."""
+        return self.fft.irfft(self.shift_symbol(a) * self.fft.rfft(f))
+
+    def project(self, f, keep):
+        """f with its rfft modes multiplied by ``keep`` (a mask or filter)."""
+        return self.fft.irfft(keep * self.fft.rfft(f))
+
+    # -- complex fields (positions z = x + i y) ---------------------------------
+    def ds_complex(self, z):
+        """d z / ds for a complex field."""
+        return self.fft.ifft(self.ikc * self.fft.fft(z))
+
+    def antiderivative_complex(self, w, mean):
+        """The periodic z with dz/ds = w and mean(z) = ``mean``.
+
+        Requires mean(w) = 0 (a closed curve); the mean of w is ignored.
+        """
+        zh = self.fft.fft(w) * self._inv_ikc
+        zh[0] = mean * self.N
+        return self.fft.ifft(zh)
+
+    # -- interpolation -----------------------------------------------------------
+    def interpolate(self, f, alpha):
+        """Trigonometric interpolant of real or complex samples f at points alpha."""
+        alpha = np.atleast_1d(np.asarray(alpha, dtype=float))
+        fh = np.fft.fft(f) / self.N
+        m = np.fft.fftfreq(self.N, 1.0 / self.N)
+        basis = np.exp(2j * np.pi * np.outer(alpha, m))
+        basis[:, self.N // 2] = np.cos(np.pi * self.N * alpha)   # Nyquist mode, real
+        values = basis @ fh
+        return values if np.iscomplexobj(f) else values.real
+
+
+class BothSidesDerivative:
+    """T = D_s K D_s for a stack of symmetric N x N matrices K, in place of buffers it owns.
+
+    (K D)_ij = sum_k K_ik D_kj = -(d/ds along j), so in Fourier space the two
+    axes get factors i k and -i k': T = irfft2(k k' rfft2(K)), O(N^2 log N).
+    Fill :attr:`input` (shape (n_stack, N, N)) and call; the result is a view
+    of an internal buffer, valid until the next call.
+    """
+
+    def __init__(self, sp: Spectral, n_stack: int = 3, backend: str = "fftw"):
+        N = sp.N
+        k_row = sp.kc.copy()
+        k_row[N // 2] = 0.0
+        self._symbol = k_row[:, None] * sp.ik.imag[None, :]
+        self._N = N
+        shape = (n_stack, N, N)
+        if backend == "fftw":
+            import pyfftw
+
+            self.input = pyfftw.empty_aligned(shape, dtype="float64")
+            self._spectrum = pyfftw.empty_aligned((n_stack, N, N // 2 + 1), dtype="complex128")
+            self._output = pyfftw.empty_aligned(shape, dtype="float64")
+            self._forward = pyfftw.FFTW(self.input, self._spectrum, axes=(1, 2), direction="FFTW_FORWARD",
+                                        flags=("FFTW_ESTIMATE",), threads=1)
+            self._backward = pyfftw.FFTW(self._spectrum, self._output, axes=(1, 2),
+                                         direction="FFTW_BACKWARD",
+                                         flags=("FFTW_ESTIMATE", "FFTW_DESTROY_INPUT"), threads=1)
+        else:
+            self.input = np.empty(shape)
+            self._forward = self._backward = None
+
+    def __call__(self) -> np.ndarray:
+        if self._forward is None:
+            return np.fft.irfft2(self._symbol * np.fft.rfft2(self.input), s=(self._N, self._N))
+        self._forward()
+        self._spectrum *= self._symbol
+        self._backward()
+        return self._output
+

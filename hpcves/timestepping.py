@@ -1,0 +1,308 @@
+"""Second-order, nonstiff time stepping of the two-phase vesicle.
+
+Unknowns:
+
+* theta_tilde = theta - 2 pi alpha, the periodic part of the tangent angle at N
+  points equispaced in arclength s = L alpha (the *nodes*);
+* center, the mean position of the nodes;
+* shift, the arclength fraction a(t) by which the material has moved past the
+  nodes: node alpha carries the material label alpha - a(t);
+* psi, the soft-phase fraction at the N *material* labels alpha_j (so node j
+  sees psi(alpha_j - a), obtained by trigonometric interpolation).
+
+The nodes move with the membrane's normal velocity and with its tangential
+velocity minus its mean V = mean(u . s): X_t = u - V s. Inextensibility keeps
+them equispaced and a uniform shift keeps them material up to a(t), so a
+tank-treading vesicle is *stationary* in this frame, while psi, kept in the
+material frame, needs no advection at all (both would otherwise be travelling
+waves at the membrane speed, which a multistep scheme damps and disperses --
+visible as an area drift and as dt-dependent phase-treading periods).
+Equations (L constant):
+
+    theta_t  = -n . d(u - V s)/ds            (= -n . du/ds - V H, H = theta_s)
+    psi_t    = nu d^2 mu / ds^2               (material frame; mu from psi, H at the nodes)
+    center_t = mean(u)                       (mean(s) = 0 on a closed curve)
+    a_t      = V / L
+
+The stiff linear parts are diagonal in Fourier space and implicit; the rest
+is explicit (SBDF2 / IMEX BDF2):
+
+    (3 y^{n+1} - 4 y^n + y^{n-1}) / (2 dt) = -lam y^{n+1} + 2 G^n - G^{n-1},
+    G = F(y) + lam y,
+
+with F the full right-hand side and
+
+    theta:  lam = c max(B1, B2) |k|^3 / 4 (diagonal; the small-scale bending
+            response, 1/(4|k|) being the single-layer symbol of a flat membrane);
+    psi:    the Jacobian J(psi*) of nu d^2 mu/ds^2 at psi* = 2 psi^n - psi^{n-1}
+            (dense N x N, see phasefield.LinearizedImplicit), so that the stiff
+            double well is implicit to O((psi^{n+1} - psi*)^2).
+
+The splitting of the variable-coefficient bending operator into a constant
+implicit part c >= B(psi) and an explicit rest is stable for SBDF2 (amplification
+<= 1 for all k dt when B <= 1.1 c; see docs/numerics.md). While the phase field
+is still a mixture (long spinodal stretches, overshoots -- the first ~10 steps
+from the initial condition) psi takes a linearly stabilised IMEX Euler step
+instead, lam = nu (a0 eps k^4 + (a0/eps) s k^2), which is robust there; a few
+first-order steps in that transient cost O(dt^2) globally. The first step is
+Richardson-extrapolated IMEX Euler (second order). After each step the tangent
+angle is projected onto resolved modes, closed curves and (by default) the
+initial area, and the mean of psi -- the mass int psi ds -- is carried over.
+
+A :class:`State` holds everything a step needs, including the previous level
+and the previous right-hand side, so a checkpoint of it resumes bit for bit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import geometry, phasefield
+from .flow import Flow, MembraneFlow
+from .forces import bending_energy, phase_energy
+from .geometry import Shape
+from .params import Case
+from .spectral import Spectral
+
+
+@dataclass(frozen=True)
+class Rates:
+    """Right-hand sides F at one time level, and the flow they came from."""
+
+    theta: np.ndarray               # d theta_tilde / dt at the nodes
+    psi: np.ndarray                 # d psi / dt at the material labels
+    center: complex
+    shift: float                    # d a / dt = V / L
+    mean_tangential_velocity: float  # V
+    flow: Flow
+    shape: Shape
+    psi_nodes: np.ndarray           # psi, psi_s and mu at the nodes
+    psi_s: np.ndarray
+    mu: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class State:
+    """The solution at step ``step`` (time step * dt) and the multistep history."""
+
+    step: int
+    theta: np.ndarray                 # theta_tilde at the nodes
+    psi: np.ndarray                   # psi at the material labels
+    center: complex
+    shift: float = 0.0
+    area_correction: float = 0.0      # running sum of relative area corrections
+    prev_theta: np.ndarray | None = None       # level n-1 (None at step 0)
+    prev_psi: np.ndarray | None = None
+    prev_center: complex | None = None
+    prev_shift: float | None = None
+    prev_rate_theta: np.ndarray | None = None  # F at level n-1
+    prev_rate_psi: np.ndarray | None = None
+    prev_rate_center: complex | None = None
+    prev_rate_shift: float | None = None
+
+    ARRAYS = ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
+    SCALARS = ("center", "shift", "area_correction", "prev_center", "prev_shift",
+               "prev_rate_center", "prev_rate_shift")
+
+
+def _bdf2_explicit(y, y_prev, F, F_prev, dt):
+    """(4 y^n - y^{n-1}) / (2 dt) + 2 F^n - F^{n-1}: the explicit side of SBDF2 (divided by dt)."""
+    return (2.0 * y - 0.5 * y_prev) / dt + 2.0 * F - F_prev
+
+
+class Solver:
+    """One vesicle: operators precomputed for a :class:`Case`; steps are pure functions of a State."""
+
+    def __init__(self, case: Case, fft_backend: str = "fftw"):
+        self.case = case
+        phys, num = case.physics, case.numerics
+        self.dt = num.dt
+        self.sp = Spectral(num.N, phys.length, backend=fft_backend)
+        self.flow = MembraneFlow(phys, self.sp)
+        k = self.sp.k
+        self._resolved = np.ones_like(k)
+        self._resolved[-2:] = 0.0                    # modes N/2 - 1 and N/2 of theta_tilde
+        self._two_pi_alpha = 2.0 * np.pi * self.sp.alpha
+        self.lam_theta = num.bending_stabilization * max(phys.B1, phys.B2) * k**3 / 4.0
+        if phys.homogeneous:
+            self.lam_psi, self.cahn_hilliard = None, None
+        else:
+            self.lam_psi = phasefield.implicit_symbol(k, phys.mobility, phys.a0, phys.epsilon,
+                                                      num.phase_stabilization)
+            self.cahn_hilliard = phasefield.LinearizedImplicit(self.sp, phys.mobility, phys.a0, phys.epsilon)
+        self.area0 = geometry.enclosed_area(self.initial_state().theta + self._two_pi_alpha, self.sp)
+
+    # ------------------------------------------------------------------ set-up
+    def initial_state(self) -> State:
+        """Ellipse of the case's length and excess length; phase as in SPEC section 1."""
+        phys, sp = self.case.physics, self.sp
+        a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
+        t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
+        theta = sp.project(theta - self._two_pi_alpha, self._resolved) + self._two_pi_alpha
+        theta = geometry.close_curve(theta) - self._two_pi_alpha
+        if phys.homogeneous:
+            psi = np.full(sp.N, phys.psi_bar)
+        else:
+            coordinate = sp.alpha if phys.psi_init_coordinate == "arclength" else t / (2 * np.pi)
+            psi = phasefield.initial_phase(phys.psi_bar, phys.delta, coordinate)
+        return State(step=0, theta=theta, psi=psi, center=0j)
+
+    # ------------------------------------------------------------------ views of a state
+    def time(self, state: State) -> float:
+        return state.step * self.dt
+
+    def shape(self, state: State) -> Shape:
+        return geometry.shape_from_angle(state.theta, state.center, self.sp)
+
+    def psi_at_nodes(self, state: State) -> np.ndarray:
+        """psi at the nodes (node alpha_j carries the material label alpha_j - a)."""
+        if self.case.physics.homogeneous:
+            return state.psi
+        return self.sp.shift(state.psi, state.shift)
+
+    def energies(self, state: State) -> tuple[float, float]:
+        """(E_b, E_psi) of a state."""
+        phys, sp = self.case.physics, self.sp
+        curvature = 2.0 * np.pi / sp.length + sp.ds(state.theta)
+        E_b = bending_energy(curvature, self.psi_at_nodes(state), phys, sp.length)
+        psi_s = np.zeros_like(state.psi) if phys.homogeneous else sp.ds(state.psi)
+        return E_b, phase_energy(state.psi, psi_s, phys, sp.length)
+
+    # ------------------------------------------------------------------ right-hand side
+    def rates(self, theta: np.ndarray, psi: np.ndarray, center: complex, shift: float) -> Rates:
+        """F(y): the full right-hand side at one level."""
+        sp, phys, fft = self.sp, self.case.physics, self.sp.fft
+        shape = geometry.shape_from_angle(theta, center, sp)
+        if phys.homogeneous:
+            psi_nodes, psi_s, psi_ss = psi, np.zeros_like(psi), None
+        else:
+            to_nodes = sp.shift_symbol(shift)
+            psi_hat = fft.rfft(psi) * to_nodes
+            psi_nodes = fft.irfft(psi_hat)
+            psi_s = fft.irfft(sp.ik * psi_hat)
+            psi_ss = fft.irfft(sp.k2 * psi_hat)
+        flow = self.flow.solve(shape, psi_nodes, psi_s)
+        V = float(np.real(np.vdot(shape.tangent, flow.velocity))) / sp.N
+        # theta_t = -n . d/ds (X_t), X_t = u - V s the velocity of the nodes; the
+        # derivative is taken of X_t as a whole, consistently with z = int e^{i theta} ds.
+        node_velocity_s = sp.ds_complex(flow.velocity - V * shape.tangent)
+        theta_t = -np.real(np.conj(shape.normal) * node_velocity_s)
+        if phys.homogeneous:
+            psi_t, mu = np.zeros_like(psi), None
+        else:
+            mu = phasefield.chemical_potential(psi_nodes, psi_ss, shape.curvature, phys.dbending,
+                                               phys.a0, phys.epsilon)
+            psi_t = fft.irfft((phys.mobility * sp.k2) * fft.rfft(mu) * np.conj(to_nodes))
+        return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
+                     shift=V / sp.length, mean_tangential_velocity=V, flow=flow,
+                     shape=shape, psi_nodes=psi_nodes, psi_s=psi_s, mu=mu)
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, state: State, rates: Rates | None = None) -> tuple[State, Rates]:
+        """Advance one step. Returns the new state and the rates at the *old* level.
+
+        ``rates`` may be passed if already computed for ``state`` (they are a pure
+        function of it). A state without history (step 0) is started by
+        Richardson extrapolation of IMEX Euler, 2 E(dt/2)E(dt/2) - E(dt), which is
+        second-order accurate like the SBDF2 steps that follow.
+        """
+        if rates is None:
+            rates = self.rates(state.theta, state.psi, state.center, state.shift)
+        if state.prev_theta is None:
+            theta, psi, center, shift, correction = self._start(state, rates)
+        else:
+            theta, psi, center, shift, correction = self._sbdf2(state, rates)
+        new = State(step=state.step + 1, theta=theta, psi=psi, center=center, shift=shift,
+                    area_correction=state.area_correction + correction,
+                    prev_theta=state.theta, prev_psi=state.psi, prev_center=state.center,
+                    prev_shift=state.shift, prev_rate_theta=rates.theta, prev_rate_psi=rates.psi,
+                    prev_rate_center=rates.center, prev_rate_shift=rates.shift)
+        return new, rates
+
+    def _sbdf2(self, state: State, rates: Rates):
+        dt, fft = self.dt, self.sp.fft
+        explicit = _bdf2_explicit(state.theta, state.prev_theta, rates.theta, state.prev_rate_theta, dt)
+        theta_star = 2.0 * state.theta - state.prev_theta
+        theta_hat = (fft.rfft(explicit) + self.lam_theta * fft.rfft(theta_star)) / (1.5 / dt + self.lam_theta)
+        theta, correction = self._project(fft.irfft(theta_hat))
+        if self.case.physics.homogeneous:
+            psi = state.psi
+        else:
+            psi_star = 2.0 * state.psi - state.prev_psi
+            if self.cahn_hilliard.applicable(psi_star):
+                explicit = _bdf2_explicit(state.psi, state.prev_psi, rates.psi, state.prev_rate_psi, dt)
+                psi = self._linearized_phase(explicit, psi_star, 1.5 / dt)
+            else:
+                psi = self._stabilized_euler_phase(state.psi, rates.psi, dt)
+            psi = self._conserve(psi, state.psi)
+        center = _bdf2_explicit(state.center, state.prev_center, rates.center, state.prev_rate_center, dt) \
+            * (dt / 1.5)
+        shift = _bdf2_explicit(state.shift, state.prev_shift, rates.shift, state.prev_rate_shift, dt) \
+            * (dt / 1.5)
+        return theta, psi, center, shift, correction
+
+    def _start(self, state: State, rates: Rates):
+        """Richardson extrapolation 2 E(dt/2) E(dt/2) - E(dt) of IMEX Euler."""
+        dt = self.dt
+        full = self._euler(state, rates, dt)
+        half = self._euler(state, rates, 0.5 * dt)
+        half = self._euler(half, self.rates(half.theta, half.psi, half.center, half.shift), 0.5 * dt)
+        theta, correction = self._project(2.0 * half.theta - full.theta)
+        psi = state.psi if self.case.physics.homogeneous else \
+            self._conserve(2.0 * half.psi - full.psi, state.psi)
+        return (theta, psi, 2.0 * half.center - full.center, 2.0 * half.shift - full.shift, correction)
+
+    def _euler(self, state: State, rates: Rates, dt: float) -> State:
+        """IMEX Euler: (y1 - y0)/dt = -lam y1 + F(y0) + lam y0."""
+        fft = self.sp.fft
+        theta_hat = (fft.rfft(state.theta + dt * rates.theta) + dt * self.lam_theta * fft.rfft(state.theta)) \
+            / (1.0 + dt * self.lam_theta)
+        theta, _ = self._project(fft.irfft(theta_hat))
+        if self.case.physics.homogeneous:
+            psi = state.psi
+        elif self.cahn_hilliard.applicable(state.psi):
+            psi = self._conserve(self._linearized_phase(state.psi / dt + rates.psi, state.psi, 1.0 / dt), state.psi)
+        else:
+            psi = self._conserve(self._stabilized_euler_phase(state.psi, rates.psi, dt), state.psi)
+        return State(step=state.step, theta=theta, psi=psi, center=state.center + dt * rates.center,
+                     shift=state.shift + dt * rates.shift)
+
+    def _linearized_phase(self, explicit, psi_star, c):
+        """psi_new with c psi_new = explicit - J (psi_new - psi*), J the phase Jacobian at psi*."""
+        ch = self.cahn_hilliard
+        J = ch.jacobian(psi_star)
+        return ch.solve(J, c, explicit + J @ psi_star)
+
+    def _stabilized_euler_phase(self, psi, rate, dt):
+        """IMEX Euler with linear stabilisation: (1/dt + lam) psi_new = psi/dt + F + lam psi.
+
+        Used while the phase field is far from separated (long spinodal stretches,
+        overshoots), where it is robust and, for Cahn-Hilliard alone, energy stable;
+        the linearly implicit SBDF2 step takes over once interfaces have formed.
+        """
+        fft = self.sp.fft
+        damping = 1.0 + dt * self.lam_psi
+        return fft.irfft(fft.rfft(psi + dt * rate) / damping + fft.rfft(psi) * (dt * self.lam_psi / damping))
+
+    def _project(self, theta_tilde):
+        """Project theta_tilde onto resolved modes, closed curves and (optionally) the initial area.
+
+        Modes N/2 - 1 and N/2 of the tangent angle are invisible to the discrete
+        force (multiplication by e^{i theta} moves them onto the complex Nyquist
+        mode, which odd derivatives drop), so nothing damps them; theta_tilde is
+        kept to modes |m| <= N/2 - 2. The curve is then closed and its area
+        restored (geometry.project_closed). Returns (theta_tilde, relative area
+        correction made).
+        """
+        sp = self.sp
+        theta = sp.project(theta_tilde, self._resolved) + self._two_pi_alpha
+        target = self.area0 if self.case.numerics.area_correction else None
+        theta, before = geometry.project_closed(theta, sp, target)
+        correction = 0.0 if before is None else (self.area0 - before) / self.area0
+        return theta - self._two_pi_alpha, correction
+
+    @staticmethod
+    def _conserve(psi_new, psi_old):
+        """Carry the mass int psi ds over exactly (it is conserved up to round-off anyway)."""
+        return psi_new + (psi_old.sum() - psi_new.sum()) / psi_new.size
