@@ -157,14 +157,20 @@ class Spectral:
 
     # -- interpolation -----------------------------------------------------------
     def interpolate(self, f, alpha):
-        """Trigonometric interpolant of real or complex samples f at points alpha."""
+        """Trigonometric interpolant of samples f (..., N), real or complex, at points alpha.
+
+        Returns shape (..., len(alpha)), or (...) for a scalar alpha.
+        """
+        scalar = np.ndim(alpha) == 0
         alpha = np.atleast_1d(np.asarray(alpha, dtype=float))
-        fh = np.fft.fft(f) / self.N
+        fh = np.fft.fft(f, axis=-1) / self.N
         m = np.fft.fftfreq(self.N, 1.0 / self.N)
-        basis = np.exp(2j * np.pi * np.outer(alpha, m))
-        basis[:, self.N // 2] = np.cos(np.pi * self.N * alpha)   # Nyquist mode, real
-        values = basis @ fh
-        return values if np.iscomplexobj(f) else values.real
+        basis = np.exp(2j * np.pi * np.outer(m, alpha))
+        basis[self.N // 2] = np.cos(np.pi * self.N * alpha)     # Nyquist mode, real
+        values = fh @ basis
+        if not np.iscomplexobj(f):
+            values = values.real
+        return values[..., 0] if scalar else values
 
 
 class BothSidesDerivative:

@@ -41,8 +41,9 @@ with F the full right-hand side and
 The splitting of the variable-coefficient bending operator into a constant
 implicit part c >= B(psi) and an explicit rest is stable for SBDF2 (amplification
 <= 1 for all k dt when B <= 1.1 c; see docs/numerics.md). While the phase field
-is still a mixture (long spinodal stretches, overshoots -- the first ~10 steps
-from the initial condition) psi takes a linearly stabilised IMEX Euler step
+is still a mixture (long spinodal stretches or overshoots at level n-1, n or in
+the prediction -- the first ~10 steps from the initial condition) psi takes a
+linearly stabilised IMEX Euler step
 instead, lam = nu (a0 eps k^4 + (a0/eps) s k^2), which is robust there; a few
 first-order steps in that transient cost O(dt^2) globally. The first step is
 Richardson-extrapolated IMEX Euler (second order). After each step the tangent
@@ -230,7 +231,8 @@ class Solver:
             psi = state.psi
         else:
             psi_star = 2.0 * state.psi - state.prev_psi
-            if self.cahn_hilliard.applicable(psi_star):
+            ch = self.cahn_hilliard
+            if ch.applicable(psi_star) and ch.applicable(state.psi) and ch.applicable(state.prev_psi):
                 explicit = _bdf2_explicit(state.psi, state.prev_psi, rates.psi, state.prev_rate_psi, dt)
                 psi = self._linearized_phase(explicit, psi_star, 1.5 / dt)
             else:

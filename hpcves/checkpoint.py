@@ -1,0 +1,288 @@
+"""HDF5 storage of one case: parameters, time series, snapshots, checkpoints.
+
+A case lives in an HDF5 group -- the file's root for ``hpcves run``, one
+``cases/<id>`` group per case in a campaign file. Layout (see docs/file-format.md):
+
+    attrs          format = "hpcves-case", format_version, hpcves_version,
+                   config (the full case as TOML), one attribute per parameter
+                   ("physics.shear_rate", ...), N, capacities
+    status         int8 scalar: 0 pending, 1 running, 2 finished, 3 failed, 4 interrupted
+    message        fixed-length string: failure reason / last note
+    progress       float64 [t, t_end, wall_seconds, steps_per_second]
+    timeseries/    one preallocated dataset per series (NaN-filled), ``length``
+                   counts the valid rows; centroid has shape (n, 2)
+    snapshots/     t, shift and one (n, N) dataset per field; ``length`` counts
+    checkpoint/    slot0/, slot1/: the solver State; each has ``meta`` =
+                   [valid, step, n_samples, n_snapshots]
+
+Everything that changes during a run is a dataset written in place (never an
+attribute, never a resize): that keeps the writes independent in parallel
+HDF5, and writes of raw data to preallocated space are the safest thing to be
+doing when a process dies. A checkpoint goes to the slot *not* holding the
+newest valid one: its ``meta`` is marked invalid first, the state written,
+flushed, then marked valid -- so a crash in the middle leaves the previous
+checkpoint intact and recognisably the newest valid one.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import __version__
+from .config import case_from_toml, case_to_toml
+from .diagnostics import SERIES, SNAPSHOT_FIELDS
+from .params import Case, ConfigError
+from .timestepping import State
+
+FORMAT = "hpcves-case"
+FORMAT_VERSION = 1
+MESSAGE_BYTES = 4096
+
+PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED = range(5)
+STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
+                INTERRUPTED: "interrupted"}
+
+# scalars of a State, stored as one float64 vector (complex values as two entries)
+_SCALAR_LAYOUT = (("center", 2), ("shift", 1), ("area_correction", 1), ("prev_center", 2),
+                  ("prev_shift", 1), ("prev_rate_center", 2), ("prev_rate_shift", 1))
+_N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
+
+
+class FileFormatError(ConfigError):
+    """An HDF5 file or group that is not (or no longer) a readable hpcves case."""
+
+
+def open_file(path, mode: str):
+    """h5py.File(path, mode) with one clear message for every way that can fail."""
+    import errno
+    import os
+
+    import h5py
+
+    path = os.fspath(path)
+    if mode in ("r", "r+") and not os.path.exists(path):
+        raise FileFormatError(f"{path}: no such file")
+    if mode in ("w-", "x") and os.path.exists(path):
+        raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
+    try:
+        return h5py.File(path, mode)
+    except OSError as exc:
+        text = str(exc)
+        if "lock" in text.lower() or getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise FileFormatError(f"{path}: in use by another process (HDF5 file lock)") from None
+        if "signature" in text or "truncated" in text.lower() or "eof" in text.lower():
+            raise FileFormatError(f"{path}: not a readable HDF5 file (corrupt or truncated?)") from None
+        raise FileFormatError(f"{path}: cannot open as HDF5 ({text})") from None
+
+
+def capacities(case: Case) -> tuple[int, int]:
+    """Rows to preallocate for samples and snapshots (every step multiple, plus the end)."""
+    n = case.n_steps
+    return n // case.every(case.run.sample_interval) + 2, n // case.every(case.run.snapshot_interval) + 2
+
+
+class CaseStore:
+    """Reads and writes one case inside an h5py Group."""
+
+    def __init__(self, group):
+        self.group = group
+        self._ts = group["timeseries"]
+        self._snap = group["snapshots"]
+        self._ckpt = group["checkpoint"]
+
+    # ------------------------------------------------------------------ creation
+    @classmethod
+    def create(cls, group, case: Case) -> "CaseStore":
+        """Lay out a new case in an empty group (collective in parallel HDF5)."""
+        n_samples, n_snapshots = capacities(case)
+        N = case.numerics.N
+        a = group.attrs
+        a["format"] = FORMAT
+        a["format_version"] = FORMAT_VERSION
+        a["hpcves_version"] = __version__
+        a["config"] = case_to_toml(case)
+        a["N"] = N
+        a["sample_capacity"] = n_samples
+        a["snapshot_capacity"] = n_snapshots
+        for key, value in case.flat().items():
+            a[key] = value
+        group.create_dataset("status", data=np.int8(PENDING))
+        group.create_dataset("message", data=np.bytes_(b""), dtype=f"S{MESSAGE_BYTES}")
+        group.create_dataset("progress", data=np.array([0.0, case.run.t_end, 0.0, 0.0]))
+        ts = group.create_group("timeseries")
+        ts.create_dataset("length", data=np.int64(0))
+        for name in SERIES:
+            shape = (n_samples, 2) if name == "centroid" else (n_samples,)
+            ts.create_dataset(name, shape=shape, dtype="f8", fillvalue=np.nan)
+        snap = group.create_group("snapshots")
+        snap.create_dataset("length", data=np.int64(0))
+        snap.create_dataset("t", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan)
+        snap.create_dataset("shift", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan)
+        for name in SNAPSHOT_FIELDS:
+            snap.create_dataset(name, shape=(n_snapshots, N), dtype="f8", fillvalue=np.nan)
+        ckpt = group.create_group("checkpoint")
+        for slot in ("slot0", "slot1"):
+            g = ckpt.create_group(slot)
+            g.create_dataset("meta", data=np.zeros(4, dtype=np.int64))
+            for name in State.ARRAYS:
+                g.create_dataset(name, shape=(N,), dtype="f8", fillvalue=np.nan)
+            g.create_dataset("scalars", shape=(_N_SCALARS,), dtype="f8", fillvalue=np.nan)
+        return cls(group)
+
+    @classmethod
+    def open(cls, group, where: str = "") -> "CaseStore":
+        """Open an existing case, checking that it is one."""
+        where = where or group.name
+        fmt = group.attrs.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode()
+        if fmt != FORMAT:
+            raise FileFormatError(f"{where}: not an hpcves case (no format = {FORMAT!r} attribute)")
+        version = int(group.attrs.get("format_version", -1))
+        if version != FORMAT_VERSION:
+            raise FileFormatError(f"{where}: case format version {version}, this hpcves reads {FORMAT_VERSION}")
+        missing = [k for k in ("timeseries", "snapshots", "checkpoint", "status", "message", "progress")
+                   if k not in group]
+        if missing:
+            raise FileFormatError(f"{where}: incomplete case, missing {', '.join(missing)}")
+        return cls(group)
+
+    # ------------------------------------------------------------------ metadata
+    @property
+    def case(self) -> Case:
+        text = self.group.attrs["config"]
+        if isinstance(text, bytes):
+            text = text.decode()
+        try:
+            return case_from_toml(text, source=f"{self.group.name} config")
+        except ConfigError as exc:
+            raise FileFormatError(str(exc)) from None
+
+    @property
+    def status(self) -> int:
+        return int(self.group["status"][()])
+
+    @property
+    def message(self) -> str:
+        return bytes(self.group["message"][()]).decode(errors="replace")
+
+    def set_status(self, status: int, message: str | None = None) -> None:
+        self.group["status"][()] = np.int8(status)
+        if message is not None:
+            self.group["message"][()] = np.bytes_(message.encode()[:MESSAGE_BYTES])
+
+    def set_progress(self, t: float, t_end: float, wall: float, steps_per_second: float) -> None:
+        self.group["progress"][:] = (t, t_end, wall, steps_per_second)
+
+    @property
+    def progress(self) -> np.ndarray:
+        return self.group["progress"][:]
+
+    # ------------------------------------------------------------------ series
+    @property
+    def n_samples(self) -> int:
+        return int(self._ts["length"][()])
+
+    @property
+    def n_snapshots(self) -> int:
+        return int(self._snap["length"][()])
+
+    def append_samples(self, rows: list[dict]) -> None:
+        """Write rows at the end of the valid part of every series, then advance ``length``."""
+        if not rows:
+            return
+        start = self.n_samples
+        stop = start + len(rows)
+        for name in SERIES:
+            values = np.array([row[name] for row in rows], dtype=float)
+            self._ts[name][start:stop] = values
+        self._ts["length"][()] = stop
+
+    def append_snapshot(self, snap: dict) -> None:
+        i = self.n_snapshots
+        for name in ("t", "shift") + SNAPSHOT_FIELDS:
+            self._snap[name][i] = snap[name]
+        self._snap["length"][()] = i + 1
+
+    def timeseries(self) -> dict:
+        """The valid part of every series (numpy arrays)."""
+        n = self.n_samples
+        return {name: self._ts[name][:n] for name in SERIES}
+
+    def snapshots(self) -> dict:
+        n = self.n_snapshots
+        return {name: self._snap[name][:n] for name in ("t", "shift") + SNAPSHOT_FIELDS}
+
+    def truncate(self, n_samples: int, n_snapshots: int) -> None:
+        """Forget samples and snapshots beyond the given counts (they will be rewritten)."""
+        self._ts["length"][()] = n_samples
+        self._snap["length"][()] = n_snapshots
+
+    # ------------------------------------------------------------------ checkpoints
+    def _slot_meta(self):
+        return {slot: self._ckpt[slot]["meta"][:] for slot in ("slot0", "slot1")}
+
+    def newest_checkpoint_slot(self) -> str | None:
+        valid = [(meta[1], slot) for slot, meta in self._slot_meta().items() if meta[0] == 1]
+        return max(valid)[1] if valid else None
+
+    def write_checkpoint(self, state: State, flush) -> None:
+        """Write ``state`` (and the current sample counts) to the older slot, safely.
+
+        ``flush`` makes the file durable between the phases (h5py File.flush).
+        """
+        newest = self.newest_checkpoint_slot()
+        slot = "slot1" if newest == "slot0" else "slot0"
+        g = self._ckpt[slot]
+        g["meta"][0] = 0
+        flush()
+        for name in State.ARRAYS:
+            value = getattr(state, name)
+            g[name][:] = np.nan if value is None else value
+        g["scalars"][:] = _pack_scalars(state)
+        g["meta"][1:] = (state.step, self.n_samples, self.n_snapshots)
+        flush()
+        g["meta"][0] = 1
+        flush()
+
+    def read_checkpoint(self) -> tuple[State, int, int] | None:
+        """(state, n_samples, n_snapshots) from the newest valid slot, or None."""
+        slot = self.newest_checkpoint_slot()
+        if slot is None:
+            return None
+        g = self._ckpt[slot]
+        meta = g["meta"][:]
+        arrays = {name: g[name][:] for name in State.ARRAYS}
+        scalars = _unpack_scalars(g["scalars"][:])
+        step = int(meta[1])
+        has_history = step > 0
+        kwargs = {name: (value if has_history or not name.startswith("prev") else None)
+                  for name, value in {**arrays, **scalars}.items()}
+        state = State(step=step, **kwargs)
+        for name in ("theta", "psi"):
+            if not np.all(np.isfinite(getattr(state, name))):
+                raise FileFormatError(f"{self.group.name}: checkpoint {slot} holds non-finite {name}")
+        return state, int(meta[2]), int(meta[3])
+
+
+def _pack_scalars(state: State) -> np.ndarray:
+    out = []
+    for name, width in _SCALAR_LAYOUT:
+        value = getattr(state, name)
+        if value is None:
+            out.extend([np.nan] * width)
+        elif width == 2:
+            out.extend([complex(value).real, complex(value).imag])
+        else:
+            out.append(float(value))
+    return np.array(out)
+
+
+def _unpack_scalars(values: np.ndarray) -> dict:
+    out, i = {}, 0
+    for name, width in _SCALAR_LAYOUT:
+        if width == 2:
+            out[name] = complex(values[i], values[i + 1])
+        else:
+            out[name] = float(values[i])
+        i += width
+    return out

@@ -1,0 +1,124 @@
+"""Case files (TOML) -> :class:`hpcves.params.Case`, with errors a user can act on.
+
+A case file has up to three tables, each optional, each key optional
+(defaults are SPEC section 1's published values)::
+
+    [physics]
+    shear_rate = 80.0
+    psi_bar = 0.3
+    excess_length = 0.194
+
+    [numerics]
+    N = 128
+    dt = 5e-4
+
+    [run]
+    t_end = 5.0
+    sample_interval = 0.005
+
+Unknown tables or keys, wrong types and out-of-range values raise
+:class:`~hpcves.params.ConfigError` naming the key.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+import typing
+from pathlib import Path
+
+from .params import Case, ConfigError, Numerics, Physics, RunControl
+
+GROUPS = {"physics": Physics, "numerics": Numerics, "run": RunControl}
+
+
+def _check_type(where: str, value, kind):
+    """Validate (and for numbers, coerce) one TOML value against a field type."""
+    if kind is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where} = {value!r}: must be an integer")
+        return value
+    if kind is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where} = {value!r}: must be a number")
+        return float(value)
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where} = {value!r}: must be true or false")
+        return value
+    if typing.get_origin(kind) is typing.Literal:
+        choices = typing.get_args(kind)
+        if value not in choices:
+            raise ConfigError(f"{where} = {value!r}: must be one of " + ", ".join(repr(c) for c in choices))
+        return value
+    raise ConfigError(f"{where}: unsupported parameter type {kind}")   # pragma: no cover
+
+
+def group_from_dict(name: str, values: dict, base=None):
+    """Build one parameter group from a dict, starting from ``base`` (or the defaults)."""
+    cls = GROUPS[name]
+    if not isinstance(values, dict):
+        raise ConfigError(f"[{name}] must be a table, got {type(values).__name__}")
+    types = typing.get_type_hints(cls)
+    fields = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [{name}]: "
+                          + ", ".join(unknown) + f" (known: {', '.join(fields)})")
+    kwargs = {key: _check_type(f"{name}.{key}", value, types[key]) for key, value in values.items()}
+    base = base if base is not None else cls()
+    return dataclasses.replace(base, **kwargs)
+
+
+def case_from_dict(data: dict, base: Case | None = None) -> Case:
+    """A :class:`Case` from a nested dict such as a parsed TOML document."""
+    unknown = sorted(set(data) - set(GROUPS))
+    if unknown:
+        raise ConfigError("unknown table" + ("s" if len(unknown) > 1 else "") + ": "
+                          + ", ".join(f"[{u}]" for u in unknown) + " (known: [physics], [numerics], [run])")
+    base = base if base is not None else Case()
+    groups = {name: group_from_dict(name, data.get(name, {}), getattr(base, name)) for name in GROUPS}
+    return Case(**groups)
+
+
+def load_case(path: str | Path) -> Case:
+    """Read and validate a case file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
+    return case_from_toml(text, source=str(path))
+
+
+def case_from_toml(text: str, source: str = "<string>") -> Case:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+    try:
+        return case_from_dict(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def case_to_toml(case: Case) -> str:
+    """The full case as TOML text (every parameter written out), readable by :func:`case_from_toml`."""
+    lines = []
+    for name, values in case.to_dict().items():
+        lines.append(f"[{name}]")
+        for key, value in values.items():
+            lines.append(f"{key} = {_toml_value(value)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, float):
+        return repr(value)          # shortest repr round-trips exactly
+    return str(value)

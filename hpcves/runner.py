@@ -1,0 +1,151 @@
+"""Drive one case: step, sample, snapshot, checkpoint, stop cleanly.
+
+Everything here is deterministic in the step index -- samples at multiples of
+the sampling interval, snapshots likewise, checkpoints at multiples of the
+checkpoint interval (plus extra ones on a wall-clock timer and on request,
+which read the state but never change it) -- so a run resumed from any
+checkpoint reproduces the uninterrupted one bit for bit.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from . import diagnostics
+from .checkpoint import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
+from .flow import TensionSolveError
+from .timestepping import Solver, State
+
+#: write buffered samples at least this often (seconds), so that a running case can be watched
+SAMPLE_FLUSH_SECONDS = 10.0
+SAMPLE_BUFFER_ROWS = 512
+
+
+@dataclass(frozen=True)
+class Outcome:
+    status: int          # checkpoint.FINISHED / FAILED / INTERRUPTED
+    message: str
+    t: float
+    steps: int           # steps taken in this call
+    wall: float          # seconds spent in this call
+
+
+@dataclass(frozen=True)
+class Tick:
+    """What a progress display gets, about twice a second."""
+
+    t: float
+    t_end: float
+    steps_per_second: float
+    eta_seconds: float
+    theta: float
+
+
+class Diverged(RuntimeError):
+    pass
+
+
+def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
+        progress: Callable[[Tick], None] | None = None,
+        stop_requested: Callable[[], bool] = lambda: False,
+        max_steps: int | None = None) -> Outcome:
+    """Run (or continue) the case in ``store`` to its end time.
+
+    ``flush`` makes the file durable (h5py File.flush). ``stop_requested`` is
+    polled every step; when it returns True the current state is checkpointed
+    and the run returns as INTERRUPTED. ``max_steps`` stops after that many
+    steps in this call, the same way (for tests and for time-sliced work).
+    """
+    case = store.case
+    solver = Solver(case)
+    state = None
+    if resume:
+        found = store.read_checkpoint()
+        if found is not None:
+            state, n_samples, n_snapshots = found
+            store.truncate(n_samples, n_snapshots)
+    if state is None:
+        state = solver.initial_state()
+        store.truncate(0, 0)
+
+    n_steps = case.n_steps
+    sample_every = case.every(case.run.sample_interval)
+    snapshot_every = case.every(case.run.snapshot_interval)
+    checkpoint_every = case.every(case.run.checkpoint_interval)
+    wall_interval = case.run.checkpoint_wall
+
+    store.set_status(RUNNING, "")
+    flush()
+    start_wall = last_checkpoint_wall = last_flush_wall = last_tick = time.perf_counter()
+    start_step = state.step
+    rows: list[dict] = []
+    theta_now = np.nan
+    last_correction = 0.0          # relative area correction made by the last step
+
+    def write_rows():
+        nonlocal last_flush_wall
+        store.append_samples(rows)
+        rows.clear()
+        last_flush_wall = time.perf_counter()
+
+    def checkpoint(s: State):
+        nonlocal last_checkpoint_wall
+        write_rows()
+        store.write_checkpoint(s, flush)
+        last_checkpoint_wall = time.perf_counter()
+
+    def finish(status, message, s):
+        wall = time.perf_counter() - start_wall
+        steps = s.step - start_step
+        rate = steps / wall if wall > 0 else 0.0
+        store.set_progress(solver.time(s), case.run.t_end, wall, rate)
+        store.set_status(status, message)
+        flush()
+        return Outcome(status, message, solver.time(s), steps, wall)
+
+    try:
+        while True:
+            n = state.step
+            rates = solver.rates(state.theta, state.psi, state.center, state.shift)
+            row = diagnostics.sample(solver, state, rates) if n % sample_every == 0 else None
+            verdict = diagnostics.health(solver, state, row, last_correction)
+            if not verdict.ok:
+                if row is not None:
+                    rows.append(row)
+                raise Diverged(verdict.reason)
+            # State n is sound. A checkpoint of it counts only what was recorded
+            # *before* step n, so a resumed run records step n again, once.
+            now = time.perf_counter()
+            stop = stop_requested() or (max_steps is not None and n - start_step >= max_steps)
+            if n > start_step and (stop or n % checkpoint_every == 0 or n >= n_steps
+                                   or (wall_interval > 0 and now - last_checkpoint_wall >= wall_interval)):
+                checkpoint(state)
+            if stop and n < n_steps:
+                return finish(INTERRUPTED, f"stopped at t = {solver.time(state):.6g}; resume to continue",
+                              state)
+            if row is not None:
+                rows.append(row)
+                theta_now = row["theta"]
+            if n % snapshot_every == 0:
+                store.append_snapshot(diagnostics.snapshot(solver, state, rates))
+            if n >= n_steps:
+                write_rows()
+                return finish(FINISHED, "", state)
+            if len(rows) >= SAMPLE_BUFFER_ROWS or now - last_flush_wall >= SAMPLE_FLUSH_SECONDS:
+                write_rows()
+                flush()
+            if progress is not None and now - last_tick >= 0.5:
+                last_tick = now
+                rate = (n - start_step) / (now - start_wall) if now > start_wall else 0.0
+                eta = (n_steps - n) / rate if rate > 0 else float("inf")
+                progress(Tick(solver.time(state), case.run.t_end, rate, eta, theta_now))
+            before = state.area_correction
+            state, _ = solver.step(state, rates)
+            last_correction = state.area_correction - before
+    except (Diverged, TensionSolveError, ArithmeticError, FloatingPointError) as exc:
+        write_rows()
+        reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
+        return finish(FAILED, f"diverged: {reason} (last good checkpoint kept)", state)
