@@ -148,4 +148,6 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     except (Diverged, TensionSolveError, ArithmeticError, FloatingPointError) as exc:
         write_rows()
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
-        return finish(FAILED, f"diverged: {reason} (last good checkpoint kept)", state)
+        kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
+                else "no checkpoint had been written yet")
+        return finish(FAILED, f"diverged: {reason} ({kept})", state)

@@ -1,0 +1,207 @@
+"""`hpcves run`: bad input, the HDF5 layout, resume, divergence, interruption."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from hpcves import runner
+from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore, open_file
+from hpcves.config import case_from_toml
+
+HPCVES = [sys.executable, "-m", "hpcves.cli"]
+
+SHORT = """
+[physics]
+shear_rate = 80.0
+psi_bar = 0.3
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+t_end = {t_end}
+sample_interval = 0.005
+snapshot_interval = 0.05
+checkpoint_interval = {checkpoint}
+"""
+
+
+def hpcves(*args, **kwargs):
+    return subprocess.run(HPCVES + [str(a) for a in args], capture_output=True, text=True, timeout=300,
+                          **kwargs)
+
+
+def write(tmp_path, text, name="case.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def assert_clean_error(result, *fragments):
+    assert result.returncode == 2, (result.returncode, result.stdout, result.stderr)
+    assert "Traceback" not in result.stderr
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    assert len(lines) == 1, result.stderr
+    for fragment in fragments:
+        assert fragment in lines[0], (fragment, lines[0])
+
+
+BAD_CASES = {
+    "unknown key": ("[physics]\nshear = 3\n", ["unknown key", "shear"]),
+    "unknown table": ("[physic]\nshear_rate = 3\n", ["unknown table", "[physic]"]),
+    "wrong type": ("[numerics]\nN = 64.5\n", ["numerics.N", "integer"]),
+    "string for number": ("[run]\nt_end = \"5\"\n", ["run.t_end", "number"]),
+    "N odd": ("[numerics]\nN = 63\n", ["numerics.N = 63", "even"]),
+    "N too small": ("[numerics]\nN = 8\n", ["numerics.N = 8", "too small"]),
+    "psi_bar above 1": ("[physics]\npsi_bar = 1.2\n", ["physics.psi_bar = 1.2"]),
+    "psi_bar below 0": ("[physics]\npsi_bar = -0.1\n", ["physics.psi_bar = -0.1"]),
+    "negative excess length": ("[physics]\nexcess_length = -0.05\n", ["excess_length", "no ellipse"]),
+    "dt zero": ("[numerics]\ndt = 0.0\n", ["numerics.dt = 0.0", "> 0"]),
+    "dt negative": ("[numerics]\ndt = -1e-3\n", ["numerics.dt"]),
+    "not TOML": ("[physics\nshear_rate = 1\n", ["not valid TOML"]),
+    "bad choice": ("[physics]\npsi_init_coordinate = \"polar\"\n", ["psi_init_coordinate", "arclength"]),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_CASES))
+def test_bad_case_files_get_one_clear_message(tmp_path, name):
+    text, fragments = BAD_CASES[name]
+    result = hpcves("run", write(tmp_path, text), "--out", tmp_path / "out.h5")
+    assert_clean_error(result, *fragments)
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_missing_case_file(tmp_path):
+    assert_clean_error(hpcves("run", tmp_path / "nope.toml", "--out", tmp_path / "o.h5"), "no such file")
+
+
+def test_resume_needs_an_existing_hpcves_file(tmp_path):
+    assert_clean_error(hpcves("run", "--resume", tmp_path / "missing.h5"), "no such file")
+    not_hdf5 = tmp_path / "text.h5"
+    not_hdf5.write_text("hello")
+    assert_clean_error(hpcves("run", "--resume", not_hdf5), "not a readable HDF5 file")
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f["data"] = np.arange(3)
+    assert_clean_error(hpcves("run", "--resume", foreign), "not an hpcves case")
+
+
+def test_resume_of_a_truncated_file(tmp_path):
+    path = tmp_path / "case.h5"
+    result = hpcves("run", write(tmp_path, SHORT.format(t_end=0.05, checkpoint=0.02)), "--out", path, "--quiet")
+    assert result.returncode == 0, result.stderr
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    assert_clean_error(hpcves("run", "--resume", path), str(path))
+
+
+def test_existing_output_is_not_overwritten(tmp_path):
+    case = write(tmp_path, SHORT.format(t_end=0.01, checkpoint=0.01))
+    out = tmp_path / "out.h5"
+    out.write_bytes(b"precious")
+    assert_clean_error(hpcves("run", case, "--out", out), "exists already")
+    assert out.read_bytes() == b"precious"
+
+
+def test_run_writes_the_documented_layout(tmp_path):
+    out = tmp_path / "case.h5"
+    result = hpcves("run", write(tmp_path, SHORT.format(t_end=0.2, checkpoint=0.1)), "--out", out, "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert "finished at t = 0.2" in result.stdout
+    with h5py.File(out, "r") as f:
+        assert f.attrs["physics.shear_rate"] == 80.0 and f.attrs["numerics.N"] == 32
+        assert "[physics]" in f.attrs["config"]
+        n = f["timeseries/length"][()]
+        assert n == 41                                               # t = 0, 0.005, ..., 0.2
+        for name in ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "tension_min",
+                     "tension_mean", "tension_max", "V_psi", "V_L"):
+            assert np.all(np.isfinite(f["timeseries"][name][:n])), name
+        assert f["timeseries/centroid"].shape[1] == 2
+        assert np.allclose(f["timeseries/t"][:n], np.arange(n) * 0.005)
+        assert f["snapshots/length"][()] == 5
+        for name in ("x", "y", "psi", "tension", "curvature"):
+            assert f["snapshots"][name].shape[1] == 32
+        assert f["status"][()] == FINISHED
+        assert {"slot0", "slot1"} <= set(f["checkpoint"])
+
+
+def compare_files(a, b):
+    with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
+        for group in ("timeseries", "snapshots"):
+            for name in fa[group]:
+                assert np.array_equal(fa[group][name][()], fb[group][name][()], equal_nan=True), (group, name)
+
+
+def test_resume_is_bitwise_identical_in_process(tmp_path):
+    case = case_from_toml(SHORT.format(t_end=0.3, checkpoint=0.04))
+    with open_file(tmp_path / "a.h5", "w-") as f:
+        assert runner.run(CaseStore.create(f, case), f.flush).status == FINISHED
+    with open_file(tmp_path / "b.h5", "w-") as f:
+        assert runner.run(CaseStore.create(f, case), f.flush, max_steps=97).status == INTERRUPTED
+    for max_steps in (55, None):
+        with open_file(tmp_path / "b.h5", "r+") as f:
+            runner.run(CaseStore.open(f), f.flush, resume=True, max_steps=max_steps)
+    compare_files(tmp_path / "a.h5", tmp_path / "b.h5")
+
+
+def test_resume_after_sigkill_is_bitwise_identical(tmp_path):
+    case = write(tmp_path, SHORT.format(t_end=8.0, checkpoint=0.1))
+    assert hpcves("run", case, "--out", tmp_path / "a.h5", "--quiet").returncode == 0
+    b = tmp_path / "b.h5"
+    proc = subprocess.Popen(HPCVES + ["run", str(case), "--out", str(b), "--quiet"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while time.time() < deadline:                      # kill once a few checkpoints exist
+        time.sleep(0.2)
+        try:                                           # the writer holds the HDF5 lock: peek without it
+            with h5py.File(b, "r", locking=False) as f:
+                steps = max(f["checkpoint/slot0/meta"][1], f["checkpoint/slot1/meta"][1])
+        except (OSError, KeyError, ValueError):
+            continue
+        if steps >= 1000:
+            break
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL, "the run ended before it could be killed"
+    with h5py.File(b, "r") as f:
+        assert f["status"][()] != FINISHED
+    result = hpcves("run", "--resume", b, "--quiet")
+    assert result.returncode == 0, result.stderr
+    compare_files(tmp_path / "a.h5", b)
+
+
+def test_sigterm_checkpoints_and_exits_cleanly(tmp_path):
+    b = tmp_path / "b.h5"
+    case = write(tmp_path, SHORT.format(t_end=50.0, checkpoint=10.0))
+    proc = subprocess.Popen(HPCVES + ["run", str(case), "--out", str(b), "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "resume with: hpcves run --resume" in out
+    with h5py.File(b, "r") as f:
+        assert f["status"][()] == INTERRUPTED
+        assert max(f["checkpoint/slot0/meta"][1], f["checkpoint/slot1/meta"][1]) > 0
+
+
+def test_a_diverging_run_stops_with_a_message_and_keeps_its_checkpoint(tmp_path):
+    # an area bound far below what the unprojected scheme does: the run "diverges" at
+    # the first sample after the first checkpoints were written
+    text = SHORT.format(t_end=1.0, checkpoint=0.002) + "max_area_error = 1e-7\n"
+    text = text.replace("[run]", "[run]").replace("dt = 1e-3", "dt = 1e-3\narea_correction = false")
+    out = tmp_path / "div.h5"
+    result = hpcves("run", write(tmp_path, text), "--out", out, "--quiet")
+    assert result.returncode == 1
+    assert "Traceback" not in result.stderr
+    assert "diverged" in result.stderr and "area" in result.stderr
+    assert "last good checkpoint kept" in result.stderr
+    with h5py.File(out, "r") as f:
+        store = CaseStore.open(f)
+        assert store.status == FAILED and "area" in store.message
+        state, _, _ = store.read_checkpoint()
+        assert np.all(np.isfinite(state.theta))

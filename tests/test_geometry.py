@@ -1,0 +1,75 @@
+import numpy as np
+import pytest
+from scipy import integrate
+
+from hpcves import geometry
+from hpcves.params import REFERENCE_LENGTH, ConfigError
+from hpcves.spectral import Spectral
+
+
+def test_the_reference_ellipse_has_the_published_excess_length():
+    # the 1/2 : 1/3 ellipse has perimeter 2.6442 and excess length 0.194 (SPEC section 1)
+    assert geometry.ellipse_perimeter(0.5, 1 / 3) == pytest.approx(REFERENCE_LENGTH, abs=5e-5)
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 0.194)
+    assert b / a == pytest.approx(2 / 3, rel=2e-3)
+    assert geometry.ellipse_perimeter(a, b) == pytest.approx(REFERENCE_LENGTH, rel=1e-13)
+    area = np.pi * a * b
+    assert geometry.excess_length(area, REFERENCE_LENGTH) == pytest.approx(0.194, abs=1e-12)
+
+
+@pytest.mark.parametrize("delta", [0.0, 0.94, 2.30])
+def test_every_nonnegative_excess_length_has_an_ellipse(delta):
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, delta)
+    assert geometry.excess_length(np.pi * a * b, REFERENCE_LENGTH) == pytest.approx(delta, abs=1e-11)
+
+
+def test_negative_excess_length_is_refused():
+    with pytest.raises(ConfigError, match="negative"):
+        geometry.ellipse_for_excess_length(REFERENCE_LENGTH, -0.1)
+
+
+def test_equal_arclength_nodes_reproduce_the_ellipse():
+    N, a, b = 128, 0.5, 1 / 3
+    t, theta = geometry.ellipse_equal_arclength(a, b, N)
+    x, y = a * np.cos(t), b * np.sin(t)
+    perimeter = geometry.ellipse_perimeter(a, b)
+    for j in (1, 7, 23, 40, 63, 127):                              # arclength from (a, 0), independently
+        arc, _ = integrate.quad(lambda u: np.hypot(a * np.sin(u), b * np.cos(u)), 0.0, t[j], epsabs=1e-14)
+        assert arc == pytest.approx(j * perimeter / N, abs=1e-12)
+    sp = Spectral(N, geometry.ellipse_perimeter(a, b))
+    theta = geometry.close_curve(theta)
+    z = sp.antiderivative_complex(np.exp(1j * theta), 0.0)
+    assert np.abs(z - (x + 1j * y)).max() < 1e-13             # spectral: 2e-10 already at N = 64
+    m = geometry.moments(z, -1j * np.exp(1j * theta), sp.length)
+    assert m.area == pytest.approx(np.pi * a * b, rel=1e-12)
+    assert abs(m.inclination) < 1e-12 and abs(m.centroid) < 1e-12
+
+
+def test_inclination_of_a_rotated_ellipse():
+    N, a, b, phi = 64, 0.5, 0.3, 0.7
+    t = 2 * np.pi * np.arange(N) / N
+    z = (a * np.cos(t) + 1j * b * np.sin(t)) * np.exp(1j * phi) + (0.2 - 0.1j)
+    sp = Spectral(N, 1.0)
+    dz = sp.ds_complex(z)
+    normal = -1j * dz / np.abs(dz)
+    # the curve is not arclength-parametrised here, so integrate with |dz/dt| weights
+    m = geometry.moments(z, normal * np.abs(dz) / np.abs(dz).mean(), np.abs(dz).mean())
+    assert m.inclination == pytest.approx(phi, abs=1e-10)
+    assert m.area == pytest.approx(np.pi * a * b, rel=1e-10)
+    assert m.centroid == pytest.approx(0.2 - 0.1j, abs=1e-10)
+
+
+def test_projection_closes_the_curve_and_restores_the_area(rng):
+    N = 64
+    sp = Spectral(N, REFERENCE_LENGTH)
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 0.6)
+    theta = geometry.close_curve(geometry.ellipse_equal_arclength(a, b, N)[1])
+    target = geometry.enclosed_area(theta, sp)
+    noise = 1e-4 * np.cos(2 * np.pi * np.outer(np.arange(1, 6), sp.alpha) + rng.uniform(0, 6, (5, 1))).sum(0)
+    perturbed = theta + noise
+    assert abs(geometry.closure_defect(perturbed)) > 1e-6
+    projected, before = geometry.project_closed(perturbed, sp, target)
+    assert abs(geometry.closure_defect(projected)) < 1e-14
+    assert geometry.enclosed_area(projected, sp) == pytest.approx(target, rel=1e-13)
+    assert before != pytest.approx(target, rel=1e-9)
+    assert np.abs(projected - perturbed).max() < 1e-3        # a small correction

@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+
+from conftest import make_solver
+from hpcves import phasefield
+from hpcves.spectral import Spectral
+
+
+def test_double_well_derivatives():
+    psi, h = np.linspace(-0.2, 1.2, 15), 1e-6
+    g, g1, g2 = phasefield.double_well, phasefield.double_well_prime, phasefield.double_well_second
+    assert np.allclose((g(psi + h) - g(psi - h)) / (2 * h), g1(psi), atol=1e-9)
+    assert np.allclose((g1(psi + h) - g1(psi - h)) / (2 * h), g2(psi), atol=1e-9)
+
+
+def test_initial_phase_and_its_two_readings():
+    arclength = make_solver(psi_bar=0.3).initial_state().psi
+    assert arclength.mean() == pytest.approx(0.3, abs=1e-15)         # mean is psi_bar exactly
+    assert arclength.max() == pytest.approx(0.3 + 4 * 0.05)
+    ellipse = make_solver(psi_bar=0.3, psi_init_coordinate="ellipse_parameter").initial_state().psi
+    assert 1e-4 < np.abs(ellipse - arclength).max() < 0.1             # the two readings differ slightly
+
+
+def test_homogeneous_vesicle_has_no_phase_dynamics():
+    solver = make_solver(psi_bar=0.0, shear_rate=10.0)
+    state = solver.initial_state()
+    for _ in range(3):
+        state, _ = solver.step(state)
+    assert np.all(state.psi == 0.0)
+
+
+def test_longest_spinodal_run():
+    L = 2.0
+    psi = np.zeros(40)
+    assert phasefield.longest_spinodal_run(psi, L) == 0.0
+    psi[[38, 39, 0, 1, 2]] = 0.5                                       # wraps around
+    psi[10:13] = 0.5
+    assert phasefield.longest_spinodal_run(psi, L) == pytest.approx(5 * L / 40)
+    assert phasefield.longest_spinodal_run(np.full(40, 0.5), L) == L
+
+
+def test_jacobian_is_the_derivative_of_the_cahn_hilliard_operator(rng):
+    N, L, nu, a0, eps = 64, 2.6442, 1.0, 100.0, 0.04
+    sp = Spectral(N, L)
+    x = L * sp.alpha
+    psi = 0.5 + 0.5 * np.tanh((np.abs(x - L / 2) - 0.6) / (2 * np.sqrt(2) * eps))  # two interfaces
+    ch = phasefield.LinearizedImplicit(sp, nu, a0, eps)
+
+    def rate(p):   # nu d^2/ds^2 of the psi-dependent part of mu
+        return nu * sp.ds2(phasefield.chemical_potential(p, sp.ds2(p), np.zeros(N), 0.0, a0, eps))
+
+    v = np.cos(2 * np.pi * 3 * sp.alpha + 0.4)
+    h = 1e-6
+    fd = -(rate(psi + h * v) - rate(psi - h * v)) / (2 * h)
+    assert np.allclose(ch.jacobian(psi) @ v, fd, rtol=0, atol=1e-6 * np.abs(fd).max())
+    assert ch.applicable(psi)                                          # equilibrium-like interfaces
+    assert not ch.applicable(np.full(N, 0.5))                          # a spinodal mixture
+    rhs = rng.standard_normal(N)
+    out = ch.solve(ch.jacobian(psi), 1500.0, rhs.copy())
+    # exact in exact arithmetic (1^T J = 0); round-off of the stiff solve is ~1e-11, which
+    # Solver._conserve removes after every step
+    assert out.sum() * 1500.0 == pytest.approx(rhs.sum(), rel=1e-10)

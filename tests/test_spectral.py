@@ -1,0 +1,47 @@
+import numpy as np
+import pytest
+
+from hpcves.spectral import BothSidesDerivative, Spectral
+
+L = 2.6442
+
+
+@pytest.mark.parametrize("backend", ["fftw", "numpy"])
+def test_derivatives_of_trigonometric_polynomials_are_exact(backend):
+    sp = Spectral(32, L, backend=backend)
+    s = L * sp.alpha
+    k = 2 * np.pi * 3 / L
+    f = np.sin(k * s) + 0.5 * np.cos(2 * k * s)
+    assert np.allclose(sp.ds(f), k * np.cos(k * s) - k * np.sin(2 * k * s), atol=1e-12)
+    assert np.allclose(sp.ds2(f), -k**2 * np.sin(k * s) - 2 * k**2 * np.cos(2 * k * s), atol=1e-11)
+    d1, d2 = sp.ds_many(f, (1, 2))
+    assert np.allclose(d1, sp.ds(f), atol=1e-13) and np.allclose(d2, sp.ds2(f), atol=1e-12)
+
+
+def test_antiderivative_inverts_the_derivative():
+    sp = Spectral(64, L)
+    z = (1.0 + 0.2 * np.cos(2 * np.pi * sp.alpha)) * np.exp(2j * np.pi * sp.alpha) + 0.3 - 0.1j
+    w = sp.ds_complex(z)
+    assert np.allclose(sp.antiderivative_complex(w, z.mean()), z, atol=1e-13)
+
+
+def test_shift_and_interpolation_agree_with_the_function():
+    sp = Spectral(32, L)
+    f = lambda a: np.cos(2 * np.pi * a) + 0.3 * np.sin(6 * np.pi * a)  # noqa: E731
+    samples = f(sp.alpha)
+    assert np.allclose(sp.shift(samples, 0.123), f(sp.alpha - 0.123), atol=1e-13)
+    points = np.array([0.01, 0.37, 0.999])
+    assert np.allclose(sp.interpolate(samples, points), f(points), atol=1e-13)
+    stacked = sp.interpolate(np.stack([samples, 2 * samples]), 0.37)
+    assert stacked.shape == (2,) and np.isclose(stacked[1], 2 * f(0.37))
+
+
+@pytest.mark.parametrize("N", [16, 32])
+def test_both_sides_derivative_matches_the_matrix_product(N, rng):
+    sp = Spectral(N, L)
+    D = np.array([sp.ds(e) for e in np.eye(N)]).T          # D @ v = ds(v)
+    K = rng.standard_normal((3, N, N))
+    K = K + K.transpose(0, 2, 1)                            # symmetric, like the Stokeslet blocks
+    dsd = BothSidesDerivative(sp, 3)
+    dsd.input[...] = K
+    assert np.allclose(dsd(), D @ K @ D, rtol=0, atol=1e-10 * np.abs(D @ K @ D).max())
