@@ -154,8 +154,11 @@ def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
         dA = -sp.length * float(np.real(np.vdot(e, dz))) / sp.N     # (i dz) . n = -Re(conj(e) dz)
         if abs(dA) <= 1e-12 * area:
             break
-        theta = theta + ((area - A) / dA) * direction
+        scale = (area - A) / dA
+        theta = theta + scale * direction
         theta = _closure_step(theta, np.exp(1j * theta))
+        if abs(scale) < 1e-8:       # Newton: the remaining defect is O(scale^2), below round-off
+            break
     return theta, before
 
 

@@ -54,18 +54,21 @@ def initial_phase(psi_bar, delta, coordinate):
     return psi_bar + delta * (3.0 * np.cos(a) + 0.5 * np.cos(3 * a) + 0.5 * np.cos(4 * a))
 
 
+#: g''(psi) < 0 exactly for psi strictly between these roots of 1 - 6 psi + 6 psi^2
+SPINODAL = (0.5 - np.sqrt(3.0) / 6.0, 0.5 + np.sqrt(3.0) / 6.0)
+
+
 def longest_spinodal_run(psi, length):
     """Arclength of the longest stretch (periodic) on which g''(psi) < 0."""
-    inside = double_well_second(psi) < 0.0
-    if inside.all():
-        return float(length)
+    inside = (psi > SPINODAL[0]) & (psi < SPINODAL[1])
     if not inside.any():
         return 0.0
-    start = int(np.argmin(inside))               # a point outside: unroll the circle there
-    rolled = np.roll(inside, -start).astype(np.int8)
-    edges = np.diff(np.concatenate(([0], rolled, [0])))
-    runs = np.nonzero(edges == -1)[0] - np.nonzero(edges == 1)[0]
-    return float(runs.max()) * length / psi.size
+    outside = np.flatnonzero(~inside)
+    if outside.size == 0:
+        return float(length)
+    gaps = np.diff(outside) - 1
+    wrap = outside[0] + psi.size - 1 - outside[-1]
+    return float(max(gaps.max(initial=0), wrap)) * length / psi.size
 
 
 class LinearizedImplicit:
@@ -97,6 +100,7 @@ class LinearizedImplicit:
         self.D2 = np.array([sp.ds2(row) for row in np.eye(N)]).T
         self._c2 = mobility * a0 / eps
         self._constant = (mobility * a0 * eps) * (self.D2 @ self.D2)
+        self._shifted = {}                          # c -> c I + nu a0 eps D^4
         self._max_run = 2.0 * np.pi * eps           # pi eps / sqrt(max(-g'')) with max(-g'') = 1/4
         self._length = sp.length
 
@@ -106,10 +110,25 @@ class LinearizedImplicit:
                 and longest_spinodal_run(psi_star, self._length) <= self._max_run)
 
     def jacobian(self, psi_star):
-        J = self.D2 * double_well_second(psi_star)[None, :]
-        J *= -self._c2
+        J = np.multiply(self.D2, (-self._c2) * double_well_second(psi_star))
         J += self._constant
         return J
+
+    def _constant_plus(self, c):
+        if c not in self._shifted:
+            self._shifted[c] = self._constant + c * np.eye(self._constant.shape[0])
+        return self._shifted[c]
+
+    def solve_linearized(self, psi_star, c, explicit):
+        """psi_new with (c I + J) psi_new = explicit + J psi*, J = J(psi*)."""
+        weights = (-self._c2) * double_well_second(psi_star)
+        J = np.multiply(self.D2, weights)
+        rhs = explicit + J @ psi_star + self._constant @ psi_star
+        J += self._constant_plus(c)
+        lu, piv, x, info = lapack.dgesv(J, rhs, overwrite_a=1, overwrite_b=1)
+        if info != 0:
+            raise ArithmeticError("Cahn-Hilliard step: singular linear system")
+        return x
 
     @staticmethod
     def solve(J, c, rhs):

@@ -272,9 +272,7 @@ class Solver:
 
     def _linearized_phase(self, explicit, psi_star, c):
         """psi_new with c psi_new = explicit - J (psi_new - psi*), J the phase Jacobian at psi*."""
-        ch = self.cahn_hilliard
-        J = ch.jacobian(psi_star)
-        return ch.solve(J, c, explicit + J @ psi_star)
+        return self.cahn_hilliard.solve_linearized(psi_star, c, explicit)
 
     def _stabilized_euler_phase(self, psi, rate, dt):
         """IMEX Euler with linear stabilisation: (1/dt + lam) psi_new = psi/dt + F + lam psi.
