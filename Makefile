@@ -1,7 +1,7 @@
 # Two commands do everything on a fresh Debian machine:
 #   make demo   -- set up (apt + .venv + parallel h5py, once), run a short case and plot it
 #   make test   -- set up, then the test suite (what CI runs)
-# Further: make bench (BENCHMARKS.md), make validate (VALIDATION.md, ~30 min on 2 cores).
+# Further: make bench (BENCHMARKS.md, ~1 min), make validate (VALIDATION.md, ~2 min).
 
 PY      := .venv/bin/python
 HPCVES  := .venv/bin/hpcves
