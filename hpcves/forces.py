@@ -60,11 +60,8 @@ def energy_terms(z, psi, physics: Physics, sp: Spectral, tension=None):
     psi_s = sp.ds(psi) * sp.length / speed
     weight = speed / sp.N                      # ds = |z'| dalpha, trapezoid
     E_b = 0.5 * np.sum(physics.bending(psi) * curvature**2 * weight)
-    if physics.a0 > 0:
-        E_psi = np.sum(phasefield.line_tension(psi, 0.0, physics.a0, physics.epsilon) * weight
-                       + 0.5 * physics.a0 * physics.epsilon * psi_s**2 * weight)
-    else:
-        E_psi = 0.0
+    a0, eps = physics.a0, physics.epsilon
+    E_psi = (a0 / eps) * np.sum((phasefield.double_well(psi) + 0.5 * eps**2 * psi_s**2) * weight)
     E_p = 0.0 if tension is None else np.sum(tension * weight)
     return E_b, E_psi, E_p
 

@@ -1,5 +1,4 @@
 """`hpcves run`: bad input, the HDF5 layout, resume, divergence, interruption."""
-import os
 import signal
 import subprocess
 import sys
