@@ -88,7 +88,6 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
     m = geometry.moments(shape.z, shape.normal, sp.length)
     length = geometry.length_of(shape.z, sp)
     lam = tension(rates, solver)
-    psi_s = np.zeros_like(state.psi) if phys.homogeneous else sp.ds(state.psi)
 
     # phase pattern relative to the material
     Z = phase_position(state.psi)
@@ -118,7 +117,7 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "area_error": (m.area - solver.area0) / solver.area0,
         "length_error": (length - sp.length) / sp.length,
         "E_bending": bending_energy(shape.curvature, rates.psi_nodes, phys, sp.length),
-        "E_phase": phase_energy(state.psi, psi_s, phys, sp.length),
+        "E_phase": phase_energy(rates.psi_nodes, rates.psi_s, phys, sp.length),   # shift-invariant
         "centroid": (m.centroid.real, m.centroid.imag),
         "tension_min": float(lam.min()),
         "tension_mean": float(lam.mean()),
@@ -153,7 +152,8 @@ def snapshot(solver: Solver, state: State, rates: Rates) -> dict:
 def health(solver: Solver, state: State, row: dict | None, last_correction: float = 0.0) -> Health:
     """Is the run still sane? NaN, area/length error, psi range (RunControl bounds)."""
     run = solver.case.run
-    for name in State.ARRAYS:
+    # prev_theta / prev_psi are the previous state's arrays, checked one step earlier
+    for name in ("theta", "psi", "prev_rate_theta", "prev_rate_psi"):
         value = getattr(state, name)
         if value is not None and not np.all(np.isfinite(value)):
             return Health(False, f"non-finite values in {name} at t = {solver.time(state):.6g}")

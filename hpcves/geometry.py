@@ -116,11 +116,15 @@ def close_curve(theta: np.ndarray, tol: float = 1e-15, max_iterations: int = 4) 
     return theta
 
 
+def _area_from_tangent(tangent: np.ndarray, sp: Spectral) -> float:
+    """A = 1/2 oint z . n ds with z = int e^{i theta} ds, n = -i e: z . n = -Im(conj(e) z)."""
+    z = sp.antiderivative_complex(tangent, 0.0)
+    return -0.5 * sp.length * float(np.imag(np.vdot(tangent, z))) / sp.N
+
+
 def enclosed_area(theta: np.ndarray, sp: Spectral) -> float:
     """Area of the closed curve with tangent angle theta (full angle) and length sp.length."""
-    tangent = np.exp(1j * theta)
-    z = sp.antiderivative_complex(tangent, 0.0)
-    return -0.5 * sp.length * float(np.imag(np.vdot(tangent, z))) / sp.N      # z . n = -Im(conj(e) z)
+    return _area_from_tangent(np.exp(1j * theta), sp)
 
 
 def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
@@ -144,9 +148,7 @@ def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
         e = np.exp(1j * theta)
         direction = theta - 2.0 * np.pi * sp.alpha
         direction -= direction.sum() / sp.N
-        z = sp.antiderivative_complex(e, 0.0)
-        # A = 1/2 oint z . n ds with n = -i e:  z . n = Re(conj(n) z) = -Im(conj(e) z)
-        A = -0.5 * sp.length * float(np.imag(np.vdot(e, z))) / sp.N
+        A = _area_from_tangent(e, sp)
         before = A if before is None else before
         if abs(A - area) <= 1e-13 * area:
             break

@@ -84,7 +84,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
 
 
 def case_title(attrs) -> str:
-    get = lambda key: attrs.get(key)  # noqa: E731
+    get = attrs.get
     return (f"S = {get('physics.shear_rate'):g}, $\\bar\\psi$ = {get('physics.psi_bar'):g}, "
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
             f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, dt = {get('numerics.dt'):g}")

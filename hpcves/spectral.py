@@ -113,15 +113,6 @@ class Spectral:
         """d^2 f / ds^2."""
         return self.fft.irfft(self.k2 * self.fft.rfft(f))
 
-    def ds_many(self, f, orders):
-        """Several derivatives of one field from a single forward transform."""
-        fh = self.fft.rfft(f)
-        out = []
-        for p in orders:
-            symbol = self.k2 ** (p // 2) if p % 2 == 0 else self.ik * self.k2 ** (p // 2)
-            out.append(self.fft.irfft(symbol * fh))
-        return out
-
     def shift_symbol(self, a):
         """rfft multiplier that turns samples of f(alpha) into samples of f(alpha - a).
 

@@ -234,7 +234,7 @@ class Solver:
             ch = self.cahn_hilliard
             if ch.applicable(psi_star) and ch.applicable(state.psi) and ch.applicable(state.prev_psi):
                 explicit = _bdf2_explicit(state.psi, state.prev_psi, rates.psi, state.prev_rate_psi, dt)
-                psi = self._linearized_phase(explicit, psi_star, 1.5 / dt)
+                psi = ch.solve_linearized(psi_star, 1.5 / dt, explicit)
             else:
                 psi = self._stabilized_euler_phase(state.psi, rates.psi, dt)
             psi = self._conserve(psi, state.psi)
@@ -264,15 +264,12 @@ class Solver:
         if self.case.physics.homogeneous:
             psi = state.psi
         elif self.cahn_hilliard.applicable(state.psi):
-            psi = self._conserve(self._linearized_phase(state.psi / dt + rates.psi, state.psi, 1.0 / dt), state.psi)
+            psi = self._conserve(self.cahn_hilliard.solve_linearized(state.psi, 1.0 / dt, state.psi / dt + rates.psi),
+                                 state.psi)
         else:
             psi = self._conserve(self._stabilized_euler_phase(state.psi, rates.psi, dt), state.psi)
         return State(step=state.step, theta=theta, psi=psi, center=state.center + dt * rates.center,
                      shift=state.shift + dt * rates.shift)
-
-    def _linearized_phase(self, explicit, psi_star, c):
-        """psi_new with c psi_new = explicit - J (psi_new - psi*), J the phase Jacobian at psi*."""
-        return self.cahn_hilliard.solve_linearized(psi_star, c, explicit)
 
     def _stabilized_euler_phase(self, psi, rate, dt):
         """IMEX Euler with linear stabilisation: (1/dt + lam) psi_new = psi/dt + F + lam psi.

@@ -14,8 +14,6 @@ def test_derivatives_of_trigonometric_polynomials_are_exact(backend):
     f = np.sin(k * s) + 0.5 * np.cos(2 * k * s)
     assert np.allclose(sp.ds(f), k * np.cos(k * s) - k * np.sin(2 * k * s), atol=1e-12)
     assert np.allclose(sp.ds2(f), -k**2 * np.sin(k * s) - 2 * k**2 * np.cos(2 * k * s), atol=1e-11)
-    d1, d2 = sp.ds_many(f, (1, 2))
-    assert np.allclose(d1, sp.ds(f), atol=1e-13) and np.allclose(d2, sp.ds2(f), atol=1e-12)
 
 
 def test_antiderivative_inverts_the_derivative():
