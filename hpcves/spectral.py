@@ -58,17 +58,26 @@ class _FFTW:
         self._fft = fb.fft(cplx, **kw)
         self._ifft = fb.ifft(cplx, **kw)
 
+    # The input is always copied into the plan's own buffer. Passing it to
+    # FFTW.__call__ instead would let pyfftw *adopt* a suitably aligned caller
+    # array as its input buffer (update_arrays) and later copy a misaligned or
+    # strided input *into that caller's array* -- silently overwriting it.
+    @staticmethod
+    def _run(plan, x):
+        plan.input_array[...] = x
+        return plan().copy()
+
     def rfft(self, x):
-        return self._rfft(x).copy()
+        return self._run(self._rfft, x)
 
     def irfft(self, x):
-        return self._irfft(x).copy()
+        return self._run(self._irfft, x)
 
     def fft(self, x):
-        return self._fft(x).copy()
+        return self._run(self._fft, x)
 
     def ifft(self, x):
-        return self._ifft(x).copy()
+        return self._run(self._ifft, x)
 
 
 def make_fft(n: int, backend: str = "fftw"):

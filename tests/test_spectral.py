@@ -43,3 +43,16 @@ def test_both_sides_derivative_matches_the_matrix_product(N, rng):
     dsd = BothSidesDerivative(sp, 3)
     dsd.input[...] = K
     assert np.allclose(dsd(), D @ K @ D, rtol=0, atol=1e-10 * np.abs(D @ K @ D).max())
+
+
+def test_transforms_never_write_into_their_inputs():
+    """pyfftw adopts a suitably aligned input as its buffer and would later copy a
+    strided input into it; the wrapper must copy instead (this once overwrote state)."""
+    sp = Spectral(64, 2.0)
+    first = np.random.default_rng(1).standard_normal(64)
+    kept = first.copy()
+    sp.ds(first)
+    strided = np.random.default_rng(2).standard_normal(128)[::2]
+    sp.ds(strided)
+    sp.fft.irfft(sp.fft.rfft(np.random.default_rng(3).standard_normal(130)[1:-1:2].copy()))
+    assert np.array_equal(first, kept)
