@@ -177,7 +177,7 @@ def convergence(lines):
                   center=start.center, shift=start.shift)
         for _ in range(round(T / dt)):
             x, _ = s.step(x)
-        return s.shape(x).z, s.psi_at_nodes(x)
+        return s.shape(x).z, x.psi
 
     z_ref, p_ref = evolve(256, 2.5e-4)
     a256 = np.arange(256) / 256

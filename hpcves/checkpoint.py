@@ -34,7 +34,7 @@ from .params import Case, ConfigError
 from .timestepping import State
 
 FORMAT = "hpcves-case"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2                  # 2: checkpointed psi is held at the nodes (1: material labels)
 MESSAGE_BYTES = 4096
 
 PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED = range(5)

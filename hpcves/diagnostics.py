@@ -52,7 +52,7 @@ def tension(rates: Rates, solver: Solver) -> np.ndarray:
 
 
 def phase_position(psi: np.ndarray) -> complex:
-    """sum_j psi_j e^{2 pi i alpha_j} (its argument / 2 pi is the phase position)."""
+    """sum_j psi_j e^{2 pi i alpha_j}: its argument / 2 pi is the psi-weighted circular mean of alpha."""
     return complex(np.fft.fft(psi)[-1])            # = sum psi e^{+2 pi i j/N}
 
 
@@ -89,11 +89,13 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
     length = geometry.length_of(shape.z, sp)
     lam = tension(rates, solver)
 
-    # phase pattern relative to the material
+    # phase pattern relative to the material: psi is held at the nodes, node alpha
+    # carries label alpha - a, so the material circular mean is the nodes' one minus a;
+    # rates.psi (psi_t without the advection) is the material rate, seen at the nodes
     Z = phase_position(state.psi)
     dZ = phase_position(rates.psi)
     if abs(Z) > 1e-12 * sp.N:
-        position = (np.angle(Z) / (2 * np.pi)) % 1.0
+        position = (np.angle(Z) / (2 * np.pi) - state.shift) % 1.0
         V_psi = sp.length * float(np.imag(dZ / Z)) / (2 * np.pi)
     else:
         position, V_psi = np.nan, np.nan

@@ -2,7 +2,8 @@
 
     E_psi = (a0/eps) int ( g(psi) + eps^2/2 psi_s^2 ) ds,   g = psi^2 (1 - psi)^2 / 4,
     mu    = dE/dpsi = B'(psi)/2 H^2 + (a0/eps) ( g'(psi) - eps^2 psi_ss ),
-    psi_t = d/ds ( nu d mu / ds )        (material coordinates, nu constant).
+    psi_t = d/ds ( nu d mu / ds )        (material coordinates, nu constant;
+                                          the solver adds -V psi_s in its node frame).
 
 Time stepping (see :mod:`hpcves.timestepping`) treats the linear stiff part
 nu (a0 eps k^4 + (a0/eps) s k^2) implicitly, where s is the linear
@@ -79,7 +80,8 @@ class LinearizedImplicit:
         J(psi*) = nu ( a0 eps D^4 - (a0/eps) D^2 diag g''(psi*) ),
 
     dense N x N with D^2, D^4 the spectral differentiation matrices (arclength).
-    A step solves (c I + J) psi_new = rhs by LU; since 1^T D^2 = 1^T D^4 = 0 the
+    A step solves (c I + J + V D) psi_new = rhs by LU, V D being an implicit uniform
+    advection (the solver's node frame); since 1^T D = 1^T D^2 = 1^T D^4 = 0 the
     solve keeps int psi ds as the right-hand side prescribes -- in exact
     arithmetic; round-off in J psi* (||J|| ~ 1e7) leaves ~1e-7, which the solver
     removes by re-imposing the mass. Taking the
@@ -98,6 +100,7 @@ class LinearizedImplicit:
 
     def __init__(self, sp, mobility, a0, eps):
         N = sp.N
+        self.D1 = np.array([sp.ds(row) for row in np.eye(N)]).T
         self.D2 = np.array([sp.ds2(row) for row in np.eye(N)]).T
         self._c2 = mobility * a0 / eps
         self._constant = (mobility * a0 * eps) * (self.D2 @ self.D2)
@@ -115,10 +118,15 @@ class LinearizedImplicit:
         J += self._constant
         return J
 
-    def solve_linearized(self, psi_star, c, explicit):
-        """psi_new with (c I + J) psi_new = explicit + J psi*, J = J(psi*)."""
+    def solve_linearized(self, psi_star, c, explicit, advection=0.0):
+        """psi_new with (c I + J + V D) psi_new = explicit + J psi*, J = J(psi*), V = ``advection``.
+
+        V D is the uniform advection psi_t = -V psi_s, implicit as a whole.
+        """
         J = self.jacobian(psi_star)
         rhs = explicit + J @ psi_star
+        if advection:
+            J += advection * self.D1
         J.flat[:: J.shape[0] + 1] += c
         lu, piv, x, info = lapack.dgesv(J, rhs, overwrite_a=1, overwrite_b=1)
         if info != 0:

@@ -109,7 +109,7 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     try:
         while True:
             n = state.step
-            rates = solver.rates(state.theta, state.psi, state.center, state.shift)
+            rates = solver.rates(state)
             row = diagnostics.sample(solver, state, rates) if n % sample_every == 0 else None
             verdict = diagnostics.health(solver, state, row, last_correction)
             if not verdict.ok:

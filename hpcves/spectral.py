@@ -141,6 +141,39 @@ class Spectral:
         """f with its rfft modes multiplied by ``keep`` (a mask or filter)."""
         return self.fft.irfft(keep * self.fft.rfft(f))
 
+    def displacement(self, f, g, window: float = 0.125):
+        """The shift a, |a| <= ``window``, for which f(alpha) ~ g(alpha - a).
+
+        a maximises the cross-correlation R(a) = sum_j f(alpha_j) g(alpha_j - a)
+        of the trigonometric interpolants (R is itself a trigonometric polynomial,
+        with coefficients f_m conj(g_m)): the best grid point, then Newton on R'.
+        Returns 0 if f and g have no variation (nothing to align).
+        """
+        N = self.N
+        q = self.fft.rfft(f) * np.conj(self.fft.rfft(g))
+        q[0] = 0.0
+        q[-1] = 0.0                                  # the Nyquist mode has no phase to align
+        if not np.any(q):
+            return 0.0
+        R = self.fft.irfft(q)
+        reach = max(1, int(window * N))
+        lags = np.arange(-reach, reach + 1)
+        a = a_grid = lags[np.argmax(R[lags % N])] / N
+        m2pi = 2.0 * np.pi * np.arange(N // 2 + 1)
+        for _ in range(20):
+            wave = q * np.exp(1j * m2pi * a)
+            d1 = -np.dot(m2pi, wave.imag)                # R'(a) / 2, up to a positive factor
+            d2 = -np.dot(m2pi * m2pi, wave.real)         # R''(a) / 2, same factor
+            if d2 >= 0.0:                                # not at a maximum: keep the grid point
+                break
+            step = d1 / d2
+            a -= step
+            if abs(step) < 1e-13:
+                break
+        if not abs(a - a_grid) <= 1.0 / N:               # Newton left the grid point's bracket
+            return float(a_grid)
+        return float(a)
+
     # -- complex fields (positions z = x + i y) ---------------------------------
     def ds_complex(self, z):
         """d z / ds for a complex field."""

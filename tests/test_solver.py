@@ -65,7 +65,7 @@ def test_energy_decays_and_the_mixture_separates_at_S0():
     energy = np.array(energy)
     assert np.all(np.diff(energy) <= 1e-12 * energy[:-1]), np.diff(energy).max()
     assert energy[-1] < 0.5 * energy[0]
-    psi = solver.psi_at_nodes(state)
+    psi = state.psi
     assert np.mean((psi < 0.1) | (psi > 0.9)) >= 0.75
     assert -0.05 < psi.min() and psi.max() < 1.05
     curvature = solver.shape(state).curvature
@@ -89,7 +89,7 @@ def resample(state, N):
 def evolve(state, N, dt, T=0.05):
     solver = make_solver(N=N, dt=dt, shear_rate=10.0, psi_bar=0.3)
     x = advance(solver, resample(state, N), round(T / dt))
-    return solver.shape(x).z, solver.psi_at_nodes(x)
+    return solver.shape(x).z, x.psi
 
 
 def test_spectral_convergence_in_N(separated_state):
@@ -108,13 +108,22 @@ def test_spectral_convergence_in_N(separated_state):
 
 
 def test_second_order_in_time(separated_state):
-    z_ref, psi_ref = evolve(separated_state, 128, 2.5e-5)
+    """Errors after t = 0.02 against dt = 5e-6, positions and psi separately.
+
+    Measured (against 2.5e-6): orders 1.98, 2.00 (positions) and 2.23, 2.16 (psi)
+    for dt = 2e-4, 1e-4, 5e-5. Over t = 0.05 from dt = 1e-3 the psi error is
+    pre-asymptotic (1.6e-5, 8.3e-7, 4.5e-7, 2.0e-7, 6.2e-8, 1.7e-8 for dt = 1e-3
+    ... 3.1e-5: orders 4.2, 0.9, 1.2, 1.7, 1.9 -- two error terms of opposite
+    sign), which is why the test uses the smaller steps.
+    """
+    z_ref, psi_ref = evolve(separated_state, 128, 5e-6, T=0.02)
     errors = []
-    for dt in (1e-3, 5e-4, 2.5e-4):
-        z, psi = evolve(separated_state, 128, dt)
-        errors.append(max(np.abs(z - z_ref).max(), np.abs(psi - psi_ref).max()))
-    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))   # measured: 2.66, 2.11 (psi)
-    assert np.all((orders >= 1.8) & (orders <= 2.7)), orders
+    for dt in (2e-4, 1e-4, 5e-5):
+        z, psi = evolve(separated_state, 128, dt, T=0.02)
+        errors.append((np.abs(z - z_ref).max(), np.abs(psi - psi_ref).max()))
+    errors = np.array(errors)
+    orders = np.log2(errors[:-1] / errors[1:])
+    assert np.all((orders >= 1.8) & (orders <= 2.3)), orders
     assert orders[-1] == pytest.approx(2.0, abs=0.2)
 
 

@@ -56,3 +56,13 @@ def test_transforms_never_write_into_their_inputs():
     sp.ds(strided)
     sp.fft.irfft(sp.fft.rfft(np.random.default_rng(3).standard_normal(130)[1:-1:2].copy()))
     assert np.array_equal(first, kept)
+
+
+def test_displacement_finds_a_subgrid_shift():
+    sp = Spectral(128, 2.6442)
+    pattern = lambda a: 0.5 + 0.5 * np.tanh(8 * np.cos(2 * np.pi * a)) + 0.1 * np.sin(6 * np.pi * a)
+    for shift in (0.0, 1e-5, 0.0123, -0.031, 0.1):
+        assert sp.displacement(pattern(sp.alpha - shift), pattern(sp.alpha)) == pytest.approx(shift, abs=1e-9)
+    assert sp.displacement(np.ones(128), np.ones(128)) == 0.0
+    # beyond the window the best shift inside it is returned, not a far one
+    assert abs(sp.displacement(pattern(sp.alpha - 0.4), pattern(sp.alpha), window=0.125)) <= 0.125

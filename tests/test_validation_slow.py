@@ -14,7 +14,7 @@ def theta_series(solver, t_end, every):
     t, theta, lab = [], [], []
     for n in range(round(t_end / solver.dt) + 1):
         if n % every == 0:
-            rates = solver.rates(state.theta, state.psi, state.center, state.shift)
+            rates = solver.rates(state)
             row = diagnostics.sample(solver, state, rates)
             t.append(row["t"])
             theta.append(row["theta"])
