@@ -17,6 +17,8 @@ class Period:
     spread: float          # standard deviation of those intervals
     cycles: int            # number of complete intervals used
     amplitude: float       # (max - min) / 2 over the window
+    start: float = np.nan  # first and last upward crossing: [start, end] holds whole cycles
+    end: float = np.nan
 
 
 def crossing_period(t: np.ndarray, x: np.ndarray, t_start: float | None = None) -> Period:
@@ -41,4 +43,5 @@ def crossing_period(t: np.ndarray, x: np.ndarray, t_start: float | None = None) 
     intervals = np.diff(crossings)
     if intervals.size == 0:
         return Period(np.nan, np.nan, 0, amplitude)
-    return Period(float(intervals.mean()), float(intervals.std()), int(intervals.size), float(amplitude))
+    return Period(float(intervals.mean()), float(intervals.std()), int(intervals.size), float(amplitude),
+                  float(crossings[0]), float(crossings[-1]))

@@ -112,6 +112,7 @@ class Spectral:
         self._inv_ikc = np.zeros(N, dtype=complex)
         self._inv_ikc[self.ikc != 0] = 1.0 / self.ikc[self.ikc != 0]
         self.alpha = np.arange(N) / N
+        self._m2pi = (2.0 * np.pi * m, (2.0 * np.pi * m) ** 2)
 
     # -- real fields ------------------------------------------------------------
     def ds(self, f):
@@ -141,16 +142,18 @@ class Spectral:
         """f with its rfft modes multiplied by ``keep`` (a mask or filter)."""
         return self.fft.irfft(keep * self.fft.rfft(f))
 
-    def displacement(self, f, g, window: float = 0.125):
+    def displacement(self, f, g, window: float = 0.125, spectra=None):
         """The shift a, |a| <= ``window``, for which f(alpha) ~ g(alpha - a).
 
         a maximises the cross-correlation R(a) = sum_j f(alpha_j) g(alpha_j - a)
         of the trigonometric interpolants (R is itself a trigonometric polynomial,
         with coefficients f_m conj(g_m)): the best grid point, then Newton on R'.
-        Returns 0 if f and g have no variation (nothing to align).
+        Returns 0 if f and g have no variation (nothing to align). ``spectra``
+        may pass (rfft(f), rfft(g)) if the caller has them.
         """
         N = self.N
-        q = self.fft.rfft(f) * np.conj(self.fft.rfft(g))
+        f_hat, g_hat = spectra if spectra is not None else (self.fft.rfft(f), self.fft.rfft(g))
+        q = f_hat * np.conj(g_hat)
         q[0] = 0.0
         q[-1] = 0.0                                  # the Nyquist mode has no phase to align
         if not np.any(q):
@@ -159,11 +162,11 @@ class Spectral:
         reach = max(1, int(window * N))
         lags = np.arange(-reach, reach + 1)
         a = a_grid = lags[np.argmax(R[lags % N])] / N
-        m2pi = 2.0 * np.pi * np.arange(N // 2 + 1)
+        m2pi, m2pi_sq = self._m2pi
         for _ in range(20):
             wave = q * np.exp(1j * m2pi * a)
             d1 = -np.dot(m2pi, wave.imag)                # R'(a) / 2, up to a positive factor
-            d2 = -np.dot(m2pi * m2pi, wave.real)         # R''(a) / 2, same factor
+            d2 = -np.dot(m2pi_sq, wave.real)             # R''(a) / 2, same factor
             if d2 >= 0.0:                                # not at a maximum: keep the grid point
                 break
             step = d1 / d2

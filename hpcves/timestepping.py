@@ -44,7 +44,7 @@ wholly implicit) and
     theta:  lam = c max(B1, B2) |k|^3 / 4 (diagonal; the small-scale bending
             response, 1/(4|k|) being the single-layer symbol of a flat membrane);
     psi:    in the pattern frame (see :meth:`Solver._sbdf2_phase`), J(psi*) + (V* - W) D:
-            the Jacobian of nu d^2 mu/ds^2 at the prediction psi* (dense N x N, see
+            the Jacobian of nu d^2 mu/ds^2 at the prediction psi* (circulant plus low rank, see
             phasefield.LinearizedImplicit) plus the advection at V* - W,
             V* = 2 V^n - V^{n-1}, so that the stiff double well is implicit to
             O((psi^{n+1} - psi*)^2).
@@ -254,10 +254,11 @@ class Solver:
         """
         sp, dt, fft, ch = self.sp, self.dt, self.sp.fft, self.cahn_hilliard
         L = sp.length
-        W = L * sp.displacement(state.psi, state.prev_psi) / dt
+        psi_hat, prev_hat = fft.rfft(state.psi), fft.rfft(state.prev_psi)
+        W = L * sp.displacement(state.psi, state.prev_psi, spectra=(psi_hat, prev_hat)) / dt
         to_n, to_prev = sp.shift_symbol(W * dt / L), sp.shift_symbol(2.0 * W * dt / L)
-        level_n = fft.rfft(state.psi) * to_n
-        level_prev = fft.rfft(state.prev_psi) * to_prev
+        level_n = psi_hat * to_n
+        level_prev = prev_hat * to_prev
         psi_star = fft.irfft(2.0 * level_n - level_prev)
         V_star = L * (2.0 * rates.shift - state.prev_rate_shift)
         if ch.applicable(psi_star) and ch.applicable(state.psi) and ch.applicable(state.prev_psi):
