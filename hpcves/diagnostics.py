@@ -44,10 +44,10 @@ class Health:
     reason: str = ""
 
 
-def tension(rates: Rates, solver: Solver) -> np.ndarray:
+def tension(state: State, rates: Rates, solver: Solver) -> np.ndarray:
     """Lambda = Lambda~ - sigma at the nodes."""
     phys = solver.case.physics
-    sigma = phasefield.line_tension(rates.psi_nodes, rates.psi_s, phys.a0, phys.epsilon)
+    sigma = phasefield.line_tension(state.psi, rates.psi_s, phys.a0, phys.epsilon)
     return rates.flow.tension_eff - sigma
 
 
@@ -87,7 +87,7 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
     shape, flow = rates.shape, rates.flow
     m = geometry.moments(shape.z, shape.normal, sp.length)
     length = geometry.length_of(shape.z, sp)
-    lam = tension(rates, solver)
+    lam = tension(state, rates, solver)
 
     # phase pattern relative to the material: psi is held at the nodes, node alpha
     # carries label alpha - a, so the material circular mean is the nodes' one minus a;
@@ -118,8 +118,8 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "theta": m.inclination,
         "area_error": (m.area - solver.area0) / solver.area0,
         "length_error": (length - sp.length) / sp.length,
-        "E_bending": bending_energy(shape.curvature, rates.psi_nodes, phys, sp.length),
-        "E_phase": phase_energy(rates.psi_nodes, rates.psi_s, phys, sp.length),   # shift-invariant
+        "E_bending": bending_energy(shape.curvature, state.psi, phys, sp.length),
+        "E_phase": phase_energy(state.psi, rates.psi_s, phys, sp.length),
         "centroid": (m.centroid.real, m.centroid.imag),
         "tension_min": float(lam.min()),
         "tension_mean": float(lam.mean()),
@@ -143,8 +143,8 @@ def snapshot(solver: Solver, state: State, rates: Rates) -> dict:
         "shift": state.shift,
         "x": shape.z.real.copy(),
         "y": shape.z.imag.copy(),
-        "psi": rates.psi_nodes.copy(),
-        "tension": tension(rates, solver),
+        "psi": state.psi.copy(),
+        "tension": tension(state, rates, solver),
         "curvature": shape.curvature.copy(),
         "velocity_x": u.real.copy(),
         "velocity_y": u.imag.copy(),

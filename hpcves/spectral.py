@@ -134,10 +134,6 @@ class Spectral:
         symbol[-1] = np.cos(np.pi * self.N * a)
         return symbol
 
-    def shift(self, f, a):
-        """Samples of f(alpha - a) (trigonometric interpolation)."""
-        return self.fft.irfft(self.shift_symbol(a) * self.fft.rfft(f))
-
     def project(self, f, keep):
         """f with its rfft modes multiplied by ``keep`` (a mask or filter)."""
         return self.fft.irfft(keep * self.fft.rfft(f))

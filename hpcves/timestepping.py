@@ -89,8 +89,7 @@ class Rates:
     mean_tangential_velocity: float  # V
     flow: Flow
     shape: Shape
-    psi_nodes: np.ndarray           # psi, psi_s and mu at the nodes (psi_nodes is the state's psi)
-    psi_s: np.ndarray
+    psi_s: np.ndarray               # psi_s and mu at the nodes
     mu: np.ndarray | None
 
 
@@ -201,7 +200,7 @@ class Solver:
             psi_t = fft.irfft((phys.mobility * sp.k2) * fft.rfft(mu))
         return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
                      shift=V / sp.length, mean_tangential_velocity=V, flow=flow,
-                     shape=shape, psi_nodes=psi, psi_s=psi_s, mu=mu)
+                     shape=shape, psi_s=psi_s, mu=mu)
 
     # ------------------------------------------------------------------ stepping
     def step(self, state: State, rates: Rates | None = None) -> tuple[State, Rates]:
@@ -255,8 +254,9 @@ class Solver:
         sp, dt, fft, ch = self.sp, self.dt, self.sp.fft, self.cahn_hilliard
         L = sp.length
         psi_hat, prev_hat = fft.rfft(state.psi), fft.rfft(state.prev_psi)
-        W = L * sp.displacement(state.psi, state.prev_psi, spectra=(psi_hat, prev_hat)) / dt
-        to_n, to_prev = sp.shift_symbol(W * dt / L), sp.shift_symbol(2.0 * W * dt / L)
+        moved = sp.displacement(state.psi, state.prev_psi, spectra=(psi_hat, prev_hat))   # W dt / L
+        W = L * moved / dt
+        to_n, to_prev = sp.shift_symbol(moved), sp.shift_symbol(2.0 * moved)
         level_n = psi_hat * to_n
         level_prev = prev_hat * to_prev
         psi_star = fft.irfft(2.0 * level_n - level_prev)
