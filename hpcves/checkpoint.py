@@ -8,7 +8,10 @@ A case lives in an HDF5 group -- the file's root for ``hpcves run``, one
                    ("physics.shear_rate", ...), N, capacities
     status         int8 scalar: 0 pending, 1 running, 2 finished, 3 failed, 4 interrupted
     message        fixed-length string: failure reason / last note
-    progress       float64 [t, t_end, wall_seconds, steps_per_second]
+    traceback      fixed-length string: the traceback of a case that raised (absent in
+                   files written before it existed; readers treat that as empty)
+    progress       float64 [t, t_end, wall_seconds, steps_per_second], wall summed
+                   over every call that advanced the case
     timeseries/    one preallocated dataset per series (NaN-filled), ``length``
                    counts the valid rows; centroid has shape (n, 2)
     snapshots/     t, shift and one (n, N) dataset per field; ``length`` counts
@@ -36,6 +39,7 @@ from .timestepping import State
 FORMAT = "hpcves-case"
 FORMAT_VERSION = 2                  # 2: checkpointed psi is held at the nodes (1: material labels)
 MESSAGE_BYTES = 4096
+TRACEBACK_BYTES = 16384
 
 PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED = range(5)
 STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
@@ -51,8 +55,8 @@ class FileFormatError(ConfigError):
     """An HDF5 file or group that is not (or no longer) a readable hpcves case."""
 
 
-def open_file(path, mode: str):
-    """h5py.File(path, mode) with one clear message for every way that can fail."""
+def open_file(path, mode: str, **kwargs):
+    """h5py.File(path, mode, **kwargs) with one clear message for every way that can fail."""
     import errno
     import os
 
@@ -64,13 +68,13 @@ def open_file(path, mode: str):
     if mode in ("w-", "x") and os.path.exists(path):
         raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
     try:
-        return h5py.File(path, mode)
+        return h5py.File(path, mode, **kwargs)
     except OSError as exc:
         text = str(exc)
-        if "lock" in text.lower() or getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
-            raise FileFormatError(f"{path}: in use by another process (HDF5 file lock)") from None
         if "signature" in text or "truncated" in text.lower() or "eof" in text.lower():
             raise FileFormatError(f"{path}: not a readable HDF5 file (corrupt or truncated?)") from None
+        if "unable to lock" in text.lower() or getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise FileFormatError(f"{path}: in use by another process (HDF5 file lock)") from None
         raise FileFormatError(f"{path}: cannot open as HDF5 ({text})") from None
 
 
@@ -78,6 +82,20 @@ def capacities(case: Case) -> tuple[int, int]:
     """Rows to preallocate for samples and snapshots (every step multiple, plus the end)."""
     n = case.n_steps
     return n // case.every(case.run.sample_interval) + 2, n // case.every(case.run.snapshot_interval) + 2
+
+
+def _early():
+    """A dataset creation property list with storage allocated (and filled) at creation.
+
+    Parallel HDF5 needs this for independent writes (allocation is collective);
+    using it everywhere makes files from ``hpcves run``, serial and parallel
+    campaigns interchangeable.
+    """
+    import h5py
+
+    plist = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    plist.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    return plist
 
 
 class CaseStore:
@@ -107,25 +125,26 @@ class CaseStore:
             a[key] = value
         group.create_dataset("status", data=np.int8(PENDING))
         group.create_dataset("message", data=np.bytes_(b""), dtype=f"S{MESSAGE_BYTES}")
+        group.create_dataset("traceback", data=np.bytes_(b""), dtype=f"S{TRACEBACK_BYTES}")
         group.create_dataset("progress", data=np.array([0.0, case.run.t_end, 0.0, 0.0]))
         ts = group.create_group("timeseries")
         ts.create_dataset("length", data=np.int64(0))
         for name in SERIES:
             shape = (n_samples, 2) if name == "centroid" else (n_samples,)
-            ts.create_dataset(name, shape=shape, dtype="f8", fillvalue=np.nan)
+            ts.create_dataset(name, shape=shape, dtype="f8", fillvalue=np.nan, dcpl=_early())
         snap = group.create_group("snapshots")
         snap.create_dataset("length", data=np.int64(0))
-        snap.create_dataset("t", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan)
-        snap.create_dataset("shift", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan)
+        snap.create_dataset("t", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
+        snap.create_dataset("shift", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
         for name in SNAPSHOT_FIELDS:
-            snap.create_dataset(name, shape=(n_snapshots, N), dtype="f8", fillvalue=np.nan)
+            snap.create_dataset(name, shape=(n_snapshots, N), dtype="f8", fillvalue=np.nan, dcpl=_early())
         ckpt = group.create_group("checkpoint")
         for slot in ("slot0", "slot1"):
             g = ckpt.create_group(slot)
             g.create_dataset("meta", data=np.zeros(4, dtype=np.int64))
             for name in State.ARRAYS:
-                g.create_dataset(name, shape=(N,), dtype="f8", fillvalue=np.nan)
-            g.create_dataset("scalars", shape=(_N_SCALARS,), dtype="f8", fillvalue=np.nan)
+                g.create_dataset(name, shape=(N,), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            g.create_dataset("scalars", shape=(_N_SCALARS,), dtype="f8", fillvalue=np.nan, dcpl=_early())
         return cls(group)
 
     @classmethod
@@ -165,10 +184,19 @@ class CaseStore:
     def message(self) -> str:
         return bytes(self.group["message"][()]).decode(errors="replace")
 
-    def set_status(self, status: int, message: str | None = None) -> None:
-        self.group["status"][()] = np.int8(status)
+    @property
+    def traceback(self) -> str:
+        if "traceback" not in self.group:
+            return ""
+        return bytes(self.group["traceback"][()]).decode(errors="replace")
+
+    def set_status(self, status: int, message: str | None = None, traceback: str | None = None) -> None:
+        """Status, and optionally the message and traceback (written before the status)."""
         if message is not None:
-            self.group["message"][()] = np.bytes_(message.encode()[:MESSAGE_BYTES])
+            self.group["message"][()] = np.bytes_(_clip(message, MESSAGE_BYTES))
+        if traceback is not None and "traceback" in self.group:
+            self.group["traceback"][()] = np.bytes_(_clip(traceback, TRACEBACK_BYTES))
+        self.group["status"][()] = np.int8(status)
 
     def set_progress(self, t: float, t_end: float, wall: float, steps_per_second: float) -> None:
         self.group["progress"][:] = (t, t_end, wall, steps_per_second)
@@ -262,6 +290,16 @@ class CaseStore:
             if not np.all(np.isfinite(getattr(state, name))):
                 raise FileFormatError(f"{self.group.name}: checkpoint {slot} holds non-finite {name}")
         return state, int(meta[2]), int(meta[3])
+
+
+def _clip(text: str, size: int) -> bytes:
+    """UTF-8 bytes of ``text``, at most ``size``; a long text keeps its head and its tail."""
+    data = text.encode()
+    if len(data) <= size:
+        return data
+    marker = b"\n[...]\n"
+    half = (size - len(marker)) // 2
+    return data[:half] + marker + data[len(data) - half:]
 
 
 def _pack_scalars(state: State) -> np.ndarray:

@@ -168,5 +168,187 @@ def run_command(case_file, out, resume, overwrite, quiet):
     click.echo(summary)
 
 
+class CampaignProgress:
+    """``[######......] 12/40 cases | 2 running | 1 failed | 31 % | ETA 14 min`` on rank 0's stderr.
+
+    The fraction is of the total cost (steps x N^2), counting running cases by
+    how far they have got; the ETA extrapolates this call's rate.
+    """
+
+    def __init__(self, n_total: int, n_done_before: int, stream=sys.stderr):
+        self.n_total, self.n_done_before = n_total, n_done_before
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.start = time.monotonic()
+        self._last = 0.0
+        self._width = 0
+
+    def __call__(self, master) -> None:
+        now = time.monotonic()
+        if now - self._last < (0.5 if self.tty else 30.0):
+            return
+        self._last = now
+        from .checkpoint import FAILED, FINISHED
+
+        ended = [r for r in master.results if r.status in (FINISHED, FAILED)]
+        failed = sum(1 for r in ended if r.status == FAILED)
+        fraction = master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0
+        elapsed = now - self.start
+        eta = elapsed * (1.0 - fraction) / fraction if fraction > 0.0 else float("inf")
+        bar = "#" * int(round(20 * fraction))
+        text = (f"[{bar:<20}] {self.n_done_before + len(ended)}/{self.n_total} cases | "
+                f"{len(master.busy)} running | {failed} failed | {100 * fraction:.0f} % | "
+                f"ETA {_duration(eta)}")
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self._width))
+            self._width = len(text)
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty and self._width:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _mpi_world():
+    """COMM_WORLD, or None where mpi4py is not installed (then the campaign runs in this process)."""
+    try:
+        from mpi4py import MPI
+    except ImportError:
+        return None
+    return MPI.COMM_WORLD
+
+
+@main.command("campaign")
+@click.argument("study_file", type=click.Path(dir_okay=False))
+@click.option("--resume", is_flag=True,
+              help="Continue the campaign file (finished cases are kept, running ones continue from "
+                   "their checkpoints); starts it if it does not exist yet.")
+@click.option("--retry-failed", is_flag=True, help="With --resume: run the failed cases again, from the start.")
+@click.option("--overwrite", is_flag=True, help="Delete an existing campaign file and start over.")
+@click.option("--out", "out", type=click.Path(dir_okay=False), help="Campaign file (default: [campaign] output).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet):
+    """Run a study: ``mpirun -n P hpcves campaign STUDY.toml`` (or without mpirun, on one core).
+
+    Exit status: 0 every case finished (or the campaign was stopped by a signal
+    and can be resumed), 1 some case failed, 2 bad input.
+    """
+    from pathlib import Path
+
+    comm = _mpi_world()
+    size = 1 if comm is None else comm.Get_size()
+    rank = 0 if comm is None else comm.Get_rank()
+    try:
+        _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out and Path(out), quiet)
+    except SystemExit:
+        raise
+    except BaseException:                              # a bug, or a second Ctrl-C: never leave ranks hanging
+        import traceback
+
+        traceback.print_exc()
+        if size > 1:
+            comm.Abort(1)
+        sys.exit(1)
+
+
+def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out, quiet):
+    from .campaign import run_campaign
+    from .study import load_study
+
+    if retry_failed and not resume:
+        if rank == 0:
+            click.echo("Error: --retry-failed goes with --resume", err=True)
+        sys.exit(2)
+    loaded = None
+    if rank == 0:
+        try:
+            loaded = ("ok", load_study(study_file))
+        except ConfigError as exc:
+            loaded = ("error", str(exc))
+    if size > 1:
+        loaded = comm.bcast(loaded, root=0)
+    if loaded[0] == "error":
+        if rank == 0:
+            click.echo(f"Error: {loaded[1]}", err=True)
+        sys.exit(2)
+    study = loaded[1]
+    path = out or study.output
+    display = None
+
+    def announce(text, finished_before):
+        nonlocal display
+        click.echo(text, err=True)
+        if not quiet:
+            display = CampaignProgress(len(study.cases), finished_before)
+
+    def show(master):
+        if display is not None:
+            display(master)
+
+    try:
+        with StopFlag() as stop:
+            summary = run_campaign(study, path, comm if size > 1 else None, resume=resume,
+                                   retry_failed=retry_failed, overwrite=overwrite, stop_flag=stop,
+                                   display=show, announce=announce)
+    except ConfigError as exc:
+        if rank == 0:
+            click.echo(f"Error: {exc}", err=True)
+        sys.exit(2)
+    finally:
+        if display is not None:
+            display.close()
+    if rank == 0:
+        _print_summary(summary, path)
+    sys.exit(summary.exit_status)
+
+
+def _print_summary(summary, path) -> None:
+    counts = ", ".join(f"{n} {name}" for name, n in summary.counts.items() if n)
+    ran = len(summary.ran)
+    click.echo(f"{path}: {counts} ({ran} case{'s' * (ran != 1)} run in this call, {_duration(summary.wall)})")
+    for case_id, message in summary.failed:
+        click.echo(f"  case {case_id} failed: {message.splitlines()[0] if message else '?'}", err=True)
+    if summary.counts.get("interrupted", 0) or summary.counts.get("running", 0) or summary.counts.get("pending", 0):
+        click.echo("  not finished: continue with --resume", err=True)
+    if summary.failed:
+        click.echo("  hpcves status shows the failures; --resume --retry-failed reruns them", err=True)
+
+
+@main.command("status")
+@click.argument("campaign_file", type=click.Path(dir_okay=False))
+@clean_errors
+def status_command(campaign_file):
+    """One line per case of a campaign file (it may be running) and the totals."""
+    from .campaign_file import read_table
+
+    name, rows = read_table(campaign_file)
+    if not rows:
+        click.echo(f"{campaign_file}: study {name!r}, no cases")
+        return
+    keys = [k for k in rows[0] if k not in ("case", "status", "t", "t_end", "wall", "steps_per_second",
+                                            "message")]
+    header = ["case", *keys, "status", "t / t_end", "wall", "steps/s", "reason"]
+    lines = []
+    for r in rows:
+        lines.append([r["case"], *(f"{r[k]:g}" for k in keys), r["status"], f"{r['t']:.4g} / {r['t_end']:.4g}",
+                      _duration(r["wall"]) if r["wall"] > 0 else "-",
+                      f"{r['steps_per_second']:,.0f}" if r["steps_per_second"] > 0 else "-",
+                      (r["message"].splitlines() or [""])[0][:80]])
+    widths = [max(len(str(x)) for x in column) for column in zip(header, *lines)]
+    for line in [header, *lines]:
+        click.echo("  ".join(str(x).ljust(w) for x, w in zip(line, widths)).rstrip())
+    totals = {}
+    for r in rows:
+        totals[r["status"]] = totals.get(r["status"], 0) + 1
+    done = sum(min(r["t"], r["t_end"]) for r in rows)
+    total = sum(r["t_end"] for r in rows)
+    wall = sum(r["wall"] for r in rows)
+    click.echo(f"study {name!r}: {len(rows)} cases: " + ", ".join(f"{n} {s}" for s, n in totals.items())
+               + f"; simulated time {100 * done / total:.0f} % done; {_duration(wall)} of compute")
+
+
 if __name__ == "__main__":     # pragma: no cover
     main()

@@ -31,7 +31,7 @@ from .params import Case, ConfigError, Numerics, Physics, RunControl
 GROUPS = {"physics": Physics, "numerics": Numerics, "run": RunControl}
 
 
-def _check_type(where: str, value, kind):
+def check_type(where: str, value, kind):
     """Validate (and for numbers, coerce) one TOML value against a field type."""
     if kind is int:
         if isinstance(value, bool) or not isinstance(value, int):
@@ -64,7 +64,7 @@ def group_from_dict(name: str, values: dict, base=None):
     if unknown:
         raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [{name}]: "
                           + ", ".join(unknown) + f" (known: {', '.join(fields)})")
-    kwargs = {key: _check_type(f"{name}.{key}", value, types[key]) for key, value in values.items()}
+    kwargs = {key: check_type(f"{name}.{key}", value, types[key]) for key, value in values.items()}
     base = base if base is not None else cls()
     return dataclasses.replace(base, **kwargs)
 

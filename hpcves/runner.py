@@ -62,7 +62,9 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     case = store.case
     solver = Solver(case)
     state = None
+    wall_before = 0.0                  # wall time of earlier calls on this case
     if resume:
+        wall_before = float(np.nan_to_num(store.progress[2]))
         found = store.read_checkpoint()
         if found is not None:
             state, n_samples, n_snapshots = found
@@ -77,7 +79,7 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     checkpoint_every = case.every(case.run.checkpoint_interval)
     wall_interval = case.run.checkpoint_wall
 
-    store.set_status(RUNNING, "")
+    store.set_status(RUNNING, "", "")
     flush()
     start_wall = last_checkpoint_wall = last_flush_wall = last_tick = time.perf_counter()
     start_step = state.step
@@ -85,26 +87,32 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     theta_now = np.nan
     last_correction = 0.0          # relative area correction made by the last step
 
-    def write_rows():
+    def write_rows(s: State | None = None):
+        """Write buffered samples (and, given the current state, the progress)."""
         nonlocal last_flush_wall
         store.append_samples(rows)
         rows.clear()
         last_flush_wall = time.perf_counter()
+        if s is not None:
+            store.set_progress(*_progress(s, last_flush_wall))
+
+    def _progress(s: State, now: float):
+        wall = now - start_wall
+        rate = (s.step - start_step) / wall if wall > 0 else 0.0
+        return solver.time(s), case.run.t_end, wall_before + wall, rate
 
     def checkpoint(s: State):
         nonlocal last_checkpoint_wall
-        write_rows()
+        write_rows(s)
         store.write_checkpoint(s, flush)
         last_checkpoint_wall = time.perf_counter()
 
     def finish(status, message, s):
-        wall = time.perf_counter() - start_wall
-        steps = s.step - start_step
-        rate = steps / wall if wall > 0 else 0.0
-        store.set_progress(solver.time(s), case.run.t_end, wall, rate)
+        now = time.perf_counter()
+        store.set_progress(*_progress(s, now))
         store.set_status(status, message)
         flush()
-        return Outcome(status, message, solver.time(s), steps, wall)
+        return Outcome(status, message, solver.time(s), s.step - start_step, now - start_wall)
 
     try:
         while True:
@@ -135,7 +143,7 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
                 write_rows()
                 return finish(FINISHED, "", state)
             if len(rows) >= SAMPLE_BUFFER_ROWS or now - last_flush_wall >= SAMPLE_FLUSH_SECONDS:
-                write_rows()
+                write_rows(state)
                 flush()
             if progress is not None and now - last_tick >= 0.5:
                 last_tick = now

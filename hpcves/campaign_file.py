@@ -1,0 +1,140 @@
+"""The campaign HDF5 file: every case of a study in one file (docs/file-format.md).
+
+    attrs      format = "hpcves-campaign", format_version, hpcves_version, name,
+               fingerprint (Study.fingerprint), campaign_toml (the campaign
+               file's text), sweep_keys, n_cases
+    index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,)
+    cases/<id>/  one case, laid out exactly as a single run (checkpoint.CaseStore):
+               parameters as attributes, status, message, traceback, progress,
+               timeseries/ (preallocated, with a length counter), snapshots/,
+               checkpoint/slot0|slot1 with a validity marker written last
+
+The whole structure is created up front -- collectively when the file is
+opened with the ``mpio`` driver, every rank making the same calls -- and
+flushed, so that afterwards only raw data are written, each case by the one
+rank running it (independent I/O; attributes are never written again).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import __version__
+from .checkpoint import STATUS_NAMES, CaseStore, FileFormatError, open_file
+from .study import Study
+
+FORMAT = "hpcves-campaign"
+FORMAT_VERSION = 1
+
+
+def _text(value) -> str:
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+class CampaignFile:
+    """The cases of one study inside an open h5py File."""
+
+    def __init__(self, h5):
+        self.h5 = h5
+        self._cases = h5["cases"]
+
+    # ------------------------------------------------------------------ creation / opening
+    @classmethod
+    def create(cls, h5, study: Study) -> "CampaignFile":
+        """Lay out every case (collective under mpio: every rank calls this identically)."""
+        a = h5.attrs
+        a["format"] = FORMAT
+        a["format_version"] = FORMAT_VERSION
+        a["hpcves_version"] = __version__
+        a["name"] = study.name
+        a["fingerprint"] = study.fingerprint
+        a["campaign_toml"] = study.source
+        a["sweep_keys"] = ",".join(study.sweep)
+        a["n_cases"] = len(study.cases)
+        index = h5.create_group("index")
+        ids = [c.case_id for c in study.cases]
+        index.create_dataset("case_id", data=np.array(ids, dtype=f"S{max(len(i) for i in ids)}"))
+        for key in study.sweep:
+            index.create_dataset(key, data=np.array([c.swept[key] for c in study.cases], dtype="f8"))
+        index.create_dataset("cost", data=np.array([c.cost for c in study.cases]))
+        cases = h5.create_group("cases")
+        for c in study.cases:
+            group = cases.create_group(c.case_id)
+            CaseStore.create(group, c.case)
+            group.attrs["case_id"] = c.case_id
+        return cls(h5)
+
+    @classmethod
+    def check(cls, h5, where: str) -> "CampaignFile":
+        """Open an existing campaign file, refusing anything else with a clear message."""
+        fmt = _text(h5.attrs.get("format", ""))
+        if fmt == "hpcves-case":
+            raise FileFormatError(f"{where}: a single-run file (hpcves run), not a campaign file")
+        if fmt != FORMAT:
+            raise FileFormatError(f"{where}: not an hpcves campaign file (no format = {FORMAT!r} attribute)")
+        version = int(h5.attrs.get("format_version", -1))
+        if version != FORMAT_VERSION:
+            raise FileFormatError(f"{where}: campaign format version {version}, this hpcves reads {FORMAT_VERSION}")
+        missing = [k for k in ("index", "cases") if k not in h5]
+        if missing:
+            raise FileFormatError(f"{where}: incomplete campaign file, missing {', '.join(missing)}")
+        n = int(h5.attrs.get("n_cases", -1))
+        if len(h5["cases"]) != n:
+            raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
+                                  "(creation was interrupted?)")
+        return cls(h5)
+
+    def check_study(self, study: Study, where: str) -> None:
+        """Refuse a file that belongs to another study (or another version of this one)."""
+        if self.fingerprint != study.fingerprint:
+            other = _text(self.h5.attrs.get("name", "?"))
+            detail = (f"study {other!r}" if other != study.name
+                      else f"a different version of study {other!r} (some parameter or sweep value changed)")
+            raise FileFormatError(f"{where}: belongs to {detail}, not to this campaign file; "
+                                  "use another output file, or --overwrite to start over")
+
+    # ------------------------------------------------------------------ contents
+    @property
+    def name(self) -> str:
+        return _text(self.h5.attrs["name"])
+
+    @property
+    def fingerprint(self) -> str:
+        return _text(self.h5.attrs.get("fingerprint", ""))
+
+    @property
+    def sweep_keys(self) -> list[str]:
+        keys = _text(self.h5.attrs.get("sweep_keys", ""))
+        return [k for k in keys.split(",") if k]
+
+    @property
+    def case_ids(self) -> list[str]:
+        return [_text(i) for i in self.h5["index/case_id"][:]]
+
+    def store(self, case_id: str) -> CaseStore:
+        return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
+
+    def statuses(self) -> dict[str, int]:
+        return {case_id: int(self._cases[case_id]["status"][()]) for case_id in self.case_ids}
+
+    def table(self) -> list[dict]:
+        """One row per case: id, swept values, status, t, t_end, wall, steps/s, message."""
+        rows = []
+        keys = self.sweep_keys
+        swept = {k: self.h5["index"][k][:] for k in keys}
+        for i, case_id in enumerate(self.case_ids):
+            g = self._cases[case_id]
+            t, t_end, wall, rate = g["progress"][:]
+            status = int(g["status"][()])
+            message = bytes(g["message"][()]).decode(errors="replace")
+            rows.append({"case": case_id, **{k: float(swept[k][i]) for k in keys},
+                         "status": STATUS_NAMES.get(status, str(status)), "t": float(t),
+                         "t_end": float(t_end), "wall": float(wall), "steps_per_second": float(rate),
+                         "message": message})
+        return rows
+
+
+def read_table(path) -> tuple[str, list[dict]]:
+    """(study name, rows) of a campaign file, read without locking (a campaign may be writing it)."""
+    with open_file(path, "r", locking=False) as h5:
+        campaign = CampaignFile.check(h5, str(path))
+        return campaign.name, campaign.table()

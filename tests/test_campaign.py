@@ -1,0 +1,325 @@
+"""Campaigns: one file for every case, failures recorded, resume after SIGKILL, clean stop on SIGTERM.
+
+The MPI tests start real jobs (``mpirun -n 2`` and an oversubscribed ``-n 3``)
+and compare every recorded number bitwise with an uninterrupted serial run.
+"""
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from hpcves import campaign as campaign_module
+from hpcves.campaign import CampaignLock, run_campaign
+from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore
+from hpcves.params import ConfigError
+from hpcves.study import study_from_toml
+
+HPCVES = [sys.executable, "-m", "hpcves.cli"]
+MPIRUN = shutil.which("mpirun")
+needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
+
+STUDY = """
+[campaign]
+name = "{name}"
+output = "{output}"
+t_end = {t_end}
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+sample_interval = 0.005
+snapshot_interval = 0.05
+checkpoint_interval = {checkpoint}
+checkpoint_wall = 0
+[sweep]
+shear_rate = {shear}
+psi_bar = [0.3, 0.5]
+"""
+
+
+def write_study(tmp_path, name="tiny", t_end=0.1, checkpoint=0.05, shear="[40, 80]", output=None):
+    output = output or tmp_path / f"{name}.h5"
+    path = tmp_path / f"{name}.toml"
+    path.write_text(STUDY.format(name=name, output=output, t_end=t_end, checkpoint=checkpoint, shear=shear))
+    return path, output
+
+
+def mpi_env():
+    env = dict(os.environ)
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_pml="ob1", OMPI_MCA_btl="self,vader",
+               OMPI_MCA_btl_vader_single_copy_mechanism="none")
+    return env
+
+
+def hpcves(*args, n=None, timeout=300):
+    prefix = [MPIRUN, "-n", str(n)] if n else []
+    return subprocess.run(prefix + HPCVES + [str(a) for a in args], capture_output=True, text=True,
+                          timeout=timeout, env=mpi_env())
+
+
+def results(path):
+    """Every recorded number of every case (valid rows only) and the statuses."""
+    out = {}
+    with h5py.File(path, "r", locking=False) as f:
+        for case_id, g in f["cases"].items():
+            n, m = int(g["timeseries/length"][()]), int(g["snapshots/length"][()])
+            data = {"status": np.array(g["status"][()])}
+            data.update({f"timeseries/{k}": v[:n] for k, v in g["timeseries"].items() if k != "length"})
+            data.update({f"snapshots/{k}": v[:m] for k, v in g["snapshots"].items() if k != "length"})
+            out[case_id] = data
+    return out
+
+
+def assert_same_results(a, b):
+    ra, rb = results(a), results(b)
+    assert ra.keys() == rb.keys()
+    for case_id in ra:
+        assert ra[case_id].keys() == rb[case_id].keys()
+        for key in ra[case_id]:
+            x, y = ra[case_id][key], rb[case_id][key]
+            assert x.shape == y.shape and np.array_equal(x, y, equal_nan=True), (case_id, key)
+
+
+def statuses(path):
+    with h5py.File(path, "r", locking=False) as f:
+        return {case_id: int(g["status"][()]) for case_id, g in f["cases"].items()}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The tiny study run serially in this process, uninterrupted (t_end = 0.3)."""
+    tmp = tmp_path_factory.mktemp("reference")
+    path, output = write_study(tmp, t_end=0.3)
+    summary = run_campaign(study_from_toml(path.read_text()), output)
+    assert summary.exit_status == 0
+    return output
+
+
+# ---------------------------------------------------------------------- in one process
+def test_a_campaign_case_is_the_single_run_of_that_case(tmp_path, reference):
+    from hpcves import runner
+
+    study = study_from_toml(write_study(tmp_path, t_end=0.3)[0].read_text())
+    with h5py.File(tmp_path / "single.h5", "w") as h5:
+        store = CaseStore.create(h5, study.cases[3].case)
+        assert runner.run(store, h5.flush).status == FINISHED
+    with h5py.File(reference, "r") as ref, h5py.File(tmp_path / "single.h5", "r") as one:
+        a, b = CaseStore.open(ref["cases/0003"]).timeseries(), CaseStore.open(one).timeseries()
+        assert len(a["t"]) == 61
+        for key in a:
+            assert np.array_equal(a[key], b[key], equal_nan=True), key
+
+
+def test_layout_and_status_command(reference):
+    with h5py.File(reference, "r") as f:
+        assert f.attrs["format"] == "hpcves-campaign" and f.attrs["n_cases"] == 4
+        assert list(f["index/shear_rate"][:]) == [40, 40, 80, 80]
+        assert list(f["index/psi_bar"][:]) == [0.3, 0.5, 0.3, 0.5]
+        g = f["cases/0002"]
+        assert g.attrs["physics.shear_rate"] == 80.0 and g.attrs["physics.psi_bar"] == 0.3
+        assert int(g["status"][()]) == FINISHED
+        assert {"slot0", "slot1"} <= set(g["checkpoint"])
+    result = hpcves("status", reference)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert lines[0].split()[:4] == ["case", "shear_rate", "psi_bar", "status"]
+    assert lines[3].split()[:5] == ["0002", "80", "0.3", "finished", "0.3"]
+    assert "4 cases: 4 finished" in lines[-1]
+
+
+def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, reference):
+    path, output = write_study(tmp_path, t_end=0.3)
+    study = study_from_toml(path.read_text())
+    real_run = campaign_module.runner.run
+
+    def broken(store, *args, **kwargs):
+        if store.group.name.endswith("0001"):
+            raise RuntimeError("injected failure")
+        return real_run(store, *args, **kwargs)
+
+    monkeypatch.setattr(campaign_module.runner, "run", broken)
+    summary = run_campaign(study, output)
+    assert summary.exit_status == 1
+    assert summary.failed == (("0001", "RuntimeError: injected failure"),)
+    assert statuses(output) == {"0000": FINISHED, "0001": FAILED, "0002": FINISHED, "0003": FINISHED}
+    with h5py.File(output, "r") as f:
+        store = CaseStore.open(f["cases/0001"])
+        assert "injected failure" in store.traceback and "in broken" in store.traceback
+
+    monkeypatch.setattr(campaign_module.runner, "run", real_run)
+    again = run_campaign(study, output, resume=True)                  # failed cases are left alone
+    assert again.ran == () and again.exit_status == 1
+    retried = run_campaign(study, output, resume=True, retry_failed=True)
+    assert [r.case_id for r in retried.ran] == ["0001"] and retried.exit_status == 0
+    assert_same_results(output, reference)
+
+
+def test_files_that_are_not_this_campaign_are_refused(tmp_path, reference):
+    path, output = write_study(tmp_path, t_end=0.3)
+    study = study_from_toml(path.read_text())
+    shutil.copy(reference, output)
+    with pytest.raises(ConfigError, match="exists already; use --resume"):
+        run_campaign(study, output)
+    other = study_from_toml(write_study(tmp_path, name="other", t_end=0.2)[0].read_text())
+    with pytest.raises(ConfigError, match="belongs to study 'tiny'"):
+        run_campaign(other, output, resume=True)
+    changed = study_from_toml(write_study(tmp_path, t_end=0.2)[0].read_text())
+    with pytest.raises(ConfigError, match="a different version of study 'tiny'"):
+        run_campaign(changed, output, resume=True)
+
+    single = tmp_path / "single.h5"
+    with h5py.File(single, "w") as h5:
+        CaseStore.create(h5, study.cases[0].case)
+    with pytest.raises(ConfigError, match="single-run file"):
+        run_campaign(study, single, resume=True)
+
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(reference.read_bytes()[:5000])
+    with pytest.raises(ConfigError, match="truncated.h5: .*(corrupt|truncated|damaged|readable)"):
+        run_campaign(study, truncated, resume=True)
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(os.urandom(4096))
+    with pytest.raises(ConfigError, match="not a readable HDF5 file"):
+        run_campaign(study, garbage, resume=True)
+
+
+def test_the_command_line_gives_one_line_for_bad_files(tmp_path, reference):
+    path, _ = write_study(tmp_path, t_end=0.3, output=reference)
+    result = hpcves("campaign", path, "--out", tmp_path / "x.h5", "--retry-failed")
+    assert result.returncode == 2 and "--retry-failed goes with --resume" in result.stderr
+    garbage = tmp_path / "garbage.h5"
+    garbage.write_bytes(b"\0" * 100)
+    result = hpcves("campaign", path, "--out", garbage, "--resume")
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines() == [f"Error: {garbage}: not a readable HDF5 file (corrupt or truncated?)"]
+    result = hpcves("status", garbage)
+    assert result.returncode == 2 and "not a readable HDF5 file" in result.stderr
+
+
+def test_a_second_campaign_on_the_same_file_is_refused(tmp_path):
+    path, output = write_study(tmp_path)
+    lock = CampaignLock(output).acquire()
+    try:
+        result = hpcves("campaign", path)
+    finally:
+        lock.release()
+    assert result.returncode == 2, result.stderr
+    assert "a campaign is already running on this file" in result.stderr and f"pid {os.getpid()}" in result.stderr
+    assert not output.exists()
+
+
+# ---------------------------------------------------------------------- real MPI jobs
+def job_pids(mpirun_pid):
+    """mpirun and every process it started (the ranks run in process groups of their own)."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                pass
+    found, frontier = {mpirun_pid}, [mpirun_pid]
+    while frontier:
+        pid = frontier.pop()
+        for child, parent in parents.items():
+            if parent == pid and child not in found:
+                found.add(child)
+                frontier.append(child)
+    return found
+
+
+def start_job(n, *args):
+    return subprocess.Popen([MPIRUN, "-n", str(n)] + HPCVES + [str(a) for a in args], env=mpi_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def wait_for_checkpoints(output, job, count=2, timeout=120):
+    """Until ``count`` cases are running with a valid checkpoint (so a kill lands mid-run)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert job.poll() is None, job.communicate()
+        try:
+            with h5py.File(output, "r", locking=False) as f:
+                running = [g for g in f["cases"].values() if int(g["status"][()]) == 1
+                           and any(g[f"checkpoint/{s}/meta"][0] == 1 for s in ("slot0", "slot1"))]
+                if len(running) >= count:
+                    return
+        except (OSError, KeyError):
+            pass                                      # the file is still being created
+        time.sleep(0.05)
+    raise AssertionError("the campaign never got going")
+
+
+@needs_mpi
+@pytest.mark.parametrize("n", [2, 3])
+def test_mpi_campaign_completes_and_matches_the_serial_run(tmp_path, reference, n):
+    path, output = write_study(tmp_path, t_end=0.3)
+    result = hpcves("campaign", path, n=n)
+    assert result.returncode == 0, result.stderr
+    assert f"{n} ranks, parallel HDF5" in result.stderr
+    assert_same_results(output, reference)
+
+
+@needs_mpi
+@pytest.mark.parametrize("n", [2, 3])
+def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n):
+    path, output = write_study(tmp_path, t_end=0.8, checkpoint=0.02, shear="[20, 40, 80]")
+    job = start_job(n, "campaign", path, "--quiet")
+    wait_for_checkpoints(output, job, count=n)
+    for pid in job_pids(job.pid):
+        os.kill(pid, signal.SIGKILL)
+    job.communicate()
+    states = statuses(output)
+    assert 1 in states.values(), states            # killed mid-run: cases left "running"
+    result = hpcves("campaign", path, "--resume", n=n)
+    assert result.returncode == 0, result.stderr
+    assert "from a checkpoint" in result.stderr
+    assert set(statuses(output).values()) == {FINISHED}
+
+    (tmp_path / "fresh").mkdir()
+    fresh, fresh_output = write_study(tmp_path / "fresh", t_end=0.8, checkpoint=0.02, shear="[20, 40, 80]")
+    assert run_campaign(study_from_toml(fresh.read_text()), fresh_output).exit_status == 0
+    assert_same_results(output, fresh_output)
+
+
+@needs_mpi
+def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path):
+    path, output = write_study(tmp_path, t_end=1.5, checkpoint=10.0)   # only the stop writes checkpoints
+    job = start_job(2, "campaign", path)
+    wait_for_checkpoints(output, job, count=0)
+    time.sleep(0.5)
+    started = time.monotonic()
+    for pid in job_pids(job.pid) - {job.pid}:          # what SLURM does: every task gets the signal
+        os.kill(pid, signal.SIGTERM)
+    out, err = job.communicate(timeout=60)
+    assert job.returncode == 0, err
+    assert time.monotonic() - started < 10.0
+    assert "stopping" in err and "continue with --resume" in err
+    interrupted = [c for c, s in statuses(output).items() if s == INTERRUPTED]
+    assert len(interrupted) == 2, statuses(output)
+    with h5py.File(output, "r") as f:
+        for case_id in interrupted:
+            state, _, _ = CaseStore.open(f[f"cases/{case_id}"]).read_checkpoint()
+            assert state.step > 0
+    result = hpcves("campaign", path, "--resume", n=2)
+    assert result.returncode == 0, result.stderr
+    assert set(statuses(output).values()) == {FINISHED}
+
+
+@needs_mpi
+def test_a_diverging_case_fails_alone_under_mpi(tmp_path):
+    path, output = write_study(tmp_path, t_end=0.2, shear="[40, 20000]")   # N = 32 cannot follow S = 20000
+    result = hpcves("campaign", path, n=2)
+    assert result.returncode == 1, result.stderr
+    assert statuses(output) == {"0000": FINISHED, "0001": FINISHED, "0002": FAILED, "0003": FAILED}
+    assert "case 0002 failed: diverged" in result.stderr
+    status = hpcves("status", output)
+    assert "2 finished, 2 failed" in status.stdout.splitlines()[-1]

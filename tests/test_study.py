@@ -1,0 +1,81 @@
+"""Campaign files: the grid of cases, end times, and the errors a user gets."""
+import pytest
+
+from hpcves.params import ConfigError
+from hpcves.study import study_from_toml
+
+BASE = """
+[campaign]
+name = "s"
+output = "out/s.h5"
+{campaign}
+[numerics]
+N = 32
+[sweep]
+{sweep}
+"""
+
+
+def study(sweep="", campaign=""):
+    return study_from_toml(BASE.format(sweep=sweep, campaign=campaign))
+
+
+def test_full_grid_in_order_with_ids_and_values():
+    s = study('shear_rate = [40, 80]\npsi_bar = { linspace = [0.3, 0.7, 3] }\nB2 = 0.3')
+    assert [c.case_id for c in s.cases] == [f"{i:04d}" for i in range(6)]
+    assert [(c.swept["shear_rate"], c.swept["psi_bar"]) for c in s.cases] == [
+        (40.0, 0.3), (40.0, 0.5), (40.0, 0.7), (80.0, 0.3), (80.0, 0.5), (80.0, 0.7)]
+    assert all(c.case.physics.B2 == 0.3 and c.case.numerics.N == 32 for c in s.cases)
+    assert s.cases[4].case.physics.psi_bar == 0.5 and s.cases[4].case.physics.shear_rate == 80.0
+
+
+def test_logspace_takes_values_not_exponents():
+    s = study("shear_rate = { logspace = [10, 1000, 3] }")
+    assert [c.swept["shear_rate"] for c in s.cases] == [10.0, 100.0, 1000.0]
+
+
+def test_end_time_in_shear_times_with_a_floor():
+    s = study("shear_rate = [10, 100, 1000]", "shear_times = 50\nt_end_min = 1.0")
+    assert [c.case.run.t_end for c in s.cases] == [5.0, 1.0, 1.0]
+    absolute = study("shear_rate = [10, 100]", "t_end = 2.5")
+    assert [c.case.run.t_end for c in absolute.cases] == [2.5, 2.5]
+
+
+def test_cost_orders_by_steps_and_resolution():
+    s = study("shear_rate = [10, 100]", "shear_times = 50")
+    assert s.cases[0].cost == pytest.approx(10 * s.cases[1].cost)
+
+
+def test_fingerprint_ignores_comments_but_not_parameters():
+    a = study("shear_rate = [40, 80]")
+    b = study_from_toml("# a comment\n" + BASE.format(sweep="shear_rate = [40.0, 80.0]", campaign=""))
+    c = study("shear_rate = [40, 81]")
+    assert a.fingerprint == b.fingerprint != c.fingerprint
+
+
+BAD = {
+    "unknown campaign key": ('shear_rate = [1]', 'walltime = 3', ["unknown key", "walltime"]),
+    "unsweepable key": ("epsilon = [0.1]", "", ["sweep over epsilon", "can be swept"]),
+    "bad linspace": ("psi_bar = { linspace = [0.1, 0.5] }", "", ["sweep.psi_bar.linspace", "[start, stop, num]"]),
+    "negative logspace": ("shear_rate = { logspace = [0, 10, 3] }", "", ["logspace", "> 0"]),
+    "empty list": ("shear_rate = []", "", ["sweep.shear_rate", "empty"]),
+    "string value": ('shear_rate = ["fast"]', "", ["sweep.shear_rate[0]", "number"]),
+    "invalid case": ("psi_bar = [0.3, 1.5]", "", ["case 0001 (psi_bar = 1.5)", "physics.psi_bar = 1.5"]),
+    "both end times": ("shear_rate = [1]", "t_end = 1.0\nshear_times = 3", ["t_end or shear_times"]),
+    "zero shear without floor": ("shear_rate = [0, 10]", "shear_times = 3",
+                                 ["case 0000 (shear_rate = 0)", "t_end_min"]),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_bad_campaign_files_name_the_problem(name):
+    sweep, campaign, fragments = BAD[name]
+    with pytest.raises(ConfigError) as info:
+        study(sweep, campaign)
+    for fragment in fragments:
+        assert fragment in str(info.value), (fragment, str(info.value))
+
+
+def test_base_case_errors_say_so():
+    with pytest.raises(ConfigError, match="base case: numerics.N = 33"):
+        study_from_toml("[numerics]\nN = 33\n")
