@@ -74,6 +74,24 @@ def longest_spinodal_run(psi, length):
     return float((edges[1::2] - edges[0::2]).max()) * length / psi.size
 
 
+#: a linearly implicit step whose result leaves this range is rejected (see :func:`plausible`)
+PLAUSIBLE = (-0.1, 1.1)
+
+
+def plausible(psi) -> bool:
+    """Whether a linearly implicit Cahn-Hilliard step gave a sane psi (within PLAUSIBLE).
+
+    ``applicable`` looks at the spinodal stretches *before* the step, but a
+    stretch just short enough to pass can still carry growth rates near
+    1/dt: c I + J is then nearly singular and the step overshoots wildly
+    (psi_bar = 0.5, S = 80, dt = 1e-3, step 13: J's lowest eigenvalue -1409
+    against c = 1500, psi jumped to [-0.44, 1.35]). Healthy steps keep psi
+    within about [-0.005, 1.005], so an overshoot beyond 0.1 means the step
+    is not to be trusted and the robust stabilised Euler step is taken instead.
+    """
+    return PLAUSIBLE[0] <= psi.min() and psi.max() <= PLAUSIBLE[1]
+
+
 #: |g''(psi*) - 1/2| below which the Jacobian keeps the bulk value g'' = 1/2 (see LinearizedImplicit)
 CUTOFF = 0.02
 

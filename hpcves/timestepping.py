@@ -53,7 +53,9 @@ The splitting of the variable-coefficient bending operator into a constant
 implicit part c >= B(psi) and an explicit rest is stable for SBDF2 (amplification
 <= 1 for all k dt when B <= 1.1 c; see docs/numerics.md). While the phase field
 is still a mixture (long spinodal stretches or overshoots at level n-1, n or in
-the prediction -- the first ~10 steps from the initial condition) psi takes a
+the prediction -- the first ~10 steps from the initial condition) -- or when the linearly
+implicit step lands outside [-0.1, 1.1], which happens when spinodal growth
+faster than 1/dt makes c I + J nearly singular -- psi takes a
 linearly stabilised IMEX Euler step
 instead, lam = nu (a0 eps k^4 + (a0/eps) s k^2) + i k V, which is robust there; a few
 first-order steps in that transient cost O(dt^2) globally. The first step is
@@ -264,7 +266,9 @@ class Solver:
         if ch.applicable(psi_star) and ch.applicable(state.psi) and ch.applicable(state.prev_psi):
             explicit = fft.irfft((2.0 / dt) * level_n - (0.5 / dt) * level_prev
                                  + 2.0 * fft.rfft(rates.psi) * to_n - fft.rfft(state.prev_rate_psi) * to_prev)
-            return ch.solve_linearized(psi_star, 1.5 / dt, explicit, V_star - W)
+            psi = ch.solve_linearized(psi_star, 1.5 / dt, explicit, V_star - W)
+            if phasefield.plausible(psi):
+                return psi
         return self._stabilized_euler_phase(state.psi, rates.psi, dt, V_star)
 
     def _start(self, state: State, rates: Rates):
@@ -287,11 +291,13 @@ class Solver:
         V = rates.mean_tangential_velocity
         if self.case.physics.homogeneous:
             psi = state.psi
-        elif self.cahn_hilliard.applicable(state.psi):
-            psi = self._conserve(self.cahn_hilliard.solve_linearized(state.psi, 1.0 / dt, state.psi / dt + rates.psi,
-                                                                     V), state.psi)
         else:
-            psi = self._conserve(self._stabilized_euler_phase(state.psi, rates.psi, dt, V), state.psi)
+            psi = None
+            if self.cahn_hilliard.applicable(state.psi):
+                psi = self.cahn_hilliard.solve_linearized(state.psi, 1.0 / dt, state.psi / dt + rates.psi, V)
+            if psi is None or not phasefield.plausible(psi):
+                psi = self._stabilized_euler_phase(state.psi, rates.psi, dt, V)
+            psi = self._conserve(psi, state.psi)
         return State(step=state.step, theta=theta, psi=psi, center=state.center + dt * rates.center,
                      shift=state.shift + dt * rates.shift)
 

@@ -165,3 +165,19 @@ def test_phase_treading_period_holds_at_large_dt():
     periods = [theta_period(make_solver(N=64, dt=dt, shear_rate=80.0, psi_bar=0.3)) for dt in (2e-3, 5e-4)]
     assert periods[1].cycles >= 3 and periods[1].period == pytest.approx(0.1733, rel=0.01)
     assert periods[0].period == pytest.approx(periods[1].period, rel=0.01)
+
+
+def test_near_critical_spinodal_growth_does_not_blow_up_the_phase_step():
+    """psi_bar = 0.5, S = 80, dt = 1e-3: at step 13 the linearly implicit step met a spinodal
+    stretch just short enough to pass ``applicable`` but growing at nearly 1/dt; psi jumped
+    to [-0.44, 1.35] and the run died. The implausible step is now replaced by the robust one."""
+    from hpcves.phasefield import plausible
+
+    solver = make_solver(N=64, dt=1e-3, psi_bar=0.5, shear_rate=80.0)
+    state = solver.initial_state()
+    lowest, highest = 1.0, 0.0
+    for _ in range(100):
+        state, _ = solver.step(state)
+        lowest, highest = min(lowest, state.psi.min()), max(highest, state.psi.max())
+    assert -0.02 < lowest and highest < 1.02, (lowest, highest)
+    assert not plausible(np.array([0.5, 1.35])) and plausible(np.array([-0.01, 1.01]))
