@@ -1,11 +1,16 @@
 # Two commands do everything on a fresh Debian machine:
-#   make demo   -- set up (apt + .venv + parallel h5py, once), run a short case and plot it
+#   make demo   -- set up (apt + .venv + parallel h5py, once), run a small MPI campaign (mpirun -n 2) and plot it
 #   make test   -- set up, then the test suite (what CI runs)
-# Further: make bench (BENCHMARKS.md, ~1 min), make validate (VALIDATION.md, ~2 min).
+# Further: make bench (BENCHMARKS.md, ~2 min), make validate (VALIDATION.md, ~2 min).
 
 PY      := .venv/bin/python
 HPCVES  := .venv/bin/hpcves
 DEMO    := out/demo
+# mpirun for one machine: as root Open MPI wants the two ALLOW variables; shared memory
+# transport only; oversubscription allowed (override MPIRUN on a cluster).
+MPIRUN  ?= env OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
+           OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_pml=ob1 OMPI_MCA_btl=self,vader \
+           OMPI_MCA_btl_vader_single_copy_mechanism=none mpirun
 
 .PHONY: setup test demo bench validate clean
 
@@ -17,12 +22,14 @@ test: setup
 
 demo: setup
 	@mkdir -p $(DEMO)
-	$(HPCVES) run jobs/demo_case.toml --out $(DEMO)/case.h5 --overwrite
-	$(PY) analysis/plot_case.py $(DEMO)/case.h5 --out $(DEMO)/case.png
-	@echo "demo: $(DEMO)/case.h5 and $(DEMO)/case.png"
+	$(MPIRUN) -n 2 $(HPCVES) campaign jobs/demo.toml --overwrite
+	$(HPCVES) status $(DEMO)/demo.h5
+	$(PY) analysis/plot_campaign.py $(DEMO)/demo.h5 --out $(DEMO)/overview.png --cases $(DEMO)/cases
+	@echo "demo: $(DEMO)/demo.h5, $(DEMO)/overview.png, $(DEMO)/cases/*.png"
 
 bench: setup
 	$(PY) bench/bench_solver.py --out BENCHMARKS.md
+	$(PY) bench/bench_campaign.py --out BENCHMARKS.md
 
 validate: setup
 	$(PY) -m pytest -m slow -q

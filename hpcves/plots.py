@@ -88,3 +88,43 @@ def case_title(attrs) -> str:
     return (f"S = {get('physics.shear_rate'):g}, $\\bar\\psi$ = {get('physics.psi_bar'):g}, "
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
             f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, dt = {get('numerics.dt'):g}")
+
+
+def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):
+    """theta(t) of every case of a campaign on a grid over (up to) two swept parameters.
+
+    ``cases``: dicts with the swept values, ``status``, ``series`` (time series)
+    and ``last`` (the last snapshot, or None); ``keys``: the swept parameters.
+    Each panel carries the case's last shape coloured by psi.
+    """
+    row_key = keys[0] if len(keys) >= 2 else None
+    col_key = keys[-1] if keys else None
+    rows = sorted({c[row_key] for c in cases}) if row_key else [None]
+    cols = sorted({c[col_key] for c in cases}) if col_key else [None]
+    fig, axes = plt.subplots(len(rows), len(cols), figsize=(3.2 * len(cols) + 0.8, 2.4 * len(rows) + 0.8),
+                             squeeze=False, constrained_layout=True)
+    for ax in axes.flat:
+        ax.set_visible(False)
+    names = {"shear_rate": "S", "psi_bar": r"$\bar\psi$", "excess_length": r"$\Delta$", "B2": r"$B_2$"}
+    for c in cases:
+        i = rows.index(c[row_key]) if row_key else 0
+        j = cols.index(c[col_key]) if col_key else 0
+        ax = axes[i, j]
+        ax.set_visible(True)
+        series = c["series"]
+        ax.plot(series["t"], series["theta"], color="k", lw=0.8)
+        label = ", ".join(f"{names.get(k, k)} = {c[k]:g}" for k in keys)
+        colour = {"finished": "k", "failed": "tab:red"}.get(c["status"], "tab:orange")
+        ax.set_title(label + ("" if c["status"] == "finished" else f" ({c['status']})"), fontsize=9,
+                     color=colour)
+        if i == len(rows) - 1:
+            ax.set_xlabel("t")
+        if j == 0:
+            ax.set_ylabel(r"$\theta$ [rad]")
+        last = c.get("last")
+        if last is not None:
+            inset = ax.inset_axes([0.6, 0.04, 0.38, 0.45])
+            shape_strip(inset, {k: v[None] for k, v in last.items()}, [0], label_times=False)
+    if title:
+        fig.suptitle(title)
+    return fig

@@ -79,3 +79,19 @@ def test_bad_campaign_files_name_the_problem(name):
 def test_base_case_errors_say_so():
     with pytest.raises(ConfigError, match="base case: numerics.N = 33"):
         study_from_toml("[numerics]\nN = 33\n")
+
+
+def test_every_study_in_jobs_is_valid():
+    from pathlib import Path
+
+    from hpcves.config import load_case
+    from hpcves.study import load_study
+
+    jobs = Path(__file__).resolve().parent.parent / "jobs"
+    studies = [p for p in jobs.glob("*.toml") if "[campaign]" in p.read_text()]
+    assert {p.name for p in studies} >= {"demo.toml", "delta0194_S_psi.toml", "psi048_delta_S.toml",
+                                         "delta094_S_psi.toml", "delta230_S_psi.toml"}
+    for path in studies:
+        assert len(load_study(path).cases) >= 4, path
+    for path in set(jobs.glob("*.toml")) - set(studies):
+        load_case(path)
