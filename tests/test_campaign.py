@@ -203,6 +203,16 @@ def test_the_command_line_gives_one_line_for_bad_files(tmp_path, reference):
     assert result.returncode == 2 and "not a readable HDF5 file" in result.stderr
 
 
+def test_without_mpirun_the_command_runs_every_case_itself(tmp_path, reference):
+    path, output = write_study(tmp_path, t_end=0.3)
+    result = hpcves("campaign", path)
+    assert result.returncode == 0, result.stderr
+    assert "1 rank, serial HDF5" in result.stderr and "4 finished" in result.stdout
+    assert_same_results(output, reference)
+    again = hpcves("campaign", path, "--resume")
+    assert again.returncode == 0 and "0 to run" in again.stderr
+
+
 def test_a_second_campaign_on_the_same_file_is_refused(tmp_path):
     path, output = write_study(tmp_path)
     lock = CampaignLock(output).acquire()
