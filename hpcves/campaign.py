@@ -93,7 +93,7 @@ class Backoff:
         self.delay = min(2.0 * self.delay, self.limit)
 
 
-def wait(comm, request) -> None:
+def wait(request) -> None:
     """Complete a non-blocking MPI request without spinning (MPI's own waits poll a core)."""
     backoff = Backoff()
     while not request.Test():
@@ -215,6 +215,10 @@ class Master:
         self.results: list[CaseResult] = []
         self.stopping = False
         self.cost_total = sum(study.by_id(c).cost for c, _ in todo)
+        if self.size > 1:
+            from mpi4py import MPI
+
+            self._status, self._any_source = MPI.Status(), MPI.ANY_SOURCE
 
     # -- messages
     def service(self) -> bool:
@@ -223,10 +227,8 @@ class Master:
         if self.stop_flag() and not self.stopping:
             self.begin_stop("signal")
         if self.size > 1:
-            from mpi4py import MPI
-
-            status = MPI.Status()
-            while self.comm.Iprobe(source=MPI.ANY_SOURCE, tag=TAG_REQUEST, status=status):
+            status = self._status
+            while self.comm.Iprobe(source=self._any_source, tag=TAG_REQUEST, status=status):
                 source = status.Get_source()
                 message = self.comm.recv(source=source, tag=TAG_REQUEST)
                 active = True
@@ -415,7 +417,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
                 worker_loop(comm, campaign, flush, stop_flag)
                 results = []
             if size > 1:
-                wait(comm, comm.Ibarrier())     # everyone is done writing before the collective close
+                wait(comm.Ibarrier())     # everyone is done writing before the collective close
             summary = None
             if rank == 0:
                 counts = {name: 0 for name in STATUS_NAMES.values()}

@@ -19,15 +19,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import __version__
-from .checkpoint import STATUS_NAMES, CaseStore, FileFormatError, open_file
+from .checkpoint import STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file
 from .study import Study
 
 FORMAT = "hpcves-campaign"
 FORMAT_VERSION = 1
-
-
-def _text(value) -> str:
-    return value.decode() if isinstance(value, bytes) else str(value)
 
 
 class CampaignFile:
@@ -66,7 +62,7 @@ class CampaignFile:
     @classmethod
     def check(cls, h5, where: str) -> "CampaignFile":
         """Open an existing campaign file, refusing anything else with a clear message."""
-        fmt = _text(h5.attrs.get("format", ""))
+        fmt = attr_text(h5.attrs.get("format", ""))
         if fmt == "hpcves-case":
             raise FileFormatError(f"{where}: a single-run file (hpcves run), not a campaign file")
         if fmt != FORMAT:
@@ -86,7 +82,7 @@ class CampaignFile:
     def check_study(self, study: Study, where: str) -> None:
         """Refuse a file that belongs to another study (or another version of this one)."""
         if self.fingerprint != study.fingerprint:
-            other = _text(self.h5.attrs.get("name", "?"))
+            other = attr_text(self.h5.attrs.get("name", "?"))
             detail = (f"study {other!r}" if other != study.name
                       else f"a different version of study {other!r} (some parameter or sweep value changed)")
             raise FileFormatError(f"{where}: belongs to {detail}, not to this campaign file; "
@@ -95,20 +91,20 @@ class CampaignFile:
     # ------------------------------------------------------------------ contents
     @property
     def name(self) -> str:
-        return _text(self.h5.attrs["name"])
+        return attr_text(self.h5.attrs["name"])
 
     @property
     def fingerprint(self) -> str:
-        return _text(self.h5.attrs.get("fingerprint", ""))
+        return attr_text(self.h5.attrs.get("fingerprint", ""))
 
     @property
     def sweep_keys(self) -> list[str]:
-        keys = _text(self.h5.attrs.get("sweep_keys", ""))
+        keys = attr_text(self.h5.attrs.get("sweep_keys", ""))
         return [k for k in keys.split(",") if k]
 
     @property
     def case_ids(self) -> list[str]:
-        return [_text(i) for i in self.h5["index/case_id"][:]]
+        return [attr_text(i) for i in self.h5["index/case_id"][:]]
 
     def store(self, case_id: str) -> CaseStore:
         return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")

@@ -84,6 +84,11 @@ def capacities(case: Case) -> tuple[int, int]:
     return n // case.every(case.run.sample_interval) + 2, n // case.every(case.run.snapshot_interval) + 2
 
 
+def attr_text(value) -> str:
+    """An HDF5 string attribute as str (h5py returns bytes for fixed-length strings)."""
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
 def _early():
     """A dataset creation property list with storage allocated (and filled) at creation.
 
@@ -151,10 +156,7 @@ class CaseStore:
     def open(cls, group, where: str = "") -> "CaseStore":
         """Open an existing case, checking that it is one."""
         where = where or group.name
-        fmt = group.attrs.get("format")
-        if isinstance(fmt, bytes):
-            fmt = fmt.decode()
-        if fmt != FORMAT:
+        if attr_text(group.attrs.get("format", "")) != FORMAT:
             raise FileFormatError(f"{where}: not an hpcves case (no format = {FORMAT!r} attribute)")
         version = int(group.attrs.get("format_version", -1))
         if version != FORMAT_VERSION:
@@ -168,11 +170,8 @@ class CaseStore:
     # ------------------------------------------------------------------ metadata
     @property
     def case(self) -> Case:
-        text = self.group.attrs["config"]
-        if isinstance(text, bytes):
-            text = text.decode()
         try:
-            return case_from_toml(text, source=f"{self.group.name} config")
+            return case_from_toml(attr_text(self.group.attrs["config"]), source=f"{self.group.name} config")
         except ConfigError as exc:
             raise FileFormatError(str(exc)) from None
 

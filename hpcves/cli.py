@@ -33,36 +33,48 @@ def clean_errors(func):
     return wrapper
 
 
-class ProgressLine:
-    """``t = 0.512 / 5  |  1043 steps/s  |  ETA 4 s  |  theta = 0.581`` on stderr.
+class _StatusLine:
+    """One status line on stderr: rewritten in place on a terminal; on a pipe or a log
+    file, written as a new line at most every LOG_SECONDS."""
 
-    Rewritten in place on a terminal; on a pipe or log file, one line every 30 s.
-    """
+    LOG_SECONDS = 30.0
 
-    def __init__(self, label: str = "", stream=sys.stderr):
-        self.label = label
+    def __init__(self, stream=sys.stderr):
         self.stream = stream
         self.tty = stream.isatty()
-        self._last_line = 0.0
+        self._last = 0.0
         self._width = 0
 
-    def __call__(self, tick) -> None:
-        eta = _duration(tick.eta_seconds)
-        text = (f"{self.label}t = {tick.t:.4g} / {tick.t_end:.4g}  |  {tick.steps_per_second:,.0f} steps/s"
-                f"  |  ETA {eta}  |  theta = {tick.theta:.4f}")
+    def due(self, tty_interval: float = 0.0) -> bool:
+        """Whether a new line would be shown now (terminals: every ``tty_interval`` seconds)."""
+        return time.monotonic() - self._last >= (tty_interval if self.tty else self.LOG_SECONDS)
+
+    def show(self, text: str) -> None:
+        self._last = time.monotonic()
         if self.tty:
             self.stream.write("\r" + text.ljust(self._width))
             self._width = len(text)
-            self.stream.flush()
-        elif time.monotonic() - self._last_line >= 30.0:
-            self._last_line = time.monotonic()
+        else:
             self.stream.write(text + "\n")
-            self.stream.flush()
+        self.stream.flush()
 
     def close(self) -> None:
         if self.tty and self._width:
             self.stream.write("\n")
             self.stream.flush()
+
+
+class ProgressLine(_StatusLine):
+    """``t = 0.512 / 5  |  1043 steps/s  |  ETA 4 s  |  theta = 0.581`` on stderr."""
+
+    def __init__(self, label: str = "", stream=sys.stderr):
+        super().__init__(stream)
+        self.label = label
+
+    def __call__(self, tick) -> None:
+        if self.due():
+            self.show(f"{self.label}t = {tick.t:.4g} / {tick.t_end:.4g}  |  {tick.steps_per_second:,.0f} steps/s"
+                      f"  |  ETA {_duration(tick.eta_seconds)}  |  theta = {tick.theta:.4f}")
 
 
 def _duration(seconds: float) -> str:
@@ -168,7 +180,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
     click.echo(summary)
 
 
-class CampaignProgress:
+class CampaignProgress(_StatusLine):
     """``[######......] 12/40 cases | 2 running | 1 failed | 31 % | ETA 14 min`` on rank 0's stderr.
 
     The fraction is of the total cost (steps x N^2), counting running cases by
@@ -176,40 +188,24 @@ class CampaignProgress:
     """
 
     def __init__(self, n_total: int, n_done_before: int, stream=sys.stderr):
+        super().__init__(stream)
         self.n_total, self.n_done_before = n_total, n_done_before
-        self.stream = stream
-        self.tty = stream.isatty()
         self.start = time.monotonic()
-        self._last = 0.0
-        self._width = 0
 
     def __call__(self, master) -> None:
-        now = time.monotonic()
-        if now - self._last < (0.5 if self.tty else 30.0):
+        if not self.due(0.5):
             return
-        self._last = now
         from .checkpoint import FAILED, FINISHED
 
         ended = [r for r in master.results if r.status in (FINISHED, FAILED)]
         failed = sum(1 for r in ended if r.status == FAILED)
         fraction = master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0
-        elapsed = now - self.start
+        elapsed = time.monotonic() - self.start
         eta = elapsed * (1.0 - fraction) / fraction if fraction > 0.0 else float("inf")
         bar = "#" * int(round(20 * fraction))
-        text = (f"[{bar:<20}] {self.n_done_before + len(ended)}/{self.n_total} cases | "
-                f"{len(master.busy)} running | {failed} failed | {100 * fraction:.0f} % | "
-                f"ETA {_duration(eta)}")
-        if self.tty:
-            self.stream.write("\r" + text.ljust(self._width))
-            self._width = len(text)
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.tty and self._width:
-            self.stream.write("\n")
-            self.stream.flush()
+        self.show(f"[{bar:<20}] {self.n_done_before + len(ended)}/{self.n_total} cases | "
+                  f"{len(master.busy)} running | {failed} failed | {100 * fraction:.0f} % | "
+                  f"ETA {_duration(eta)}")
 
 
 def _mpi_world():

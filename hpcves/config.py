@@ -80,16 +80,20 @@ def case_from_dict(data: dict, base: Case | None = None) -> Case:
     return Case(**groups)
 
 
-def load_case(path: str | Path) -> Case:
-    """Read and validate a case file."""
-    path = Path(path)
+def read_text(path: Path) -> str:
+    """The text of an input file; a missing or unreadable one is a ConfigError naming it."""
     try:
-        text = path.read_text()
+        return path.read_text()
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    return case_from_toml(text, source=str(path))
+
+
+def load_case(path: str | Path) -> Case:
+    """Read and validate a case file."""
+    path = Path(path)
+    return case_from_toml(read_text(path), source=str(path))
 
 
 def case_from_toml(text: str, source: str = "<string>") -> Case:

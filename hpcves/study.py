@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import check_type, case_from_dict
+from .config import case_from_dict, check_type, read_text
 from .params import Case, ConfigError
 
 SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
@@ -136,13 +136,7 @@ def study_from_toml(text: str, source: str = "<string>", default_name: str = "ca
 def load_study(path: str | Path) -> Study:
     """Read a campaign file and build (validate) every case."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such file") from None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    return study_from_toml(text, source=str(path), default_name=path.stem)
+    return study_from_toml(read_text(path), source=str(path), default_name=path.stem)
 
 
 def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
