@@ -20,12 +20,14 @@ out cases and tells every busy rank to checkpoint too. If the job has not
 wound down ``stop_timeout`` seconds after the first stop request, rank 0
 aborts it (valid checkpoints are never at risk: see checkpoint.py).
 
-File access. Under MPI with more than one rank every rank opens the campaign
-file with h5py's ``mpio`` driver; the structure is created collectively up
-front and flushed, after which each case is written only by the rank
-running it (independent raw-data writes to preallocated datasets, which
-reach the file in program order -- the order the checkpoint protocol needs).
-With one process the file is opened with the default driver.
+File access. With one process the file is opened with the default driver.
+With several ranks and an h5py built with MPI every rank opens it with the
+``mpio`` driver; the structure is created collectively up front and flushed,
+after which each case is written only by the rank running it (independent
+raw-data writes to preallocated datasets, which reach the file in program
+order -- the order the checkpoint protocol needs). Without MPI in h5py (or
+with ``io="relay"``) only rank 0 opens the file and applies the other ranks'
+writes, which they send it in order (relay.py).
 """
 from __future__ import annotations
 
@@ -45,11 +47,15 @@ from . import runner
 from .campaign_file import CampaignFile
 from .checkpoint import FAILED, FINISHED, INTERRUPTED, PENDING, STATUS_NAMES, FileFormatError, open_file
 from .params import ConfigError
+from .relay import Relay, RemoteCampaign
 from .study import Study
 
 TAG_REQUEST = 11      # worker -> rank 0: ("ready",) | ("done", CaseResult) | ("progress", id, fraction) | ("stop",)
+                      #   | with --io relay, its file writes and reads (relay.py), on this tag to keep their order
 TAG_TASK = 12         # rank 0 -> worker: (case_id, resume) or None (no more work)
 TAG_STOP = 13         # rank 0 -> worker: checkpoint the running case and report
+TAG_REPLY = 14        # rank 0 -> worker: the answer to a file read (--io relay only)
+IO_MODES = ("auto", "mpio", "relay")
 PROGRESS_SECONDS = 2.0
 
 
@@ -93,11 +99,16 @@ class Backoff:
         self.delay = min(2.0 * self.delay, self.limit)
 
 
-def wait(request) -> None:
-    """Complete a non-blocking MPI request without spinning (MPI's own waits poll a core)."""
+def wait_until(ready: Callable[[], bool]) -> None:
+    """Poll ``ready`` with a backoff until it is true (MPI's own waits keep a core spinning)."""
     backoff = Backoff()
-    while not request.Test():
+    while not ready():
         backoff.sleep()
+
+
+def wait(request) -> None:
+    """Complete a non-blocking MPI request without spinning."""
+    wait_until(request.Test)
 
 
 class CampaignLock:
@@ -201,8 +212,9 @@ class Master:
     """Hands out cases, runs cases itself between scheduling turns, shows progress."""
 
     def __init__(self, comm, campaign: CampaignFile, study: Study, todo, flush, stop_flag,
-                 stop_timeout: float, display=None):
+                 stop_timeout: float, display=None, relay: Relay | None = None):
         self.comm = comm
+        self.relay = relay                       # applies the other ranks' file writes (--io relay)
         self.size = 1 if comm is None else comm.Get_size()
         self.campaign, self.study, self.flush = campaign, study, flush
         self.pending = deque(todo)
@@ -233,6 +245,9 @@ class Master:
                 message = self.comm.recv(source=source, tag=TAG_REQUEST)
                 active = True
                 kind = message[0]
+                if self.relay is not None and kind in Relay.KINDS:
+                    self.relay.handle(self.comm, source, message)
+                    continue
                 if kind == "progress":
                     self.fraction[message[1]] = message[2]
                     continue
@@ -357,9 +372,13 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag) -> None:
 
 # ---------------------------------------------------------------------- the whole job
 def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, retry_failed: bool = False,
-                 overwrite: bool = False, stop_flag: Callable[[], bool] = lambda: False,
+                 overwrite: bool = False, io: str = "auto", stop_flag: Callable[[], bool] = lambda: False,
                  display=None, announce: Callable[[str, int], None] = lambda text, finished: None) -> Summary:
     """Run (or continue) a study into ``path`` on every rank of ``comm`` (None: this process alone).
+
+    ``io`` (several ranks only): "mpio" -- every rank opens the file with
+    h5py's MPI driver; "relay" -- only rank 0 opens it and applies the other
+    ranks' writes (relay.py); "auto" -- mpio where h5py has MPI, else relay.
 
     Rank 0 calls ``announce(text, n_finished_before)`` once the work is known
     and ``display(master)`` at every scheduling turn.
@@ -370,6 +389,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
     start = time.perf_counter()
+    io = choose_io(io, size)
     lock = None
     verdict = None
     if rank == 0:
@@ -387,31 +407,16 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     mode = verdict[1]
 
     try:
-        if size > 1:
-            import h5py
-
-            if not h5py.get_config().mpi:
-                raise FileFormatError("h5py was built without MPI, so several ranks cannot share the "
-                                      "campaign file; run with one process, or rebuild h5py (make setup)")
-            h5 = open_file(path, "w" if mode == "create" else "r+", driver="mpio", comm=comm)
-
-            def flush():
-                pass                     # raw writes reach the file at once (see the module docstring)
-        else:
-            h5 = open_file(path, "w" if mode == "create" else "r+")
-            flush = h5.flush
+        h5, campaign, flush = _open(study, path, comm, mode, io)
         try:
-            if mode == "create":
-                campaign = CampaignFile.create(h5, study)
-                h5.flush()                 # collective: the whole structure is on disk before any case runs
-            else:
-                campaign = CampaignFile(h5)
             if rank == 0:
                 todo = work_list(campaign, study, retry_failed)
                 statuses = campaign.statuses()
-                announce(_announcement(study, path, statuses, todo, size, mode),
+                announce(_announcement(study, path, statuses, todo, size, mode, io),
                          sum(1 for s in statuses.values() if s == FINISHED))
-                master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display)
+                relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
+                master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display,
+                                relay)
                 results = master.run()
             else:
                 worker_loop(comm, campaign, flush, stop_flag)
@@ -428,7 +433,8 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
                         failed.append((row["case"], row["message"]))
                 summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start)
         finally:
-            h5.close()
+            if h5 is not None:
+                h5.close()
         if size > 1:
             summary = comm.bcast(summary, root=0)
         return summary
@@ -437,7 +443,66 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
             lock.release()
 
 
-def _announcement(study, path, statuses, todo, size, mode) -> str:
+def choose_io(io: str, size: int) -> str:
+    """The file access of a campaign on ``size`` ranks: "serial", "mpio" or "relay"."""
+    if io not in IO_MODES:
+        raise ConfigError(f"io = {io!r}: choose one of {', '.join(IO_MODES)}")
+    if size == 1:
+        return "serial"
+    import h5py
+
+    has_mpi = h5py.get_config().mpi
+    if io == "auto":
+        return "mpio" if has_mpi else "relay"
+    if io == "mpio" and not has_mpi:
+        raise ConfigError("--io mpio: this h5py was built without MPI (make setup builds one with it); "
+                          "--io relay works without")
+    return io
+
+
+def _open(study: Study, path: Path, comm, mode: str, io: str):
+    """(h5 or None, campaign, flush) on this rank, the file created first if ``mode`` is "create".
+
+    serial: this process alone. mpio: every rank opens the file and creates
+    the structure collectively; then raw writes reach the file at once, in
+    program order, so ``flush`` has nothing to do (File.flush would be
+    collective). relay: rank 0 opens it and tells the others whether that
+    worked; they get a RemoteCampaign.
+    """
+    rank = 0 if comm is None else comm.Get_rank()
+    if io == "relay" and rank > 0:
+        opened = comm.bcast(None, root=0)
+        if opened is not None:
+            raise FileFormatError(opened)
+        remote = RemoteCampaign(comm, TAG_REQUEST, TAG_REPLY, wait_until)
+        return None, remote, remote.flush
+    h5 = None
+    try:
+        if io == "mpio":
+            h5 = open_file(path, "w" if mode == "create" else "r+", driver="mpio", comm=comm)
+        else:
+            h5 = open_file(path, "w" if mode == "create" else "r+")
+        if mode == "create":
+            campaign = CampaignFile.create(h5, study)
+            h5.flush()                 # (collective under mpio) the structure is on disk before any case runs
+        else:
+            campaign = CampaignFile(h5)
+    except ConfigError as exc:
+        if h5 is not None:
+            h5.close()
+        if io == "relay":
+            comm.bcast(str(exc), root=0)
+        raise
+    if io == "relay":
+        comm.bcast(None, root=0)
+    return h5, campaign, (h5.flush if io != "mpio" else _nothing)
+
+
+def _nothing() -> None:
+    pass
+
+
+def _announcement(study, path, statuses, todo, size, mode, io) -> str:
     finished = sum(1 for s in statuses.values() if s == FINISHED)
     failed = sum(1 for s in statuses.values() if s == FAILED)
     resumed = sum(1 for case_id, resume in todo if resume and statuses[case_id] != PENDING)
@@ -449,6 +514,6 @@ def _announcement(study, path, statuses, todo, size, mode) -> str:
     if failed:
         parts.append(f"{failed} failed before" + ("" if any(not r for _, r in todo) else
                                                   " (--retry-failed reruns them)"))
-    io = "parallel HDF5" if size > 1 else "serial HDF5"
+    access = {"serial": "serial HDF5", "mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}[io]
     verb = "new file" if mode == "create" else "continuing"
-    return f"campaign {study.name!r} -> {path} ({verb}): {', '.join(parts)}; {size} rank{'s' * (size > 1)}, {io}"
+    return f"campaign {study.name!r} -> {path} ({verb}): {', '.join(parts)}; {size} rank{'s' * (size > 1)}, {access}"

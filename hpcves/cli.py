@@ -226,7 +226,11 @@ def _mpi_world():
 @click.option("--overwrite", is_flag=True, help="Delete an existing campaign file and start over.")
 @click.option("--out", "out", type=click.Path(dir_okay=False), help="Campaign file (default: [campaign] output).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet):
+@click.option("--io", "io", type=click.Choice(["auto", "mpio", "relay"]), default="auto", show_default=True,
+              help="How several ranks write the file: mpio (parallel HDF5, every rank writes its cases), "
+                   "relay (rank 0 writes for everyone: for an h5py without MPI, or a file system where "
+                   "MPI-IO misbehaves), auto (mpio if h5py has MPI).")
+def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io):
     """Run a study: ``mpirun -n P hpcves campaign STUDY.toml`` (or without mpirun, on one core).
 
     Exit status: 0 every case finished (or the campaign was stopped by a signal
@@ -238,7 +242,7 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet):
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
     try:
-        _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out and Path(out), quiet)
+        _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out and Path(out), quiet, io)
     except SystemExit:
         raise
     except BaseException:                              # a bug, or a second Ctrl-C: never leave ranks hanging
@@ -250,7 +254,7 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet):
         sys.exit(1)
 
 
-def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out, quiet):
+def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out, quiet, io):
     from .campaign import run_campaign
     from .study import load_study
 
@@ -287,7 +291,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
     try:
         with StopFlag() as stop:
             summary = run_campaign(study, path, comm if size > 1 else None, resume=resume,
-                                   retry_failed=retry_failed, overwrite=overwrite, stop_flag=stop,
+                                   retry_failed=retry_failed, overwrite=overwrite, io=io, stop_flag=stop,
                                    display=show, announce=announce)
     except ConfigError as exc:
         if rank == 0:

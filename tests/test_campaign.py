@@ -268,28 +268,44 @@ def wait_for_checkpoints(output, job, count=2, timeout=120):
     raise AssertionError("the campaign never got going")
 
 
+ACCESS = {"mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}
+
+
 @needs_mpi
-@pytest.mark.parametrize("n", [2, 3])
-def test_mpi_campaign_completes_and_matches_the_serial_run(tmp_path, reference, n):
+@pytest.mark.parametrize("n, io", [(2, "mpio"), (3, "mpio"), (2, "relay"), (3, "relay")])
+def test_mpi_campaign_completes_and_matches_the_serial_run(tmp_path, reference, n, io):
     path, output = write_study(tmp_path, t_end=0.3)
-    result = hpcves("campaign", path, n=n)
+    result = hpcves("campaign", path, "--io", io, n=n)
     assert result.returncode == 0, result.stderr
-    assert f"{n} ranks, parallel HDF5" in result.stderr
+    assert f"{n} ranks, {ACCESS[io]}" in result.stderr
     assert_same_results(output, reference)
 
 
+def test_without_mpi_in_h5py_the_ranks_write_through_rank_0(monkeypatch):
+    import h5py
+
+    class NoMPI:
+        mpi = False
+
+    monkeypatch.setattr(h5py, "get_config", lambda: NoMPI())
+    assert campaign_module.choose_io("auto", 2) == "relay"
+    assert campaign_module.choose_io("auto", 1) == "serial"
+    with pytest.raises(ConfigError, match="built without MPI"):
+        campaign_module.choose_io("mpio", 2)
+
+
 @needs_mpi
-@pytest.mark.parametrize("n", [2, 3])
-def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n):
+@pytest.mark.parametrize("n, io", [(2, "mpio"), (3, "mpio"), (3, "relay")])
+def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n, io):
     path, output = write_study(tmp_path, t_end=0.8, checkpoint=0.02, shear="[20, 40, 80]")
-    job = start_job(n, "campaign", path, "--quiet")
+    job = start_job(n, "campaign", path, "--quiet", "--io", io)
     wait_for_checkpoints(output, job, count=n)
     for pid in job_pids(job.pid):
         os.kill(pid, signal.SIGKILL)
     job.communicate()
     states = statuses(output)
     assert 1 in states.values(), states            # killed mid-run: cases left "running"
-    result = hpcves("campaign", path, "--resume", n=n)
+    result = hpcves("campaign", path, "--resume", "--io", io, n=n)
     assert result.returncode == 0, result.stderr
     assert "from a checkpoint" in result.stderr
     assert set(statuses(output).values()) == {FINISHED}
@@ -301,9 +317,10 @@ def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n):
 
 
 @needs_mpi
-def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path):
+@pytest.mark.parametrize("io", ["mpio", "relay"])
+def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path, io):
     path, output = write_study(tmp_path, t_end=1.5, checkpoint=10.0)   # only the stop writes checkpoints
-    job = start_job(2, "campaign", path)
+    job = start_job(2, "campaign", path, "--io", io)
     wait_for_checkpoints(output, job, count=0)
     time.sleep(0.5)
     started = time.monotonic()
@@ -325,9 +342,10 @@ def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path):
 
 
 @needs_mpi
-def test_a_diverging_case_fails_alone_under_mpi(tmp_path):
+@pytest.mark.parametrize("io", ["mpio", "relay"])
+def test_a_diverging_case_fails_alone_under_mpi(tmp_path, io):
     path, output = write_study(tmp_path, t_end=0.2, shear="[40, 20000]")   # N = 32 cannot follow S = 20000
-    result = hpcves("campaign", path, n=2)
+    result = hpcves("campaign", path, "--io", io, n=2)
     assert result.returncode == 1, result.stderr
     assert statuses(output) == {"0000": FINISHED, "0001": FINISHED, "0002": FAILED, "0003": FAILED}
     assert "case 0002 failed: diverged" in result.stderr
