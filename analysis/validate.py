@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from hpcves import runner  # noqa: E402
-from hpcves.analysis import crossing_period  # noqa: E402
+from hpcves.periodicity import crossing_period  # noqa: E402
 from hpcves.checkpoint import FINISHED, CaseStore, open_file  # noqa: E402
 from hpcves.params import Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.plots import case_figure, case_title, shape_strip  # noqa: E402

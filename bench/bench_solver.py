@@ -23,7 +23,7 @@ import scipy
 from scipy.linalg import lapack
 
 from hpcves import geometry
-from hpcves.analysis import crossing_period
+from hpcves.periodicity import crossing_period
 from hpcves.forces import bending_force
 from hpcves.params import Case, Numerics, Physics, RunControl
 from hpcves.quadrature import StokesSLP

@@ -5,7 +5,7 @@ import pytest
 
 from conftest import advance, make_solver
 from hpcves import geometry
-from hpcves.analysis import crossing_period
+from hpcves.periodicity import crossing_period
 from hpcves.params import Case, Numerics, Physics, RunControl
 from hpcves.spectral import Spectral
 from hpcves.timestepping import Solver, State

@@ -4,7 +4,7 @@ import pytest
 
 from conftest import make_solver
 from hpcves import diagnostics, geometry
-from hpcves.analysis import crossing_period
+from hpcves.periodicity import crossing_period
 
 pytestmark = pytest.mark.slow
 

@@ -1,0 +1,154 @@
+"""Tank-treading, phase-treading, tumbling -- or undecided (SPEC section 4); pure functions.
+
+A case is classified from its time series: the inclination theta(t) and the
+velocity of the phase pattern in the lab frame, V_psi + V_L, against the
+membrane's tank-treading velocity V (all recorded by diagnostics.py).
+
+* **TT**: after the transient theta is steady and the pattern is fixed in the
+  lab frame: |<V_psi + V_L>| <= pattern_tol |<V>| (for psi = 0 there is no
+  pattern and theta alone decides).
+* **PT**: the pattern moves in the lab frame and theta oscillates with a
+  period (checked two ways, periodicity.py), at least ``min_cycles`` settled
+  periods long, with min theta >= 0.
+* **TU**: the same, but min theta < 0 over the settled signal: the vesicle flips.
+* **undecided** otherwise -- too short, not settled, still drifting, no
+  consistent period, or theta and the pattern disagree -- with the reason.
+
+Every classification carries its evidence (settling time, period and its
+uncertainty, theta's mean, minimum and amplitude, the pattern's speed).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from .config import check_type
+from .params import ConfigError
+from .periodicity import SignalAnalysis, analyse
+
+TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
+REGIMES = (TT, PT, TU, UNDECIDED)
+
+
+@dataclass(frozen=True)
+class AnalysisSettings:
+    """Thresholds of the classification (``[analysis]`` in a campaign file, or ``--set``)."""
+
+    abs_tol: float = 1e-4            # rad: theta within this is steady; floor of every band
+    rel_tol: float = 0.05            # settling band, relative to the settled range of theta
+    min_cycles: float = 3.0          # settled periods needed to call a motion periodic
+    min_settled_fraction: float = 0.2  # a steady signal must be settled over this part of the record
+    pattern_tol: float = 1e-3        # |<V_psi + V_L>| / |<V>| above which the pattern moves
+    min_samples: int = 50
+
+    def __post_init__(self):
+        for f in fields(self):
+            value = check_type(f"analysis.{f.name}", getattr(self, f.name), int if f.type == "int" else float)
+            object.__setattr__(self, f.name, value)
+            if not value > 0:
+                raise ConfigError(f"analysis.{f.name} = {value!r}: must be > 0")
+        if self.min_settled_fraction >= 1 or self.rel_tol >= 1:
+            raise ConfigError("analysis.min_settled_fraction and analysis.rel_tol must be < 1")
+
+    @classmethod
+    def from_dict(cls, values: dict, where: str = "[analysis]") -> "AnalysisSettings":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
+                              f"(known: {', '.join(sorted(known))})")
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class Classification:
+    regime: str
+    reason: str                # the evidence in words
+    t_settle: float
+    period: float
+    period_err: float
+    cycles: float
+    theta_mean: float
+    theta_min: float
+    theta_amplitude: float
+    theta_drift: float
+    pattern_speed: float       # |<V_psi + V_L>| / |<V>| over the settled part (nan: no pattern)
+    period_crossings: float    # the crossing check of the period (nan: not available)
+
+    def row(self) -> dict:
+        return asdict(self)
+
+
+def _settled_mean(t, values, t_settle) -> float:
+    if values is None:
+        return float("nan")
+    keep = (t >= t_settle) & np.isfinite(values)
+    return float(np.mean(values[keep])) if keep.any() else float("nan")
+
+
+def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> Classification:
+    """The regime of one case from its time series (``t``, ``theta``; ``V_psi``, ``V_L`` and
+    ``tank_treading_velocity`` where recorded)."""
+    t = np.asarray(series["t"], dtype=float)
+    theta = np.asarray(series["theta"], dtype=float)
+    a = analyse(t, theta, abs_tol=settings.abs_tol, rel_tol=settings.rel_tol)
+    p = a.period
+    t_settle = a.t_settle if np.isfinite(a.t_settle) else (t[-1] if t.size else np.nan)
+    lab = None
+    if "V_psi" in series and "V_L" in series:
+        lab = np.asarray(series["V_psi"], dtype=float) + np.asarray(series["V_L"], dtype=float)
+    tt = series.get("tank_treading_velocity")
+    v_lab = _settled_mean(t, lab, t_settle)
+    v_tt = abs(_settled_mean(t, None if tt is None else np.asarray(tt, dtype=float), t_settle))
+    speed = abs(v_lab) / v_tt if np.isfinite(v_lab) and v_tt > 0 else float("nan")
+
+    def verdict(regime: str, reason: str) -> Classification:
+        return Classification(regime, reason, a.t_settle, p.period, p.error, a.cycles, a.mean, a.minimum,
+                              a.amplitude, a.drift, speed, p.crossing_period)
+
+    duration = float(t[-1] - t[0]) if t.size else 0.0
+    if t.size < settings.min_samples:
+        return verdict(UNDECIDED, f"too short: {t.size} samples (at least {settings.min_samples} needed)")
+    if not a.steady and not np.isfinite(p.period):
+        tail = theta[-max(theta.size // 4, 2):]
+        return verdict(UNDECIDED, f"not settled: theta still changes by {np.ptp(tail):.2g} rad over the last "
+                                  "quarter of the record, and no period repeats in it; run longer")
+    if not np.isfinite(a.t_settle):
+        return verdict(UNDECIDED, "not settled: theta never stays within its final band")
+    pattern = _pattern_words(speed, settings)
+    if a.steady:
+        if a.settled_span < settings.min_settled_fraction * duration:
+            return verdict(UNDECIDED, f"not settled: theta steady only from t = {a.t_settle:.4g} "
+                                      f"(last {a.settled_span / duration:.0%} of the record; run longer)")
+        if np.isfinite(speed) and speed > settings.pattern_tol:
+            return verdict(UNDECIDED, f"theta steady at {a.mean:.4f} but the pattern {pattern}")
+        return verdict(TT, f"theta steady at {a.mean:.4f} rad (within {a.tolerance:.1e}) from "
+                           f"t = {a.t_settle:.4g}; " + (f"the pattern {pattern}" if np.isfinite(speed)
+                                                        else "no phase pattern"))
+    band = max(a.tolerance, settings.rel_tol * 2 * a.amplitude)
+    if abs(a.drift) > band:
+        return verdict(UNDECIDED, f"theta still drifting: its one-period mean moves by {a.drift:.2g} rad "
+                                  f"after t = {a.t_settle:.4g}; run longer")
+    if p.agree is False:
+        return verdict(UNDECIDED, f"ambiguous period: autocorrelation {p.period:.5g}, mid-line crossings "
+                                  f"{p.crossing_period:.5g}")
+    if a.cycles < settings.min_cycles:
+        return verdict(UNDECIDED, f"only {a.cycles:.1f} settled periods of {p.period:.4g} "
+                                  f"(at least {settings.min_cycles:g}); run longer")
+    periodic = (f"period {p.period:.5g} +- {p.error:.1g} ({a.cycles:.0f} cycles after t = {a.t_settle:.3g}), "
+                f"amplitude {a.amplitude:.3g} rad")
+    if a.minimum < 0:
+        return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}")
+    if np.isfinite(speed) and speed > settings.pattern_tol:
+        return verdict(PT, f"the pattern {pattern}; theta oscillates, min {a.minimum:.3f} > 0; {periodic}")
+    what = f"the pattern {pattern}" if np.isfinite(speed) else "there is no phase pattern"
+    return verdict(UNDECIDED, f"theta oscillates ({periodic}) but {what}")
+
+
+def _pattern_words(speed: float, settings: AnalysisSettings) -> str:
+    if not np.isfinite(speed):
+        return "is not defined"
+    if speed > settings.pattern_tol:
+        return f"moves in the lab frame at {speed:.3g} of the tank-treading speed"
+    return f"is fixed in the lab frame ({speed:.1e} of the tank-treading speed)"

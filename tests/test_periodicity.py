@@ -1,0 +1,131 @@
+"""Period, transient and regime detection on synthetic signals with known answers."""
+import numpy as np
+import pytest
+
+from hpcves.config import ConfigError
+from hpcves.periodicity import analyse, estimate_period, upward_crossings
+from hpcves.regimes import PT, TT, TU, UNDECIDED, AnalysisSettings, classify
+
+H = 0.005                     # the default sampling interval of a run
+T = 0.7
+t = np.arange(0.0, 20.0, H)
+rng = np.random.default_rng(2026)
+
+
+def oscillation(t, period=T, mean=0.6, amplitude=0.1):
+    """A non-sinusoidal periodic signal (three harmonics), like theta in phase-treading."""
+    phase = 2 * np.pi * t / period
+    return mean + amplitude * (np.sin(phase) + 0.5 * np.sin(2 * phase + 0.5) + 0.25 * np.sin(3 * phase + 1.0))
+
+
+def fold(angle):
+    """An angle folded into (-pi/2, pi/2], as the inclination is recorded."""
+    return angle - np.pi * np.ceil(angle / np.pi - 0.5)
+
+
+SIGNALS = {
+    "clean": oscillation(t),
+    "noise 10 %": oscillation(t) + 0.01 * rng.standard_normal(t.size),
+    "noise 30 %": oscillation(t) + 0.03 * rng.standard_normal(t.size),
+    "decaying transient": oscillation(t) * (1 - np.exp(-t / 2)) + 0.3 * np.exp(-t / 2) * np.cos(5 * t),
+    "slow drift": oscillation(t) + 0.005 * t,
+    "peaked": 0.6 + 0.2 * np.exp(-8 * (1 - np.cos(2 * np.pi * t / T))),
+    "transient, noise and drift": (oscillation(t) + 0.4 * np.exp(-t / 1.5) + 0.002 * t
+                                   + 0.02 * rng.standard_normal(t.size)),
+}
+
+
+@pytest.mark.parametrize("name", SIGNALS)
+def test_the_period_is_found_within_half_a_percent_and_its_error_bar_covers_the_truth(name):
+    a = analyse(t, SIGNALS[name])
+    p = a.period
+    assert abs(p.period - T) <= 0.005 * T, (name, p)
+    assert abs(p.period - T) <= 3 * p.error, (name, p)            # the uncertainty is honest ...
+    assert p.error <= 0.005 * T, (name, p)                         # ... and useful
+    assert p.agree and p.crossings_per_period == 1, (name, p)      # the crossing check confirms it
+
+
+def test_the_transient_ends_where_the_decay_drops_below_the_band():
+    x = SIGNALS["decaying transient"]
+    a = analyse(t, x)
+    # the decaying parts fall below 5 % of the settled range (~0.36) at t ~ 6 - 7
+    assert 4.0 < a.t_settle < 9.0, a.t_settle
+    assert analyse(t, SIGNALS["clean"]).t_settle <= T                # no transient: settled at once
+
+
+def test_a_waveform_that_crosses_its_mid_line_twice_per_period_is_still_one_period():
+    x = 0.6 + 0.1 * np.cos(2 * np.pi * t / T) + 0.09 * np.cos(4 * np.pi * t / T)
+    p = estimate_period(t, x)
+    assert p.period == pytest.approx(T, rel=1e-3)
+    assert p.agree
+
+
+def test_hysteresis_keeps_noise_from_adding_crossings():
+    y = np.sin(2 * np.pi * t / T) + 0.2 * rng.standard_normal(t.size)
+    plain = upward_crossings(t, y, 0.0)
+    robust = upward_crossings(t, y, 0.5)
+    assert plain.size > 2 * robust.size                   # noise makes many spurious crossings ...
+    assert abs(robust.size - t[-1] / T) <= 1              # ... hysteresis counts one per period
+
+
+def test_steady_signal_settles_and_has_no_period():
+    x = 0.56 - 0.3 * np.exp(-t / 1.2)
+    a = analyse(t, x)
+    assert a.steady and np.isnan(a.period.period)
+    assert a.t_settle == pytest.approx(1.2 * np.log(0.3 / 1e-4), abs=0.05)   # |x - x_end| <= abs_tol
+
+
+def series(theta, pattern_speed=0.5, tank_treading=-10.0, time=t):
+    v = np.full(time.size, tank_treading)
+    return {"t": time, "theta": theta, "V_psi": np.full(time.size, pattern_speed * tank_treading) * 0.3,
+            "V_L": np.full(time.size, pattern_speed * tank_treading) * 0.7, "tank_treading_velocity": v}
+
+
+def test_tank_treading_phase_treading_and_tumbling_are_told_apart():
+    tt = classify(series(0.56 - 0.3 * np.exp(-t / 1.2), pattern_speed=1e-6))
+    assert tt.regime == TT and tt.theta_mean == pytest.approx(0.56, abs=1e-4), tt
+    pt = classify(series(SIGNALS["noise 10 %"]))
+    assert pt.regime == PT and pt.period == pytest.approx(T, rel=5e-3) and pt.theta_min > 0, pt
+    assert pt.pattern_speed == pytest.approx(0.5)
+    flips = fold(-np.arctan2(0.4 * np.sin(2 * np.pi * t / (2 * T)), np.cos(2 * np.pi * t / (2 * T))))
+    tu = classify(series(flips))
+    assert tu.regime == TU and tu.theta_min < 0 and tu.period == pytest.approx(T, rel=5e-3), tu
+
+
+def test_homogeneous_vesicle_without_a_pattern_is_tank_treading():
+    s = series(0.6 + 0.0 * t)
+    s["V_psi"][:] = np.nan                           # psi = 0 everywhere: no phase position
+    c = classify(s)
+    assert c.regime == TT and "no phase pattern" in c.reason and np.isnan(c.pattern_speed)
+
+
+@pytest.mark.parametrize("case, words", [
+    ("few samples", "too short"),
+    ("two periods", "run longer"),
+    ("steady only at the end", "not settled"),
+    ("still drifting", "drifting"),
+    ("pattern fixed but theta oscillates", "fixed in the lab frame"),
+    ("pattern moves but theta steady", "theta steady"),
+])
+def test_undecided_rather_than_guessing(case, words):
+    short = t[t < 1.4]
+    signals = {
+        "few samples": series(oscillation(t[:30]), time=t[:30]),
+        "two periods": series(oscillation(short), time=short),
+        "steady only at the end": series(0.56 - 0.3 * np.exp(-t / 4.0), pattern_speed=0.0),
+        "still drifting": series(oscillation(t) + 0.05 * t),
+        "pattern fixed but theta oscillates": series(oscillation(t), pattern_speed=1e-6),
+        "pattern moves but theta steady": series(0.6 + 0.0 * t, pattern_speed=0.5),
+    }
+    c = classify(signals[case])
+    assert c.regime == UNDECIDED and words in c.reason, (case, c)
+
+
+def test_settings_are_checked():
+    assert AnalysisSettings.from_dict({"min_cycles": 5}).min_cycles == 5.0
+    with pytest.raises(ConfigError, match="unknown key mincycles"):
+        AnalysisSettings.from_dict({"mincycles": 5})
+    with pytest.raises(ConfigError, match="must be > 0"):
+        AnalysisSettings(abs_tol=-1.0)
+    with pytest.raises(ConfigError, match="must be a number"):
+        AnalysisSettings(rel_tol="x")
