@@ -1,5 +1,5 @@
 # Two commands do everything on a fresh Debian machine:
-#   make demo   -- set up (apt + .venv + parallel h5py, once), run a small MPI campaign (mpirun -n 2) and plot it
+#   make demo   -- set up (apt + .venv + parallel h5py, once), run a small MPI campaign (mpirun -n 2), analyze it
 #   make test   -- set up, then the test suite (what CI runs)
 # Further: make bench (BENCHMARKS.md, ~2 min), make validate (VALIDATION.md, ~2 min).
 
@@ -24,8 +24,9 @@ demo: setup
 	@mkdir -p $(DEMO)
 	$(MPIRUN) -n 2 $(HPCVES) campaign jobs/demo.toml --overwrite
 	$(HPCVES) status $(DEMO)/demo.h5
-	$(PY) analysis/plot_campaign.py $(DEMO)/demo.h5 --out $(DEMO)/overview.png --cases $(DEMO)/cases
-	@echo "demo: $(DEMO)/demo.h5, $(DEMO)/overview.png, $(DEMO)/cases/*.png"
+	$(HPCVES) analyze $(DEMO)/demo.h5 --out $(DEMO)/analysis
+	$(PY) analysis/plot_campaign.py $(DEMO)/demo.h5 --out $(DEMO)/overview.png
+	@echo "demo: $(DEMO)/demo.h5; regimes in $(DEMO)/analysis/regimes.md, phase diagram $(DEMO)/analysis/phase_diagram.png, overview $(DEMO)/overview.png"
 
 bench: setup
 	$(PY) bench/bench_solver.py --out BENCHMARKS.md

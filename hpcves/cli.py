@@ -350,5 +350,51 @@ def status_command(campaign_file):
                + f"; simulated time {100 * done / total:.0f} % done; {_duration(wall)} of compute")
 
 
+@main.command("analyze")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--out", "out", type=click.Path(file_okay=False),
+              help="Directory for the tables and figures (default: <file>_analysis next to the file).")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Override a threshold of the classification, e.g. --set min_cycles=5 (see [analysis]).")
+@click.option("--axes", help="The two parameters of the phase diagrams, e.g. shear_rate,psi_bar.")
+@click.option("--no-write-back", is_flag=True, help="Do not store the results in the file's analysis/ group.")
+@click.option("--no-case-figures", is_flag=True, help="Skip the one-page figure of every case.")
+@clean_errors
+def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures):
+    """Regimes (TT / PT / TU / undecided), periods, tables and figures of a campaign or run file.
+
+    Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
+    tables (PNG and PDF) and cases/<id>.png; the results also go into the
+    file's analysis/ group. The file may belong to a running campaign (then
+    nothing is written into it).
+    """
+    from .analysis import analyze, parse_overrides
+
+    axes_pair = None
+    if axes:
+        axes_pair = tuple(k.strip() for k in axes.split(","))
+        if len(axes_pair) != 2:
+            raise ConfigError(f"--axes {axes!r}: give two parameters, e.g. shear_rate,psi_bar")
+    line = _StatusLine()
+    try:
+        report = analyze(file, out, overrides=parse_overrides(overrides), write_to_file=not no_write_back,
+                         case_figures=not no_case_figures, axes=axes_pair,
+                         progress=lambda text: line.due(0.2) and line.show(text))
+    finally:
+        line.close()
+    rows = report.rows
+    for row in rows:
+        period = f"  T = {row['period']:.5g} +- {row['period_err']:.1g}" if row["regime"] in ("PT", "TU") else ""
+        click.echo(f"{row['case']}  {row['regime']:<9}{period}  {row['reason']}")
+    counts = ", ".join(f"{n} {r}" for r, n in report.counts().items())
+    click.echo(f"{report.source.path}: {len(rows)} case{'s' * (len(rows) != 1)}: {counts}")
+    if report.wrote_back:
+        click.echo(f"results stored in {report.source.path} (group analysis/)")
+    elif report.note:
+        click.echo(report.note, err=True)
+    directory = report.written[0].parent
+    click.echo(f"tables and figures in {directory}/: " + ", ".join(p.name for p in report.written))
+
+
 if __name__ == "__main__":     # pragma: no cover
     main()

@@ -2,7 +2,9 @@
 
 :func:`case_figure` draws, from the time series and snapshots of a case file:
 the inclination theta(t), both energies, the tension (min / mean / max), the
-phase velocities V_psi, V_L and their sum, and a strip of shapes coloured by psi.
+phase velocities V_psi, V_L and their sum, a strip of shapes coloured by psi
+and kymographs of tension and curvature in the material frame.
+:func:`phase_diagram` and :func:`period_figure` draw a campaign's regimes.
 """
 from __future__ import annotations
 
@@ -40,11 +42,12 @@ def shape_strip(ax, snapshots: dict, indices, spacing: float = 1.3, label_times:
     return collections[-1] if collections else None
 
 
-def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 8):
-    """A one-page summary of a case."""
+def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 8, kymographs: bool = False):
+    """A one-page summary of a case (with ``kymographs``: tension and curvature over (alpha, t))."""
     t = series["t"]
-    fig = plt.figure(figsize=(12, 9), constrained_layout=True)
-    grid = fig.add_gridspec(3, 2, height_ratios=[1, 1, 1.1])
+    rows = 4 if kymographs and len(snapshots["t"]) >= 2 else 3
+    fig = plt.figure(figsize=(12, 3 * rows), constrained_layout=True)
+    grid = fig.add_gridspec(rows, 2, height_ratios=[1, 1, 1.1, 1.1][:rows])
     ax = fig.add_subplot(grid[0, 0])
     ax.plot(t, series["theta"], color="k", lw=1)
     ax.set_xlabel("t")
@@ -78,8 +81,119 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
         indices = np.unique(np.linspace(0, n - 1, min(n_shapes, n)).round().astype(int))
         mappable = shape_strip(ax, snapshots, indices)
         fig.colorbar(mappable, ax=ax, shrink=0.7, label=r"$\psi$ (1 = soft)")
+    if kymographs and n >= 2:
+        for k, (name, label) in enumerate((("tension", r"tension $\Lambda(\alpha, t)$"),
+                                           ("curvature", r"curvature $H(\alpha, t)$"))):
+            ax = fig.add_subplot(grid[3, k])
+            kymograph(ax, fig, snapshots, name, label)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+def material_frame(snapshots: dict, name: str, n_alpha: int = 128) -> tuple[np.ndarray, np.ndarray]:
+    """(alpha grid, field(t, alpha)): a snapshot field as a function of the material label.
+
+    Node j of a snapshot sits at arclength fraction j/N; the material there has
+    label alpha = (j/N - shift) mod 1 (the shift a(t) is recorded with every
+    snapshot). Each snapshot is interpolated periodically onto a fixed alpha grid.
+    """
+    values = np.asarray(snapshots[name])
+    N = values.shape[1]
+    alpha = np.arange(n_alpha) / n_alpha
+    out = np.empty((values.shape[0], n_alpha))
+    for i, (row, shift) in enumerate(zip(values, snapshots["shift"])):
+        labels = (np.arange(N) / N - shift) % 1.0
+        out[i] = np.interp(alpha, labels, row, period=1.0)
+    return alpha, out
+
+
+def kymograph(ax, fig, snapshots: dict, name: str, label: str) -> None:
+    """field(alpha, t) as an image: time along x, the material label along y."""
+    alpha, values = material_frame(snapshots, name)
+    t = np.asarray(snapshots["t"])
+    low, high = np.nanpercentile(values, [1, 99])
+    image = ax.pcolormesh(t, alpha, values.T, shading="nearest", cmap="viridis", vmin=low, vmax=high,
+                          rasterized=True)
+    fig.colorbar(image, ax=ax, label=label)
+    ax.set_xlabel("t")
+    ax.set_ylabel(r"material label $\alpha$")
+
+
+REGIME_STYLE = {            # colour, marker, label
+    "TT": ("tab:blue", "o", "tank-treading"),
+    "PT": ("tab:orange", "s", "phase-treading"),
+    "TU": ("tab:red", "^", "tumbling"),
+    "undecided": ("0.55", "x", "undecided"),
+}
+AXIS_LABELS = {"shear_rate": "shear rate $S$", "psi_bar": r"mean composition $\bar\psi$",
+               "excess_length": r"excess length $\Delta$", "B2": r"bending rigidity $B_2$"}
+
+
+def _log_scale(values) -> bool:
+    values = np.asarray(sorted(set(values)), dtype=float)
+    return values.size >= 3 and values.min() > 0 and values.max() / values.min() >= 20
+
+
+def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True):
+    """Regimes over two swept parameters: one marker per case, coloured by regime;
+    undecided cases are grey crosses; PT/TU points carry their period."""
+    plt.rcParams.update({"font.size": 14})
+    fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
+    for regime, (colour, marker, label) in REGIME_STYLE.items():
+        chosen = [r for r in rows if r["regime"] == regime]
+        if not chosen:
+            continue
+        ax.scatter([r[x_key] for r in chosen], [r[y_key] for r in chosen], s=140, c=colour, marker=marker,
+                   label=f"{label} ({len(chosen)})", edgecolors="k" if marker != "x" else None, linewidths=0.6,
+                   zorder=3)
+        if annotate_periods and regime in ("PT", "TU"):
+            for r in chosen:
+                if np.isfinite(r["period"]):
+                    ax.annotate(f"{r['period']:.3g}", (r[x_key], r[y_key]), textcoords="offset points",
+                                xytext=(0, 9), ha="center", fontsize=9)
+    if _log_scale([r[x_key] for r in rows]):
+        ax.set_xscale("log")
+    if _log_scale([r[y_key] for r in rows]):
+        ax.set_yscale("log")
+    ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
+    ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=11, framealpha=0.9)
+    if title:
+        ax.set_title(title, fontsize=13)
+    plt.rcParams.update({"font.size": plt.rcParamsDefault["font.size"]})
+    return fig
+
+
+def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = ""):
+    """The period table as a figure: cells coloured by S x period (the 1/S law makes it flat),
+    holding the period +- its uncertainty; other regimes named."""
+    row_values = sorted({r[row_key] for r in rows})
+    col_values = sorted({r[col_key] for r in rows})
+    cells = {(r[row_key], r[col_key]): r for r in rows}
+    fig, ax = plt.subplots(figsize=(1.6 * len(col_values) + 2.5, 0.8 * len(row_values) + 2), constrained_layout=True)
+    scaled = np.full((len(row_values), len(col_values)), np.nan)
+    for i, rv in enumerate(row_values):
+        for j, cv in enumerate(col_values):
+            r = cells.get((rv, cv))
+            if r is None:
+                continue
+            if r["regime"] in ("PT", "TU") and np.isfinite(r["period"]):
+                scale = r["shear_rate"] if "shear_rate" in r else 1.0
+                scaled[i, j] = r["period"] * scale
+                text = f"{r['period']:.4g}\n$\\pm${r['period_err']:.1g}"
+            else:
+                text = r["regime"]
+            ax.text(j, i, text, ha="center", va="center", fontsize=10)
+    image = ax.imshow(np.ma.masked_invalid(scaled), cmap="YlOrBr", aspect="auto", origin="lower")
+    fig.colorbar(image, ax=ax, label="S x period")
+    ax.set_xticks(range(len(col_values)), [f"{v:g}" for v in col_values])
+    ax.set_yticks(range(len(row_values)), [f"{v:g}" for v in row_values])
+    ax.set_xlabel(AXIS_LABELS.get(col_key, col_key))
+    ax.set_ylabel(AXIS_LABELS.get(row_key, row_key))
+    if title:
+        ax.set_title(title)
     return fig
 
 

@@ -17,6 +17,9 @@ A campaign file is a case file (the base case: ``[physics]``, ``[numerics]``,
     excess_length = { logspace = [0.1, 2.3, 4] }   # start, stop, number, geometric (numpy.geomspace)
     B2 = 0.3                                       # a single value
 
+    [analysis]                         # optional: thresholds of hpcves analyze (regimes.AnalysisSettings)
+    min_cycles = 3
+
 Sweepable: ``shear_rate``, ``psi_bar``, ``excess_length``, ``B2`` (physics).
 Cases are numbered in grid order (the last swept key varies fastest); the id
 is the zero-padded number. Every case is built -- and so validated -- before
@@ -37,6 +40,7 @@ import numpy as np
 
 from .config import case_from_dict, check_type, read_text
 from .params import Case, ConfigError
+from .regimes import AnalysisSettings
 
 SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
 CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "stop_timeout")
@@ -70,6 +74,7 @@ class Study:
     cases: tuple                   # StudyCase, in id order
     stop_timeout: float = 10.0
     source: str = ""               # the campaign file's text (kept in the HDF5 file)
+    analysis: AnalysisSettings = AnalysisSettings()   # thresholds of hpcves analyze ([analysis])
 
     @property
     def fingerprint(self) -> str:
@@ -143,7 +148,8 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     data = dict(data)
     campaign = data.pop("campaign", {})
     sweep_spec = data.pop("sweep", {})
-    for table, value in (("campaign", campaign), ("sweep", sweep_spec)):
+    analysis_spec = data.pop("analysis", {})
+    for table, value in (("campaign", campaign), ("sweep", sweep_spec), ("analysis", analysis_spec)):
         if not isinstance(value, dict):
             raise ConfigError(f"[{table}] must be a table")
     unknown = sorted(set(campaign) - set(CAMPAIGN_KEYS))
@@ -165,6 +171,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     if not stop_timeout > 0:
         raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
     end_time = _end_time_rule(campaign)
+    analysis = AnalysisSettings.from_dict(analysis_spec)
 
     unknown = [k for k in sweep_spec if k not in SWEEPABLE]
     if unknown:
@@ -188,7 +195,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
             raise ConfigError(f"{where}: {exc}") from None
         cases.append(StudyCase(case_id, case, swept))
     return Study(name=name, output=Path(output), sweep=sweep, cases=tuple(cases),
-                 stop_timeout=stop_timeout, source=text)
+                 stop_timeout=stop_timeout, source=text, analysis=analysis)
 
 
 def _end_time_rule(campaign: dict):

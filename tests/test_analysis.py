@@ -1,0 +1,122 @@
+"""hpcves analyze end to end: a tiny campaign -> regimes, tables, figures, results in the file."""
+import csv
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from hpcves import runner
+from hpcves.analysis import COLUMNS, analyze, read_back
+from hpcves.campaign import CampaignLock, run_campaign
+from hpcves.checkpoint import CaseStore
+from hpcves.config import case_from_toml
+from hpcves.study import study_from_toml
+
+STUDY = """
+[campaign]
+name = "tiny"
+output = "{output}"
+t_end = 1.0
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+sample_interval = 0.005
+snapshot_interval = 0.05
+checkpoint_interval = 0.5
+[sweep]
+shear_rate = [40, 80]
+psi_bar = [0.0, 0.3]
+[analysis]
+min_cycles = 4
+"""
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("analysis")
+    output = tmp / "tiny.h5"
+    study = study_from_toml(STUDY.format(output=output))
+    assert study.analysis.min_cycles == 4
+    assert run_campaign(study, output).exit_status == 0
+    return output
+
+
+def test_a_tiny_campaign_is_classified_tabulated_drawn_and_stored(campaign, tmp_path):
+    report = analyze(campaign, tmp_path / "out")
+    rows = {(r["shear_rate"], r["psi_bar"]): r for r in report.rows}
+    # psi_bar = 0: no phase pattern, steady inclination (SPEC: about 0.6 rad at Delta = 0.194)
+    for S in (40, 80):
+        homogeneous = rows[(S, 0.0)]
+        assert homogeneous["regime"] == "TT" and "no phase pattern" in homogeneous["reason"]
+        assert homogeneous["theta_mean"] == pytest.approx(0.59, abs=0.03)
+    # psi_bar = 0.3: tank-treads at S = 40, phase-treads at S = 80 with the solver's period
+    assert rows[(40, 0.3)]["regime"] == "TT"
+    pt = rows[(80, 0.3)]
+    assert pt["regime"] == "PT" and pt["theta_min"] > 0
+    assert pt["period"] == pytest.approx(0.1733, rel=0.03)      # N = 128 value; N = 32 is 2.5 % longer
+    assert pt["period_err"] < 0.005 * pt["period"]
+    assert pt["cycles"] >= 4                                       # the study's [analysis] min_cycles
+
+    out = tmp_path / "out"
+    with open(out / "regimes.csv") as f:
+        table = list(csv.DictReader(f))
+    assert tuple(table[0]) == COLUMNS and len(table) == 4
+    assert {"case", "shear_rate", "psi_bar", "excess_length", "B2", "regime", "period", "period_err",
+            "theta_mean", "theta_min", "theta_amplitude", "t_settle"} <= set(table[0])
+    assert "| 0003 |" in (out / "regimes.md").read_text()
+    periods = (out / "periods.md").read_text()
+    assert "TT" in periods and f"{pt['period']:.4g} +-" in periods
+    for name in ("phase_diagram", "periods"):
+        for ext in ("png", "pdf"):
+            assert (out / f"{name}.{ext}").stat().st_size > 1000
+    assert sorted(p.name for p in (out / "cases").iterdir()) == [f"000{i}.png" for i in range(4)]
+
+    assert report.wrote_back
+    stored = read_back(campaign)
+    assert [r["regime"] for r in stored] == [r["regime"] for r in report.rows]
+    assert np.allclose([r["period"] for r in stored], [r["period"] for r in report.rows], equal_nan=True)
+
+
+def test_overrides_change_the_verdict(campaign, tmp_path):
+    strict = analyze(campaign, tmp_path, overrides={"min_cycles": 50.0}, write_to_file=False, case_figures=False)
+    pt = next(r for r in strict.rows if r["shear_rate"] == 80 and r["psi_bar"] == 0.3)
+    assert pt["regime"] == "undecided" and "run longer" in pt["reason"]
+
+
+def test_a_running_campaign_is_analysed_but_not_written_to(campaign, tmp_path):
+    lock = CampaignLock(campaign).acquire()
+    try:
+        report = analyze(campaign, tmp_path, case_figures=False)
+    finally:
+        lock.release()
+    assert not report.wrote_back and "already running" in report.note
+    assert (tmp_path / "regimes.csv").exists()
+
+
+def test_a_single_run_file_is_analysed_too(tmp_path):
+    case = case_from_toml("[numerics]\nN = 32\ndt = 1e-3\n[physics]\nshear_rate = 80.0\npsi_bar = 0.3\n"
+                          "[run]\nt_end = 1.0\nsample_interval = 0.005\n")
+    path = tmp_path / "single.h5"
+    with h5py.File(path, "w") as h5:
+        store = CaseStore.create(h5, case)
+        runner.run(store, h5.flush)
+    report = analyze(path, tmp_path / "out", case_figures=False)
+    assert [r["regime"] for r in report.rows] == ["PT"] and report.wrote_back
+
+
+def test_the_command_line_reports_and_refuses_bad_options(campaign, tmp_path):
+    command = [sys.executable, "-m", "hpcves.cli", "analyze", str(campaign), "--out", str(tmp_path),
+               "--no-case-figures"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "4 cases: " in result.stdout and "PT" in result.stdout
+    for bad, words in ((["--set", "mincycles=3"], "unknown key mincycles"),
+                       (["--set", "min_cycles"], "use key=value"),
+                       (["--axes", "shear_rate"], "give two parameters")):
+        result = subprocess.run(command + bad, capture_output=True, text=True)
+        assert result.returncode == 2 and words in result.stderr and "Traceback" not in result.stderr
+    missing = subprocess.run(command[:4] + [str(tmp_path / "nope.h5")], capture_output=True, text=True)
+    assert missing.returncode == 2 and "no such file" in missing.stderr
