@@ -1,0 +1,73 @@
+"""The critical shear rate search on synthetic regime maps (no solver involved)."""
+import math
+
+import pytest
+
+from hpcves.params import ConfigError
+from hpcves.search import CONVERGED, RUNNING, STOPPED, UNBRACKETED, SearchSettings, step
+
+
+def run_search(settings, regime_at):
+    """Drive a search to its end: every requested case 'runs' by looking up the map."""
+    results = {}
+    while True:
+        state = step(settings, results)
+        if state.status != RUNNING:
+            return state, results
+        assert state.next_shear_rates and not set(state.next_shear_rates) & set(results)
+        for s in state.next_shear_rates:
+            results[s] = regime_at(s)
+
+
+def threshold(critical):
+    return lambda s: "PT" if s >= critical else "TT"
+
+
+@pytest.mark.parametrize("critical", [11.0, 37.3, 80.0, 151.7, 299.0])
+@pytest.mark.parametrize("rel_tol", [0.1, 0.02, 0.005])
+def test_the_search_brackets_the_transition_to_the_tolerance(critical, rel_tol):
+    settings = SearchSettings(low=10.0, high=320.0, rel_tol=rel_tol, max_cases=40)
+    state, results = run_search(settings, threshold(critical))
+    assert state.status == CONVERGED, state
+    assert state.low < critical <= state.high                     # the truth is inside the bracket
+    assert state.high / state.low - 1 <= rel_tol
+    assert abs(state.critical - critical) / critical <= rel_tol
+    assert len(results) <= settings.cases_needed()                 # bisection: logarithmic cost
+
+
+def test_a_range_without_a_transition_says_where_s_c_lies():
+    settings = SearchSettings(low=10.0, high=320.0)
+    above, _ = run_search(settings, threshold(1000.0))
+    assert above.status == UNBRACKETED and "S_C > 320" in above.reason
+    below, _ = run_search(settings, threshold(5.0))
+    assert below.status == UNBRACKETED and "S_C < 10" in below.reason and below.high == 10.0
+
+
+def test_undecided_or_reentrant_maps_stop_the_search_with_the_reason():
+    settings = SearchSettings(low=10.0, high=320.0)
+    undecided, _ = run_search(settings, lambda s: "undecided" if 40 < s < 100 else threshold(60.0)(s))
+    assert undecided.status == STOPPED and "undecided" in undecided.reason
+    reentrant = {10.0: "TT", 320.0: "PT", 56.5685424949: "PT", 23.7841423001: "TT", 36.6787800634: "TT"}
+    state = step(settings, {**reentrant, 200.0: "TT"})
+    assert state.status == STOPPED and "not a single transition" in state.reason
+
+
+def test_max_cases_bounds_the_work():
+    settings = SearchSettings(low=10.0, high=320.0, rel_tol=1e-6, max_cases=6)
+    state, results = run_search(settings, threshold(77.0))
+    assert state.status == STOPPED and len(results) == 6 and state.low < 77.0 <= state.high
+
+
+def test_the_next_case_depends_only_on_the_results():
+    settings = SearchSettings(low=10.0, high=320.0)
+    a = step(settings, {320.0: "PT", 10.0: "TT"})
+    b = step(settings, {10.0: "TT", 320.0: "PT"})
+    assert a.next_shear_rates == b.next_shear_rates == (pytest.approx(math.sqrt(3200.0)),)
+    assert (a.low, a.high, a.status) == (b.low, b.high, b.status) == (10.0, 320.0, RUNNING)
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ConfigError, match="low < high"):
+        SearchSettings(low=100.0, high=10.0)
+    with pytest.raises(ConfigError, match="rel_tol"):
+        SearchSettings(low=1.0, high=10.0, rel_tol=0.0)
