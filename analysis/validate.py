@@ -21,6 +21,7 @@ import numpy as np  # noqa: E402
 
 from hpcves import runner  # noqa: E402
 from hpcves.periodicity import crossing_period  # noqa: E402
+from hpcves.regimes import classify  # noqa: E402
 from hpcves.checkpoint import FINISHED, CaseStore, open_file  # noqa: E402
 from hpcves.params import Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.plots import case_figure, case_title, shape_strip  # noqa: E402
@@ -99,19 +100,20 @@ def two_phase(lines):
         fig.savefig(FIGURES / f"two_phase_S{S:g}.png", dpi=100)
         plt.close(fig)
         t, theta = series["t"], series["theta"]
-        p = crossing_period(t, theta, t_start=1.0)
         lab = series["V_psi"] + series["V_L"]
         late = t >= 1.0
-        results[S] = (p, theta[late].min(), theta[late].mean(), np.abs(lab[late]).mean())
+        results[S] = (classify(series), theta[late].min(), np.abs(lab[late]).mean())
         lines += [f"![S = {S:g}](docs/validation/two_phase_S{S:g}.png)", ""]
-    lines += ["| S | theta amplitude (t > 1) | min theta | mean theta | period (mid-line crossings) | "
-              "mean abs(V_psi + V_L) | regime |", "| ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
-    for S, (p, lo, mean, lab) in results.items():
-        regime = "phase-treading" if p.amplitude > 1e-3 and lo > 0 else ("tank-treading" if p.amplitude <= 1e-3 else "?")
-        period = f"{p.period:.4f} +- {p.spread:.1e} ({p.cycles} cycles)" if p.amplitude > 1e-3 else "--"
-        lines.append(f"| {S:g} | {p.amplitude:.2e} | {lo:.4f} | {mean:.4f} | {period} | {lab:.3f} | {regime} |")
-    tt = results[40.0][0].amplitude <= 1e-3 and results[40.0][3] < 0.05
-    pt = results[80.0][0].amplitude > 1e-3 and results[80.0][1] > 0
+    lines += ["Regimes by `hpcves analyze`'s classifier (hpcves/regimes.py, docs/analysis.md).", "",
+              "| S | regime | theta amplitude | min theta (t > 1) | mean theta | period | pattern speed "
+              "abs<V_psi + V_L>/abs<V> | mean abs(V_psi + V_L), t > 1 |",
+              "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
+    for S, (c, lo, lab) in results.items():
+        period = f"{c.period:.5f} +- {c.period_err:.1e} ({c.cycles:.0f} cycles)" if c.regime == "PT" else "--"
+        lines.append(f"| {S:g} | {c.regime} | {c.theta_amplitude:.2e} | {lo:.4f} | {c.theta_mean:.4f} | {period} | "
+                     f"{c.pattern_speed:.2e} | {lab:.3f} |")
+    tt = results[40.0][0].regime == "TT"
+    pt = results[80.0][0].regime == "PT"
     lines += ["", "S = 40 " + ("tank-treads" if tt else "does NOT tank-tread")
               + " (steady theta, phase pattern fixed in the lab: V_psi + V_L = 0); S = 80 "
               + ("phase-treads" if pt else "does NOT phase-tread") + ". "
