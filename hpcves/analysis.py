@@ -22,7 +22,7 @@ from .campaign_file import FORMAT as CAMPAIGN_FORMAT
 from .campaign_file import CampaignFile
 from .checkpoint import FAILED, FINISHED, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file
 from .params import ConfigError
-from .regimes import UNDECIDED, AnalysisSettings, Classification, classify
+from .regimes import REGIMES, UNDECIDED, AnalysisSettings, Classification, classify
 
 PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
 #: the columns of regimes.csv and of the file's analysis/ group, in order
@@ -172,7 +172,6 @@ def markdown_table(header: list[str], body: list[list[str]], left: tuple = (0,))
 
 
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
-    counts = {r: sum(1 for row in rows if row["regime"] == r) for r in ("TT", "PT", "TU", UNDECIDED)}
     keys = list(source.sweep_keys) or list(PARAMETERS)
     header = ["case"] + keys + ["regime", "period", "+-", "mean theta", "min theta", "amplitude", "t settle",
                                 "evidence"]
@@ -180,7 +179,7 @@ def regimes_markdown(source: Source, rows: list[dict]) -> str:
             + [row["regime"], _fmt(row["period"], ".6g"), _fmt(row["period_err"], ".2g"),
                _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
                _fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
-    summary = ", ".join(f"{n} {r}" for r, n in counts.items() if n)
+    summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, len(header) - 1)
     return (f"# Regimes of {source.kind} {source.name!r}\n\n{source.path}: {len(rows)} cases: {summary}.\n\n"
             + markdown_table(header, body, left) + "\n")
@@ -196,9 +195,7 @@ def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str
     A cell holds the period +- its uncertainty for PT and TU, else the regime.
     """
     out = []
-    combos = sorted({tuple(row[k] for k in others) for row in rows})
-    for combo in combos:
-        subset = [row for row in rows if tuple(row[k] for k in others) == combo]
+    for fixed, subset in facets(rows, others):
         row_values = sorted({row[row_key] for row in subset})
         col_values = sorted({row[col_key] for row in subset})
         cells = {(row[row_key], row[col_key]): row for row in subset}
@@ -216,7 +213,7 @@ def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str
                     line.append(row["regime"])
             body.append(line)
         header = [f"{LABELS.get(row_key, row_key)} \\ {LABELS.get(col_key, col_key)}"] + [f"{c:g}" for c in col_values]
-        out.append((dict(zip(others, combo)), markdown_table(header, body)))
+        out.append((fixed, markdown_table(header, body)))
     return out
 
 
@@ -254,7 +251,19 @@ def facets(rows: list[dict], others: list[str]):
 
 
 def facet_suffix(fixed: dict) -> str:
+    """``_B20.3``: the fixed values in a file name."""
     return "".join(f"_{LABELS.get(k, k)}{v:g}" for k, v in fixed.items())
+
+
+def facet_label(fixed: dict) -> str:
+    """``B2 = 0.3``: the fixed values in a heading or a title."""
+    return ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in fixed.items())
+
+
+def regime_counts(rows: list[dict]) -> dict:
+    """Number of cases per regime, in the order TT, PT, TU, undecided; regimes with none left out."""
+    counts = {r: sum(1 for row in rows if row["regime"] == r) for r in REGIMES}
+    return {r: n for r, n in counts.items() if n}
 
 
 
@@ -268,10 +277,7 @@ class Report:
     note: str                  # why the results were not written back, if they were not
 
     def counts(self) -> dict:
-        out = {}
-        for row in self.rows:
-            out[row["regime"]] = out.get(row["regime"], 0) + 1
-        return out
+        return regime_counts(self.rows)
 
 
 def parse_overrides(items) -> dict:
@@ -316,14 +322,13 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                 "phase-treads (PT) or tumbles (TU); otherwise its regime.\n"]
         for fixed, table in tables:
             if fixed:
-                text.append("## " + ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in fixed.items()) + "\n")
+                text.append(f"## {facet_label(fixed)}\n")
             text.append(table + "\n")
         (out / "periods.md").write_text("\n".join(text))
         written.append(out / "periods.md")
         for fixed, subset in facets(rows, others):
             suffix = facet_suffix(fixed)
-            where = ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in fixed.items())
-            title = f"{source.name}" + (f" ({where})" if where else "")
+            title = f"{source.name}" + (f" ({facet_label(fixed)})" if fixed else "")
             figures = {f"phase_diagram{suffix}": plots.phase_diagram(subset, x_key, y_key, title=title),
                        f"periods{suffix}": plots.period_figure(subset, y_key, x_key, title=title)}
             for name, fig in figures.items():

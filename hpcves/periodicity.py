@@ -33,6 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 #: an autocorrelation peak counts as the period if it is this high relative to the highest one
 PEAK_FRACTION = 0.8
@@ -99,11 +100,11 @@ def noise_level(x: np.ndarray) -> float:
     return float(np.median(np.abs(d4 - np.median(d4))) / 0.6745 / np.sqrt(70.0))
 
 
-def detrend(x: np.ndarray) -> tuple[np.ndarray, float]:
-    """x minus its least-squares line; and the line's change over the record."""
+def detrend(x: np.ndarray) -> np.ndarray:
+    """x minus its least-squares straight line."""
     i = np.arange(x.size, dtype=float)
     slope, intercept = np.polyfit(i, x, 1)
-    return x - (slope * i + intercept), float(slope * (x.size - 1))
+    return x - (slope * i + intercept)
 
 
 def period_trend(x: np.ndarray, window: int) -> float:
@@ -208,7 +209,7 @@ def estimate_period(t: np.ndarray, x: np.ndarray) -> PeriodEstimate:
     if x.size < 8:
         return PeriodEstimate.none()
     h = float((t[-1] - t[0]) / (t.size - 1))
-    y, _ = detrend(x)
+    y = detrend(x)
     lag, lag_error, peak = acf_period(y)
     if not np.isfinite(lag):
         return PeriodEstimate.none()
@@ -222,7 +223,7 @@ def estimate_period(t: np.ndarray, x: np.ndarray) -> PeriodEstimate:
     crossings = upward_crossings(t, y - mid, HYSTERESIS * 0.5 * (y.max() - y.min()))
     T_c, s_c = crossing_fit(crossings)
     if not np.isfinite(T_c) or T_c <= 0:
-        return PeriodEstimate(T_acf, s_acf if np.isfinite(s_acf) else float("nan"), T_acf, s_acf, peak,
+        return PeriodEstimate(T_acf, s_acf, T_acf, s_acf, peak,
                               float("nan"), float("nan"), 0, None)
     m = max(1, int(round(T_acf / T_c)))
     difference = abs(T_acf - m * T_c)
@@ -231,8 +232,8 @@ def estimate_period(t: np.ndarray, x: np.ndarray) -> PeriodEstimate:
     return PeriodEstimate(T_acf, error, T_acf, s_acf, peak, m * T_c, m * s_c, m, agree)
 
 
-def settle_index(x: np.ndarray, within) -> int:
-    """First index from which ``within`` holds for every later element (len(x) if never)."""
+def settle_index(within: np.ndarray) -> int:
+    """First index from which ``within`` holds for every later element (len(within) if never)."""
     bad = np.nonzero(~within)[0]
     return int(bad[-1] + 1) if bad.size else 0
 
@@ -254,27 +255,25 @@ def analyse(t: np.ndarray, x: np.ndarray, *, abs_tol: float = 1e-4, rel_tol: flo
     steady = float(tail.max() - tail.min()) <= 2 * tol
     if steady:
         final = float(np.median(tail))
-        start = settle_index(x, np.abs(x - final) <= tol)
+        start = settle_index(np.abs(x - final) <= tol)
         period = PeriodEstimate.none()
     else:
         half = n // 2
-        lag = acf_period(detrend(x[half:])[0])[0]
+        lag = acf_period(detrend(x[half:]))[0]
         if not np.isfinite(lag):                           # a long period: try the whole record
-            lag = acf_period(detrend(x)[0])[0]
+            lag = acf_period(detrend(x))[0]
         if not np.isfinite(lag):                           # oscillates, but no period to go by
             return SignalAnalysis(nan, 0.0, False, tol, noise, float(x.mean()), float(x.min()),
                                   float(x.max()), float(0.5 * (x.max() - x.min())), nan, PeriodEstimate.none())
         window = min(int(round(lag)) + 1, n // 4)
         z = x - period_trend(x[half:], window - 1) * np.arange(n)   # the second half's drift removed
-        from scipy.ndimage import maximum_filter1d, minimum_filter1d
-
         origin = -(window // 2)                            # window [i, i + window)
         upper = maximum_filter1d(z, window, origin=origin)[: n - window + 1]
         lower = minimum_filter1d(z, window, origin=origin)[: n - window + 1]
         ztail = z[-max(n // 4, window):]
         hi, lo = ztail.max(), ztail.min()
         band = max(tol, rel_tol * (hi - lo))
-        start = settle_index(upper, (np.abs(upper - hi) <= band) & (np.abs(lower - lo) <= band))
+        start = settle_index((np.abs(upper - hi) <= band) & (np.abs(lower - lo) <= band))
         period = estimate_period(t[start:], x[start:]) if start < n - 8 else PeriodEstimate.none()
     if start >= n:
         return SignalAnalysis(nan, 0.0, steady, tol, noise, nan, nan, nan, nan, nan, period)

@@ -133,7 +133,7 @@ class LinearizedImplicit:
     """
 
     def __init__(self, sp, mobility, a0, eps, cutoff=CUTOFF):
-        self.N = N = sp.N
+        self.N = sp.N
         self.cutoff = cutoff
         self._fft = sp.fft
         self._c2 = mobility * a0 / eps

@@ -135,10 +135,10 @@ def _log_scale(values) -> bool:
     return values.size >= 3 and values.min() > 0 and values.max() / values.min() >= 20
 
 
+@plt.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
 def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True):
     """Regimes over two swept parameters: one marker per case, coloured by regime;
     undecided cases are grey crosses; PT/TU points carry their period."""
-    plt.rcParams.update({"font.size": 14})
     fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
     for regime, (colour, marker, label) in REGIME_STYLE.items():
         chosen = [r for r in rows if r["regime"] == regime]
@@ -162,7 +162,6 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
     ax.legend(loc="best", fontsize=11, framealpha=0.9)
     if title:
         ax.set_title(title, fontsize=13)
-    plt.rcParams.update({"font.size": plt.rcParamsDefault["font.size"]})
     return fig
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from .config import check_type
 from .params import ConfigError
-from .periodicity import SignalAnalysis, analyse
+from .periodicity import analyse
 
 TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
 REGIMES = (TT, PT, TU, UNDECIDED)
