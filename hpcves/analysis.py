@@ -41,6 +41,7 @@ class CaseData:
     t_end: float
     message: str
     series: dict
+    search: int = -1           # search files: the search the case belongs to
 
 
 @dataclass(frozen=True)
@@ -53,13 +54,16 @@ class Source:
     sweep_keys: tuple
     settings: AnalysisSettings
     cases: tuple
+    mode: str = "grid"         # campaigns: "grid" or "search"
+    toml: str = ""             # campaigns: the campaign file's text
 
 
-def _case_data(store: CaseStore, case_id: str) -> CaseData:
+def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     attrs = store.group.attrs
     t, t_end = (float(v) for v in store.progress[:2])
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
-                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries())
+                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
+                    search)
 
 
 def settings_of(toml_text: str, where: str) -> AnalysisSettings:
@@ -79,11 +83,13 @@ def read_source(path) -> Source:
         try:
             if fmt == CAMPAIGN_FORMAT:
                 campaign = CampaignFile.check(h5, str(path))
-                cases = tuple(_case_data(campaign.store(c), c) for c in campaign.case_ids)
-                settings = settings_of(attr_text(h5.attrs.get("campaign_toml", "")), str(path))
-                return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys), settings, cases)
+                cases = tuple(case_data(campaign.store(c), c, search)
+                              for c, search in zip(campaign.case_ids, campaign.searches_of_cases()))
+                toml = attr_text(h5.attrs.get("campaign_toml", ""))
+                return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys),
+                              settings_of(toml, str(path)), cases, campaign.mode, toml)
             store = CaseStore.open(h5, where=str(path))       # a single run (or a clear refusal)
-            return Source(path, "case", path.stem, (), AnalysisSettings(), (_case_data(store, path.stem),))
+            return Source(path, "case", path.stem, (), AnalysisSettings(), (case_data(store, path.stem),))
         except (KeyError, ValueError, OSError) as exc:
             raise FileFormatError(f"{path}: damaged file ({type(exc).__name__}: {exc})") from None
 
@@ -275,6 +281,7 @@ class Report:
     written: tuple             # paths of the tables and figures
     wrote_back: bool
     note: str                  # why the results were not written back, if they were not
+    searches: tuple = ()       # search files: the rows of critical_shear.csv
 
     def counts(self) -> dict:
         return regime_counts(self.rows)
@@ -316,7 +323,21 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     written += [out / "regimes.csv", out / "regimes.md"]
 
     x_key, y_key, others = grid_axes(source, rows, axes)
-    if source.kind == "campaign" and len(rows) > 1:
+    searches = []
+    if source.mode == "search":
+        from .search_campaign import critical_markdown, critical_rows, write_critical_csv
+
+        searches = critical_rows(source, rows)
+        write_critical_csv(searches, out / "critical_shear.csv")
+        (out / "critical_shear.md").write_text(critical_markdown(source.name, searches))
+        written += [out / "critical_shear.csv", out / "critical_shear.md"]
+        varied = [k for k in source.sweep_keys if k != "shear_rate" and len({r[k] for r in searches}) > 1]
+        if varied:
+            for fixed, subset in facets(searches, varied[1:]):
+                fig = plots.critical_shear_figure(subset, varied[0], title=f"{source.name}" + (
+                    f" ({facet_label(fixed)})" if fixed else ""))
+                written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
+    if source.kind == "campaign" and len(rows) > 1 and source.mode != "search":
         tables = period_tables(rows, y_key, x_key, others)
         text = [f"# Periods of {source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
                 "phase-treads (PT) or tumbles (TU); otherwise its regime.\n"]
@@ -326,16 +347,17 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
             text.append(table + "\n")
         (out / "periods.md").write_text("\n".join(text))
         written.append(out / "periods.md")
+    if source.kind == "campaign" and len(rows) > 1:
         for fixed, subset in facets(rows, others):
             suffix = facet_suffix(fixed)
             title = f"{source.name}" + (f" ({facet_label(fixed)})" if fixed else "")
-            figures = {f"phase_diagram{suffix}": plots.phase_diagram(subset, x_key, y_key, title=title),
-                       f"periods{suffix}": plots.period_figure(subset, y_key, x_key, title=title)}
-            for name, fig in figures.items():
-                for ext in ("png", "pdf"):
-                    fig.savefig(out / f"{name}.{ext}", dpi=150)
-                    written.append(out / f"{name}.{ext}")
-                plots.plt.close(fig)
+            fig = plots.phase_diagram(subset, x_key, y_key, title=title, annotate_periods=not searches)
+            if searches and x_key == "shear_rate":
+                plots.mark_critical(fig.axes[0], [r for r in searches if all(r[k] == v for k, v in fixed.items())],
+                                    y_key)
+            written += _save(fig, out / f"phase_diagram{suffix}")
+            if not searches:
+                written += _save(plots.period_figure(subset, y_key, x_key, title=title), out / f"periods{suffix}")
     if case_figures:
         directory = out / "cases"
         directory.mkdir(exist_ok=True)
@@ -367,7 +389,18 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
             finally:
                 if lock is not None:
                     lock.release()
-    return Report(source, tuple(rows), tuple(written), wrote_back, note)
+    return Report(source, tuple(rows), tuple(written), wrote_back, note, tuple(searches))
+
+
+def _save(fig, stem: Path) -> list[Path]:
+    """Save a figure as PNG and PDF; close it."""
+    from .plots import plt
+
+    paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("png", "pdf")]
+    for path in paths:
+        fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return paths
 
 
 def _wrap(text: str, width: int = 110) -> str:

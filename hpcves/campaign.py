@@ -45,9 +45,11 @@ from typing import Callable
 
 from . import runner
 from .campaign_file import CampaignFile
-from .checkpoint import FAILED, FINISHED, INTERRUPTED, PENDING, STATUS_NAMES, FileFormatError, open_file
+from .checkpoint import (FAILED, FINISHED, INTERRUPTED, PENDING, STATUS_NAMES, FileFormatError, attr_text,
+                         open_file)
 from .params import ConfigError
 from .relay import Relay, RemoteCampaign
+from .search_campaign import SearchDriver, cases_from_file
 from .study import Study
 
 TAG_REQUEST = 11      # worker -> rank 0: ("ready",) | ("done", CaseResult) | ("progress", id, fraction) | ("stop",)
@@ -78,6 +80,7 @@ class Summary:
     counts: dict                    # status name -> number of cases in the file
     failed: tuple                   # (case_id, message) of every failed case in the file
     wall: float
+    searches: tuple = ()            # search studies: SearchOutcome of every search (empty if stopped)
 
     @property
     def exit_status(self) -> int:
@@ -160,6 +163,14 @@ def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> 
         return "create"
     if not resume:
         raise FileFormatError(f"{path}: exists already; use --resume to continue it or --overwrite to start over")
+    with open_file(path, "r", locking=False) as h5:
+        partial = (attr_text(h5.attrs.get("mode", "")) == "search"
+                   and len(h5.get("cases", ())) != int(h5.attrs.get("n_cases", -1)))
+    if partial:                 # killed while adding a stage's cases: those cases are made again
+        with open_file(path, "r+") as h5:
+            dropped = CampaignFile.drop_partial_stage(h5)
+        print(f"{path}: removed {dropped} case{'s' * (dropped != 1)} of a search stage whose adding was "
+              "interrupted; the search makes them again", file=sys.stderr)
     with open_file(path, "r", locking=False) as h5:
         try:
             campaign = CampaignFile.check(h5, str(path))
@@ -325,8 +336,8 @@ class Master:
                 del self.busy[0]
                 self.record(result)
                 backoff.reset()
-            elif not self.busy:
-                break
+            elif not self.busy and len(self.waiting) == self.size - 1:
+                break               # every other rank has asked for work: none of its messages is left unread
             else:
                 backoff.sleep()
         for rank in range(1, self.size):
@@ -373,15 +384,23 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag) -> None:
 # ---------------------------------------------------------------------- the whole job
 def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, retry_failed: bool = False,
                  overwrite: bool = False, io: str = "auto", stop_flag: Callable[[], bool] = lambda: False,
-                 display=None, announce: Callable[[str, int], None] = lambda text, finished: None) -> Summary:
+                 display=None, announce: Callable[[str, int, int], None] = lambda text, total, finished: None,
+                 on_stage: Callable[[list], None] = lambda outcomes: None) -> Summary:
     """Run (or continue) a study into ``path`` on every rank of ``comm`` (None: this process alone).
 
     ``io`` (several ranks only): "mpio" -- every rank opens the file with
     h5py's MPI driver; "relay" -- only rank 0 opens it and applies the other
     ranks' writes (relay.py); "auto" -- mpio where h5py has MPI, else relay.
 
-    Rank 0 calls ``announce(text, n_finished_before)`` once the work is known
-    and ``display(master)`` at every scheduling turn.
+    A search study (``study.search``) runs in stages (search_campaign.py):
+    after each, rank 0 classifies the finished cases, the searches choose
+    their next shear rates, and every rank adds those cases to the file
+    before the next stage runs them. Rank 0 calls ``on_stage(outcomes)`` with
+    the state of every search after each stage.
+
+    Rank 0 calls ``announce(text, None, n_finished)`` with the campaign's
+    first line, ``announce(text, n_cases, n_finished_before)`` once the work
+    of a stage is known, and ``display(master)`` at every scheduling turn.
 
     Collective: every rank calls it with the same study. Bad input raises
     ConfigError on every rank (the message is rank 0's).
@@ -409,20 +428,47 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     try:
         h5, campaign, flush = _open(study, path, comm, mode, io)
         try:
-            if rank == 0:
-                todo = work_list(campaign, study, retry_failed)
-                statuses = campaign.statuses()
-                announce(_announcement(study, path, statuses, todo, size, mode, io),
-                         sum(1 for s in statuses.values() if s == FINISHED))
-                relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
-                master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display,
-                                relay)
-                results = master.run()
-            else:
-                worker_loop(comm, campaign, flush, stop_flag)
-                results = []
-            if size > 1:
-                wait(comm.Ibarrier())     # everyone is done writing before the collective close
+            results, outcomes = [], []
+            driver = None
+            if rank == 0 and study.search is not None:
+                driver = SearchDriver(study)
+                if mode == "continue":
+                    study = cases_from_file(study, campaign)
+            stage = 0
+            while True:
+                ran, stopped = _run_stage(study, path, comm, campaign, flush, io, mode, stage,
+                                          retry_failed and stage == 0, stop_flag, display, announce)
+                results += ran
+                if study.search is None:
+                    break
+                if io == "mpio":
+                    # Rank 0 is about to read the cases the others wrote: MPI-IO makes their writes
+                    # visible after a sync by the writers (H5Fflush, collective) and a barrier.
+                    h5.flush()
+                    comm.Barrier()
+                plan = ("stop",)
+                if rank == 0 and not stopped:
+                    outcomes, new = driver.next_stage(study, campaign)
+                    on_stage(outcomes)
+                    plan = ("add", new) if new else ("done",)
+                if size > 1:
+                    plan = comm.bcast(plan, root=0)
+                if plan[0] != "add":
+                    break
+                study = study.with_cases(plan[1]) if rank == 0 else study
+                if io == "mpio":
+                    # Adding cases is collective, and parallel HDF5 hangs in it when rank 0 alone has
+                    # just read much of the file (classifying): reopening gives every rank the same
+                    # metadata cache again.
+                    h5.close()
+                    h5 = None
+                    h5, campaign, flush = _open(study, path, comm, "continue", io)
+                    campaign.add_cases(plan[1])
+                    h5.flush()
+                elif rank == 0:
+                    campaign.add_cases(plan[1])
+                    flush()
+                stage += 1
             summary = None
             if rank == 0:
                 counts = {name: 0 for name in STATUS_NAMES.values()}
@@ -431,7 +477,8 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
                     counts[row["status"]] += 1
                     if row["status"] == "failed":
                         failed.append((row["case"], row["message"]))
-                summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start)
+                summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start,
+                                  tuple(outcomes))
         finally:
             if h5 is not None:
                 h5.close()
@@ -441,6 +488,31 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     finally:
         if lock is not None:
             lock.release()
+
+
+def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed, stop_flag, display,
+               announce) -> tuple[list[CaseResult], bool]:
+    """Run every unfinished case of the file on every rank: (results, whether it was stopped) on rank 0."""
+    size = 1 if comm is None else comm.Get_size()
+    rank = 0 if comm is None else comm.Get_rank()
+    results, stopped = [], False
+    if rank == 0:
+        todo = work_list(campaign, study, retry_failed)
+        statuses = campaign.statuses()
+        finished = sum(1 for s in statuses.values() if s == FINISHED)
+        if stage == 0:
+            announce(_announcement(study, path, statuses, size, mode, io), None, finished)
+        if todo or study.search is None:
+            announce(_stage_line(study, statuses, todo, stage), len(statuses), finished)
+        relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
+        master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display, relay)
+        results = master.run()
+        stopped = master.stopping
+    else:
+        worker_loop(comm, campaign, flush, stop_flag)
+    if size > 1:
+        wait(comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
+    return results, stopped
 
 
 def choose_io(io: str, size: int) -> str:
@@ -502,11 +574,26 @@ def _nothing() -> None:
     pass
 
 
-def _announcement(study, path, statuses, todo, size, mode, io) -> str:
+def _announcement(study, path, statuses, size, mode, io) -> str:
+    """The first line of a campaign: what, where, on how many ranks."""
+    access = {"serial": "serial HDF5", "mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}[io]
+    verb = "new file" if mode == "create" else "continuing"
+    if study.search is None:
+        what = f"{len(study.cases)} cases"
+    else:
+        n = len(study.searches)
+        what = (f"{n} critical-shear search{'es' * (n != 1)} over S in [{study.search.low:g}, "
+                f"{study.search.high:g}] to {study.search.rel_tol:g} (at most {study.search.max_cases} cases each), "
+                f"{len(statuses)} cases so far")
+    return f"campaign {study.name!r} -> {path} ({verb}): {what}; {size} rank{'s' * (size > 1)}, {access}"
+
+
+def _stage_line(study, statuses, todo, stage) -> str:
+    """What a stage runs: cases to run, resumed, finished and failed before."""
     finished = sum(1 for s in statuses.values() if s == FINISHED)
     failed = sum(1 for s in statuses.values() if s == FAILED)
     resumed = sum(1 for case_id, resume in todo if resume and statuses[case_id] != PENDING)
-    parts = [f"{len(study.cases)} cases", f"{len(todo)} to run"]
+    parts = [f"{len(todo)} to run"]
     if resumed:
         parts.append(f"{resumed} from a checkpoint")
     if finished:
@@ -514,6 +601,8 @@ def _announcement(study, path, statuses, todo, size, mode, io) -> str:
     if failed:
         parts.append(f"{failed} failed before" + ("" if any(not r for _, r in todo) else
                                                   " (--retry-failed reruns them)"))
-    access = {"serial": "serial HDF5", "mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}[io]
-    verb = "new file" if mode == "create" else "continuing"
-    return f"campaign {study.name!r} -> {path} ({verb}): {', '.join(parts)}; {size} rank{'s' * (size > 1)}, {access}"
+    if study.search is not None and stage > 0:
+        searches = len({study.by_id(case_id).search for case_id, _ in todo})
+        parts[0] = f"stage {stage}: {len(todo)} new case{'s' * (len(todo) != 1)} for {searches} " \
+                   f"search{'es' * (searches != 1)}"
+    return ", ".join(parts)

@@ -3,7 +3,11 @@
     attrs      format = "hpcves-campaign", format_version, hpcves_version, name,
                fingerprint (Study.fingerprint), campaign_toml (the campaign
                file's text), sweep_keys, n_cases
-    index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,)
+               mode ("grid" or "search")
+    index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
+               search (n,) int (the search of each case; -1 in a grid) -- all
+               resizable: a search adds its cases stage by stage
+    searches/  search files: one (n_searches,) dataset per swept key
     cases/<id>/  one case, laid out exactly as a single run (checkpoint.CaseStore):
                parameters as attributes, status, message, traceback, progress,
                timeseries/ (preallocated, with a length counter), snapshots/,
@@ -36,7 +40,7 @@ class CampaignFile:
     # ------------------------------------------------------------------ creation / opening
     @classmethod
     def create(cls, h5, study: Study) -> "CampaignFile":
-        """Lay out every case (collective under mpio: every rank calls this identically)."""
+        """Lay out the file and every case known yet (collective under mpio: every rank calls this identically)."""
         a = h5.attrs
         a["format"] = FORMAT
         a["format_version"] = FORMAT_VERSION
@@ -44,20 +48,66 @@ class CampaignFile:
         a["name"] = study.name
         a["fingerprint"] = study.fingerprint
         a["campaign_toml"] = study.source
-        a["sweep_keys"] = ",".join(study.sweep)
-        a["n_cases"] = len(study.cases)
+        a["mode"] = "search" if study.search else "grid"
+        a["sweep_keys"] = ",".join(study.sweep_keys)
+        a["n_cases"] = 0
         index = h5.create_group("index")
-        ids = [c.case_id for c in study.cases]
-        index.create_dataset("case_id", data=np.array(ids, dtype=f"S{max(len(i) for i in ids)}"))
-        for key in study.sweep:
-            index.create_dataset(key, data=np.array([c.swept[key] for c in study.cases], dtype="f8"))
-        index.create_dataset("cost", data=np.array([c.cost for c in study.cases]))
-        cases = h5.create_group("cases")
-        for c in study.cases:
-            group = cases.create_group(c.case_id)
+        growing = {"shape": (0,), "maxshape": (None,), "chunks": (1024,)}
+        index.create_dataset("case_id", dtype=f"S{study.id_width}", **growing)
+        for key in study.sweep_keys:
+            index.create_dataset(key, dtype="f8", **growing)
+        index.create_dataset("cost", dtype="f8", **growing)
+        index.create_dataset("search", dtype="i4", **growing)
+        if study.search:
+            searches = h5.create_group("searches")
+            for key in study.sweep:
+                searches.create_dataset(key, data=np.array([p[key] for p in study.searches], dtype="f8"))
+        h5.create_group("cases")
+        campaign = cls(h5)
+        campaign.add_cases(study.cases)
+        return campaign
+
+    def add_cases(self, cases) -> None:
+        """Lay out new cases and append them to the index (collective under mpio).
+
+        Order matters for a crash in the middle: the groups come first, the
+        index next, the ``n_cases`` attribute last, so a file whose groups
+        outnumber ``n_cases`` is recognisably one with a half-added stage
+        (:meth:`drop_partial_stage`).
+        """
+        cases = list(cases)
+        if not cases:
+            return
+        for c in cases:
+            group = self._cases.create_group(c.case_id)
             CaseStore.create(group, c.case)
             group.attrs["case_id"] = c.case_id
-        return cls(h5)
+        index = self.h5["index"]
+        start = index["case_id"].shape[0]
+        stop = start + len(cases)
+        columns = {"case_id": [c.case_id.encode() for c in cases], "cost": [c.cost for c in cases],
+                   "search": [c.search for c in cases]}
+        columns.update({k: [c.swept[k] for c in cases] for k in self.sweep_keys})
+        for key, values in columns.items():
+            dataset = index[key]
+            dataset.resize((stop,))
+            dataset[start:stop] = np.array(values, dtype=dataset.dtype)
+        self.h5.attrs["n_cases"] = stop
+
+    @staticmethod
+    def drop_partial_stage(h5) -> int:
+        """Remove the cases of a stage whose adding was cut short (search files; serial access).
+
+        Returns the number of case groups removed.
+        """
+        n = int(h5.attrs["n_cases"])
+        extra = [case_id for case_id in h5["cases"] if int(case_id) >= n]
+        for case_id in extra:
+            del h5["cases"][case_id]
+        for dataset in h5["index"].values():
+            if dataset.shape[0] > n:
+                dataset.resize((n,))
+        return len(extra)
 
     @classmethod
     def check(cls, h5, where: str) -> "CampaignFile":
@@ -74,7 +124,8 @@ class CampaignFile:
         if missing:
             raise FileFormatError(f"{where}: incomplete campaign file, missing {', '.join(missing)}")
         n = int(h5.attrs.get("n_cases", -1))
-        if len(h5["cases"]) != n:
+        search = attr_text(h5.attrs.get("mode", "grid")) == "search"
+        if len(h5["cases"]) != n and not (search and len(h5["cases"]) > n):   # a search's half-added stage
             raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
                                   "(creation was interrupted?)")
         return cls(h5)
@@ -98,13 +149,33 @@ class CampaignFile:
         return attr_text(self.h5.attrs.get("fingerprint", ""))
 
     @property
+    def mode(self) -> str:
+        """"grid" (every case known up front) or "search" (critical-shear searches, cases added by stage)."""
+        return attr_text(self.h5.attrs.get("mode", "grid"))
+
+    def searches_of_cases(self) -> list[int]:
+        """The search each case belongs to (-1 in a grid study), in id order."""
+        index = self.h5["index"]
+        n = int(self.h5.attrs["n_cases"])
+        return [int(v) for v in index["search"][:n]] if "search" in index else [-1] * n
+
+    def search_points(self) -> list[dict]:
+        """Search files: the swept values of every search, in order."""
+        group = self.h5["searches"]
+        keys = [k for k in self.sweep_keys if k in group]
+        return [dict(zip(keys, values)) for values in zip(*(group[k][:].tolist() for k in keys))] \
+            if keys else [{}]
+
+    @property
     def sweep_keys(self) -> list[str]:
         keys = attr_text(self.h5.attrs.get("sweep_keys", ""))
         return [k for k in keys.split(",") if k]
 
     @property
     def case_ids(self) -> list[str]:
-        return [attr_text(i) for i in self.h5["index/case_id"][:]]
+        """Every complete case (a search's half-added stage beyond ``n_cases`` left out)."""
+        n = int(self.h5.attrs["n_cases"])
+        return [attr_text(i) for i in self.h5["index/case_id"][:n]]
 
     def store(self, case_id: str) -> CaseStore:
         return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")

@@ -278,21 +278,34 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
     path = out or study.output
     display = None
 
-    def announce(text, finished_before):
+    critical_csv = path.with_name(path.stem + "_critical_shear.csv")
+
+    def announce(text, n_cases, finished_before):
         nonlocal display
+        if display is not None:
+            display.close()
+            display = None
         click.echo(text, err=True)
-        if not quiet:
-            display = CampaignProgress(len(study.cases), finished_before)
+        if n_cases is not None and not quiet:
+            display = CampaignProgress(n_cases, finished_before)
 
     def show(master):
         if display is not None:
             display(master)
 
+    def on_stage(outcomes):
+        from .search_campaign import write_critical_csv
+
+        write_critical_csv([o.row() for o in outcomes], critical_csv)
+        ended = sum(1 for o in outcomes if o.state.status != "running")
+        detail = "; ".join(_search_brief(o) for o in outcomes) if len(outcomes) <= 8 else f"see {critical_csv}"
+        announce(f"searches: {ended} of {len(outcomes)} ended; {detail}", None, 0)
+
     try:
         with StopFlag() as stop:
             summary = run_campaign(study, path, comm if size > 1 else None, resume=resume,
                                    retry_failed=retry_failed, overwrite=overwrite, io=io, stop_flag=stop,
-                                   display=show, announce=announce)
+                                   display=show, announce=announce, on_stage=on_stage)
     except ConfigError as exc:
         if rank == 0:
             click.echo(f"Error: {exc}", err=True)
@@ -302,7 +315,36 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
             display.close()
     if rank == 0:
         _print_summary(summary, path)
+        if summary.searches:
+            _print_searches(summary.searches, critical_csv)
     sys.exit(summary.exit_status)
+
+
+def _search_brief(outcome) -> str:
+    """``psi_bar = 0.3: [40, 56.6]``: one search in a few characters."""
+    point = ", ".join(f"{k} = {v:g}" for k, v in outcome.point.items() if k in outcome.swept_keys) or "S_C"
+    state = outcome.state
+    if state.status == "converged":
+        return f"{point}: S_C = {state.critical:.4g}"
+    if state.status == "running" and state.low == state.low:
+        return f"{point}: [{state.low:g}, {state.high:g}]"
+    return f"{point}: {state.status}"
+
+
+def _print_searches(outcomes, critical_csv) -> None:
+    from .analysis import markdown_table
+
+    keys = [k for k in outcomes[0].swept_keys]
+    body = []
+    for o in outcomes:
+        s = o.state
+        body.append([f"{o.point[k]:g}" for k in keys]
+                    + [f"{s.critical:.4g}" if s.critical == s.critical else "",
+                       f"[{s.low:g}, {s.high:g}]" if s.low == s.low and s.high == s.high else "",
+                       str(len(o.regimes)), s.status, o.row()["reason"]])
+    click.echo(markdown_table(keys + ["S_C", "bracket", "cases", "status", "reason"], body,
+                              left=(len(keys) + 3, len(keys) + 4)))
+    click.echo(f"critical shear rates: {critical_csv}")
 
 
 def _print_summary(summary, path) -> None:
@@ -364,8 +406,9 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures):
     """Regimes (TT / PT / TU / undecided), periods, tables and figures of a campaign or run file.
 
     Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
-    tables (PNG and PDF) and cases/<id>.png; the results also go into the
-    file's analysis/ group. The file may belong to a running campaign (then
+    tables (PNG and PDF) and cases/<id>.png -- for a [search] campaign,
+    critical_shear.csv/.md and S_C figures instead of the period tables; the
+    results also go into the file's analysis/ group. The file may belong to a running campaign (then
     nothing is written into it).
     """
     from .analysis import analyze, parse_overrides
@@ -388,6 +431,10 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures):
         click.echo(f"{row['case']}  {row['regime']:<9}{period}  {row['reason']}")
     counts = ", ".join(f"{n} {r}" for r, n in report.counts().items())
     click.echo(f"{report.source.path}: {len(rows)} case{'s' * (len(rows) != 1)}: {counts}")
+    for s in report.searches:
+        where = f"psi_bar = {s['psi_bar']:g}, Delta = {s['excess_length']:g}, B2 = {s['B2']:g}"
+        value = f"S_C = {s['S_C']:.4g}" if s["S_C"] == s["S_C"] else s["status"]
+        click.echo(f"search {where}: {value}  ({s['reason']})")
     if report.wrote_back:
         click.echo(f"results stored in {report.source.path} (group analysis/)")
     elif report.note:

@@ -9,6 +9,7 @@ and kymographs of tension and curvature in the material frame.
 from __future__ import annotations
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -193,6 +194,51 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
     ax.set_ylabel(AXIS_LABELS.get(row_key, row_key))
     if title:
         ax.set_title(title)
+    return fig
+
+
+def mark_critical(ax, searches: list[dict], y_key: str) -> None:
+    """On a phase diagram with S along x: each search's bracket [low, high] as a bar at its
+    ``y_key`` value, S_C as a diamond (rows of critical_shear.csv)."""
+    label = "S$_C$ bracket"
+    for r in searches:
+        low, high = r["bracket_low"], r["bracket_high"]
+        if np.isfinite(low) and np.isfinite(high):
+            ax.plot([low, high], [r[y_key]] * 2, color="k", lw=3, solid_capstyle="butt", zorder=4, label=label)
+            if np.isfinite(r["S_C"]):
+                ax.plot(r["S_C"], r[y_key], "D", color="gold", mec="k", ms=9, zorder=5)
+            label = None
+    if label is None:
+        ax.legend(loc="best", fontsize=11, framealpha=0.9)
+
+
+def critical_shear_figure(searches: list[dict], x_key: str, title: str = ""):
+    """S_C against one swept parameter: the bracket as an error bar, S_C as a point; a search
+    that did not bracket S_C is an arrow at the end of its range."""
+    fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    for r in searches:
+        x, low, high = r[x_key], r["bracket_low"], r["bracket_high"]
+        if np.isfinite(r["S_C"]):
+            ax.errorbar([x], [r["S_C"]], yerr=[[r["S_C"] - low], [high - r["S_C"]]], fmt="D", color="C0",
+                        mec="k", ms=8, capsize=5, lw=2)
+        elif np.isfinite(low) and np.isfinite(high):
+            ax.plot([x, x], [low, high], color="C1", lw=3)
+            ax.annotate(r["status"], (x, high), textcoords="offset points", xytext=(5, 0), fontsize=9)
+        elif np.isfinite(low):
+            ax.plot([x], [low], marker="^", color="C3", ms=11, mec="k")
+            ax.annotate(f"S$_C$ > {low:g}", (x, low), textcoords="offset points", xytext=(8, -4), fontsize=10)
+        elif np.isfinite(high):
+            ax.plot([x], [high], marker="v", color="C3", ms=11, mec="k")
+            ax.annotate(f"S$_C$ < {high:g}", (x, high), textcoords="offset points", xytext=(8, -4), fontsize=10)
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.margins(x=0.15, y=0.15)
+    ax.set_xlabel(AXIS_LABELS.get(x_key, x_key), fontsize=13)
+    ax.set_ylabel("critical shear rate $S_C$", fontsize=13)
+    ax.grid(alpha=0.3, which="both")
+    if title:
+        ax.set_title(title, fontsize=13)
     return fig
 
 

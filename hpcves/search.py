@@ -6,11 +6,14 @@ the next shear rates to run or a final verdict. Being a pure function of the
 results, a search resumes by replaying them, and the cases it asks for are
 the same in every run.
 
-* Start: the two ends of ``[low, high]``.
+* Start: the two ends of ``[low, high]`` (and ``points - 1`` shear rates
+  spaced geometrically between them).
 * Bracket: ``lo`` = the largest TT shear rate below every PT/TU one,
   ``hi`` = the smallest PT/TU one above ``lo``.
-* Bisect geometrically (S spans decades): the next case is sqrt(lo hi),
-  until ``hi / lo - 1 <= rel_tol``; then S_C = sqrt(lo hi), bracket [lo, hi].
+* Bisect geometrically (S spans decades): the next case is sqrt(lo hi) --
+  or, with ``points = k``, the k rates that split [lo, hi] into k + 1 equal
+  ratios, run side by side (for many ranks and few searches) -- until
+  ``hi / lo - 1 <= rel_tol``; then S_C = sqrt(lo hi), bracket [lo, hi].
 * Stop without S_C, saying why, when: the range does not bracket a
   transition (TT everywhere: S_C > high; PT at ``low`` already: S_C < low);
   a case inside the bracket is undecided or failed; TT is found above a PT
@@ -19,8 +22,9 @@ the same in every run.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
+from .config import check_type
 from .params import ConfigError
 from .regimes import PT, TT, TU
 
@@ -35,18 +39,45 @@ class SearchSettings:
     high: float
     rel_tol: float = 0.02
     max_cases: int = 16
+    points: int = 1                # shear rates per search per stage (k-section; 1 = bisection)
 
     def __post_init__(self):
         if not 0 < self.low < self.high:
             raise ConfigError(f"search: need 0 < low < high, got low = {self.low}, high = {self.high}")
         if not 0 < self.rel_tol < 1:
             raise ConfigError(f"search.rel_tol = {self.rel_tol}: must lie in (0, 1)")
-        if self.max_cases < 2:
-            raise ConfigError(f"search.max_cases = {self.max_cases}: must be >= 2")
+        if self.points < 1:
+            raise ConfigError(f"search.points = {self.points}: must be >= 1")
+        if self.max_cases < self.points + 1:
+            raise ConfigError(f"search.max_cases = {self.max_cases}: must be >= points + 1 = {self.points + 1}")
 
     def cases_needed(self) -> int:
-        """Cases a search takes to converge from [low, high]: 2 ends + ceil(log2(log(high/low)/log(1+tol)))."""
-        return 2 + max(0, math.ceil(math.log2(math.log(self.high / self.low) / math.log1p(self.rel_tol))))
+        """Cases a search takes at most to converge from [low, high].
+
+        The start (points + 1 cases) leaves a bracket of ratio (high/low)^(1/points);
+        each stage divides its logarithm by points + 1. For bisection this is
+        2 + ceil(log2(log(high/low) / log(1 + rel_tol))).
+        """
+        ratio = math.log(self.high / self.low) / self.points / math.log1p(self.rel_tol)
+        stages = max(0, math.ceil(math.log(ratio) / math.log(self.points + 1) - 1e-12)) if ratio > 1 else 0
+        return self.points + 1 + stages * self.points
+
+    def stages_needed(self) -> int:
+        """Stages (rounds of cases run side by side) a search takes at most: the start plus the splits."""
+        return 1 + (self.cases_needed() - self.points - 1) // self.points
+
+    @classmethod
+    def from_dict(cls, values: dict, where: str = "[search]") -> "SearchSettings":
+        known = {f.name: f.type for f in fields(cls)}
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
+                              f"(known: {', '.join(known)})")
+        missing = [k for k in ("low", "high") if k not in values]
+        if missing:
+            raise ConfigError(f"{where}: give {' and '.join(missing)} (the range of S to search)")
+        return cls(**{k: check_type(f"search.{k}", v, int if known[k] == "int" else float)
+                      for k, v in values.items()})
 
 
 @dataclass(frozen=True)
@@ -63,10 +94,26 @@ def _clean(value: float) -> float:
     return float(f"{value:.12g}")
 
 
+def between(low: float, high: float, k: int) -> tuple:
+    """The k shear rates that split [low, high] into k + 1 equal ratios (k = 1: sqrt(low high))."""
+    if k == 1:
+        return (_clean(math.sqrt(low * high)),)
+    return tuple(_clean(low * (high / low) ** (i / (k + 1))) for i in range(1, k + 1))
+
+
+def start_rates(settings: SearchSettings) -> tuple:
+    """The shear rates of a search's first stage: both ends and points - 1 between them."""
+    inner = between(settings.low, settings.high, settings.points - 1) if settings.points > 1 else ()
+    return (settings.low, *inner, settings.high)
+
+
 def step(settings: SearchSettings, results: dict) -> SearchState:
-    """The state of one search given ``results`` = {shear rate: regime} of its finished cases."""
+    """The state of one search given ``results`` = {shear rate: regime} of its finished cases.
+
+    A regime other than TT, PT or TU (undecided, failed) is never taken as either side.
+    """
     nan = float("nan")
-    missing = tuple(s for s in (settings.low, settings.high) if s not in results)
+    missing = tuple(s for s in start_rates(settings) if s not in results)
     if missing:
         return SearchState(RUNNING, missing, nan, nan, nan, "starting: both ends of the range")
     rates = sorted(results)
@@ -94,10 +141,12 @@ def step(settings: SearchSettings, results: dict) -> SearchState:
         critical = math.sqrt(lo * hi)
         return SearchState(CONVERGED, (), lo, hi, critical,
                            f"S_C = {critical:.4g} in [{lo:g}, {hi:g}] ({len(results)} cases)")
-    if len(results) >= settings.max_cases:
+    left = settings.max_cases - len(results)
+    if left <= 0:
         return SearchState(STOPPED, (), lo, hi, nan, f"max_cases = {settings.max_cases} spent; S_C in "
                                                      f"[{lo:g}, {hi:g}]")
-    return SearchState(RUNNING, (_clean(math.sqrt(lo * hi)),), lo, hi, nan, f"bracket [{lo:g}, {hi:g}]")
+    return SearchState(RUNNING, between(lo, hi, min(settings.points, left)), lo, hi, nan,
+                       f"bracket [{lo:g}, {hi:g}]")
 
 
 def _list(values) -> str:

@@ -24,6 +24,20 @@ Sweepable: ``shear_rate``, ``psi_bar``, ``excess_length``, ``B2`` (physics).
 Cases are numbered in grid order (the last swept key varies fastest); the id
 is the zero-padded number. Every case is built -- and so validated -- before
 any work starts; an error names the case and its swept values.
+
+A ``[search]`` table makes it a critical-shear search (search.py, docs/analysis.md)::
+
+    [search]
+    low = 10.0          # the range of S searched for S_C
+    high = 320.0
+    rel_tol = 0.02      # stop when the bracket [S_TT, S_PT] is this narrow
+    max_cases = 16      # per search
+    points = 1          # shear rates per search and stage (1: bisection)
+
+Then ``[sweep]`` may hold only ``psi_bar``, ``excess_length`` and ``B2``: one
+search per point of that grid. The cases are made stage by stage as the
+searches ask for them (numbered in that order); the ends of every search's
+range are validated up front.
 """
 from __future__ import annotations
 
@@ -33,7 +47,7 @@ import itertools
 import json
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -41,8 +55,10 @@ import numpy as np
 from .config import case_from_dict, check_type, read_text
 from .params import Case, ConfigError
 from .regimes import AnalysisSettings
+from .search import SearchSettings
 
 SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
+SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
 CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "stop_timeout")
 MAX_CASES = 1_000_000
 
@@ -54,6 +70,7 @@ class StudyCase:
     case_id: str
     case: Case
     swept: dict                    # {"shear_rate": 80.0, ...} in sweep order
+    search: int = -1               # search studies: which search the case belongs to
 
     @property
     def cost(self) -> float:
@@ -66,7 +83,12 @@ class StudyCase:
 
 @dataclass(frozen=True)
 class Study:
-    """A campaign: name, output file, and its cases (all validated)."""
+    """A campaign: name, output file, and its cases (all validated).
+
+    A grid study knows every case up front. A search study (``search`` set)
+    has one critical-shear search per point of its sweep (``searches``) and
+    gains its cases stage by stage (:meth:`search_case`, :meth:`with_cases`).
+    """
 
     name: str
     output: Path
@@ -75,19 +97,65 @@ class Study:
     stop_timeout: float = 10.0
     source: str = ""               # the campaign file's text (kept in the HDF5 file)
     analysis: AnalysisSettings = AnalysisSettings()   # thresholds of hpcves analyze ([analysis])
+    base: Case | None = None       # the base case (swept values and t_end replaced per case)
+    end_time: EndTime = field(default_factory=lambda: EndTime())
+    search: SearchSettings | None = None
+    searches: tuple = ()           # search studies: the swept values of each search, in sweep order
 
     @property
     def fingerprint(self) -> str:
         """SHA-256 of the expanded study (name, ids, every parameter of every case).
 
         Comments and formatting of the TOML do not change it; any parameter does.
+        A search study's cases are not known up front: its fingerprint covers
+        what decides them -- base case, end-time rule, sweep, search range and
+        the classification thresholds (which decide where the search goes next).
         """
-        payload = {"name": self.name,
-                   "cases": [[c.case_id, c.case.to_dict()] for c in self.cases]}
+        if self.search is None:
+            payload = {"name": self.name,
+                       "cases": [[c.case_id, c.case.to_dict()] for c in self.cases]}
+        else:
+            payload = {"name": self.name, "mode": "search", "base": self.base.to_dict(),
+                       "end_time": dataclasses.asdict(self.end_time), "searches": list(self.searches),
+                       "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
     def by_id(self, case_id: str) -> StudyCase:
         return self.cases[int(case_id)]
+
+    @property
+    def id_width(self) -> int:
+        """Digits of a case id: enough for every case the study can have."""
+        most = len(self.searches) * self.search.max_cases if self.search else len(self.cases)
+        return max(4, len(str(most - 1)))
+
+    def make_case(self, case_id: str, swept: dict, search: int = -1) -> StudyCase:
+        """The base case with ``swept`` values and the end-time rule applied (validated)."""
+        where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
+        try:
+            physics = dataclasses.replace(self.base.physics, **swept)
+            run = dataclasses.replace(self.base.run, t_end=self.end_time(physics.shear_rate, self.base.run.t_end))
+            case = Case(physics=physics, numerics=self.base.numerics, run=run)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        return StudyCase(case_id, case, swept, search)
+
+    def search_case(self, search: int, shear_rate: float, case_id: str) -> StudyCase:
+        """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
+        return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
+
+    def with_cases(self, new) -> "Study":
+        """This study with ``new`` cases appended (their ids must continue the numbering)."""
+        new = tuple(new)
+        for i, c in enumerate(new, start=len(self.cases)):
+            if int(c.case_id) != i:
+                raise ValueError(f"case id {c.case_id} does not follow {i - 1}")
+        return dataclasses.replace(self, cases=self.cases + new)
+
+    @property
+    def sweep_keys(self) -> tuple:
+        """The per-case swept keys (a search adds the shear rate in front)."""
+        return (("shear_rate",) if self.search else ()) + tuple(self.sweep)
 
 
 def _round(value: float) -> float:
@@ -146,12 +214,12 @@ def load_study(path: str | Path) -> Study:
 
 def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     data = dict(data)
-    campaign = data.pop("campaign", {})
-    sweep_spec = data.pop("sweep", {})
-    analysis_spec = data.pop("analysis", {})
-    for table, value in (("campaign", campaign), ("sweep", sweep_spec), ("analysis", analysis_spec)):
+    is_search = "search" in data
+    tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search")}
+    for table, value in tables.items():
         if not isinstance(value, dict):
             raise ConfigError(f"[{table}] must be a table")
+    campaign, sweep_spec = tables["campaign"], tables["sweep"]
     unknown = sorted(set(campaign) - set(CAMPAIGN_KEYS))
     if unknown:
         raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [campaign]: {', '.join(unknown)} "
@@ -170,58 +238,70 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     stop_timeout = check_type("campaign.stop_timeout", campaign.get("stop_timeout", 10.0), float)
     if not stop_timeout > 0:
         raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
-    end_time = _end_time_rule(campaign)
-    analysis = AnalysisSettings.from_dict(analysis_spec)
+    end_time = EndTime.from_campaign(campaign)
+    analysis = AnalysisSettings.from_dict(tables["analysis"])
+    search = SearchSettings.from_dict(tables["search"]) if is_search else None
 
-    unknown = [k for k in sweep_spec if k not in SWEEPABLE]
+    allowed = SEARCHABLE if search else SWEEPABLE
+    unknown = [k for k in sweep_spec if k not in allowed]
     if unknown:
-        raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(SWEEPABLE)} can be swept")
+        if search and unknown == ["shear_rate"]:
+            raise ConfigError("[search] runs along the shear rate: leave shear_rate out of [sweep] "
+                              "(the search range is [search] low and high)")
+        raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
     sweep = {key: sweep_values(key, spec) for key, spec in sweep_spec.items()}
-    n_cases = math.prod(len(v) for v in sweep.values())
+    n_points = math.prod(len(v) for v in sweep.values())
+    n_cases = n_points * (search.max_cases if search else 1)
     if n_cases > MAX_CASES:
         raise ConfigError(f"the sweep has {n_cases} cases; more than {MAX_CASES} is surely a mistake")
-    width = max(4, len(str(n_cases - 1)))
-
-    cases = []
-    for index, values in enumerate(itertools.product(*sweep.values())):
-        swept = dict(zip(sweep, values))
-        case_id = f"{index:0{width}d}"
-        where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
-        try:
-            physics = dataclasses.replace(base.physics, **swept)
-            run = dataclasses.replace(base.run, t_end=end_time(physics.shear_rate, base.run.t_end))
-            case = Case(physics=physics, numerics=base.numerics, run=run)
-        except ConfigError as exc:
-            raise ConfigError(f"{where}: {exc}") from None
-        cases.append(StudyCase(case_id, case, swept))
-    return Study(name=name, output=Path(output), sweep=sweep, cases=tuple(cases),
-                 stop_timeout=stop_timeout, source=text, analysis=analysis)
+    study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
+                  analysis=analysis, base=base, end_time=end_time, search=search)
+    points = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())]
+    if search is None:
+        width = max(4, len(str(n_points - 1)))
+        return study.with_cases(study.make_case(f"{i:0{width}d}", swept) for i, swept in enumerate(points))
+    study = dataclasses.replace(study, searches=tuple(points))
+    for i in range(len(points)):         # validate every search at both ends of its range
+        for shear_rate in (search.low, search.high):
+            study.search_case(i, shear_rate, f"of search {i}")
+    return study
 
 
-def _end_time_rule(campaign: dict):
-    """t_end as a function of the shear rate (and the base case's t_end)."""
-    absolute = campaign.get("t_end")
-    shear_times = campaign.get("shear_times")
-    if absolute is not None and shear_times is not None:
-        raise ConfigError("campaign: give t_end or shear_times, not both")
-    floor = check_type("campaign.t_end_min", campaign.get("t_end_min", 0.0), float)
-    if floor < 0:
-        raise ConfigError(f"campaign.t_end_min = {floor}: must be >= 0")
-    if absolute is not None:
-        value = check_type("campaign.t_end", absolute, float)
-        if not value > 0:
-            raise ConfigError(f"campaign.t_end = {value}: must be > 0")
-        return lambda shear_rate, base: max(value, floor)
-    if shear_times is not None:
-        n = check_type("campaign.shear_times", shear_times, float)
-        if not n > 0:
-            raise ConfigError(f"campaign.shear_times = {n}: must be > 0")
+@dataclass(frozen=True)
+class EndTime:
+    """t_end of a case from its shear rate: ``max(t_end, t_end_min)``, or
+    ``max(shear_times / S, t_end_min)``, or the base case's t_end (at least t_end_min)."""
 
-        def by_shear(shear_rate, base):
+    t_end: float | None = None
+    shear_times: float | None = None
+    t_end_min: float = 0.0
+
+    def __call__(self, shear_rate: float, base: float) -> float:
+        if self.t_end is not None:
+            return max(self.t_end, self.t_end_min)
+        if self.shear_times is not None:
             if shear_rate == 0:
-                if floor > 0:
-                    return floor
+                if self.t_end_min > 0:
+                    return self.t_end_min
                 raise ConfigError("shear_rate = 0 has no shear time: set campaign.t_end_min")
-            return _round(max(n / shear_rate, floor))
-        return by_shear
-    return lambda shear_rate, base: max(base, floor)
+            return _round(max(self.shear_times / shear_rate, self.t_end_min))
+        return max(base, self.t_end_min)
+
+    @classmethod
+    def from_campaign(cls, campaign: dict) -> "EndTime":
+        absolute = campaign.get("t_end")
+        shear_times = campaign.get("shear_times")
+        if absolute is not None and shear_times is not None:
+            raise ConfigError("campaign: give t_end or shear_times, not both")
+        floor = check_type("campaign.t_end_min", campaign.get("t_end_min", 0.0), float)
+        if floor < 0:
+            raise ConfigError(f"campaign.t_end_min = {floor}: must be >= 0")
+        if absolute is not None:
+            absolute = check_type("campaign.t_end", absolute, float)
+            if not absolute > 0:
+                raise ConfigError(f"campaign.t_end = {absolute}: must be > 0")
+        if shear_times is not None:
+            shear_times = check_type("campaign.shear_times", shear_times, float)
+            if not shear_times > 0:
+                raise ConfigError(f"campaign.shear_times = {shear_times}: must be > 0")
+        return cls(absolute, shear_times, floor)

@@ -71,3 +71,31 @@ def test_bad_settings_are_refused():
         SearchSettings(low=100.0, high=10.0)
     with pytest.raises(ConfigError, match="rel_tol"):
         SearchSettings(low=1.0, high=10.0, rel_tol=0.0)
+
+
+@pytest.mark.parametrize("points", [2, 3, 7])
+@pytest.mark.parametrize("critical", [11.0, 80.0, 299.0])
+def test_k_section_converges_in_fewer_stages(points, critical):
+    """points = k runs k shear rates per stage: the bracket shrinks by k + 1 per stage."""
+    settings = SearchSettings(low=10.0, high=320.0, rel_tol=0.02, max_cases=80, points=points)
+    results, stages = {}, 0
+    while (state := step(settings, results)).status == RUNNING:
+        assert len(state.next_shear_rates) == (points + 1 if stages == 0 else points)
+        stages += 1
+        for s in state.next_shear_rates:
+            results[s] = threshold(critical)(s)
+    assert state.status == CONVERGED and state.low < critical <= state.high
+    assert state.high / state.low - 1 <= 0.02
+    assert len(results) <= settings.cases_needed() and stages <= settings.stages_needed()
+    assert stages < SearchSettings(low=10.0, high=320.0, rel_tol=0.02).stages_needed()
+
+
+def test_search_settings_from_a_table():
+    s = SearchSettings.from_dict({"low": 10, "high": 320, "points": 2})
+    assert (s.low, s.high, s.points, s.rel_tol) == (10.0, 320.0, 2, 0.02)
+    with pytest.raises(ConfigError, match="unknown key tolerance"):
+        SearchSettings.from_dict({"low": 10, "high": 320, "tolerance": 0.1})
+    with pytest.raises(ConfigError, match="give high"):
+        SearchSettings.from_dict({"low": 10})
+    with pytest.raises(ConfigError, match="search.points"):
+        SearchSettings.from_dict({"low": 10, "high": 320, "points": 1.5})

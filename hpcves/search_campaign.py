@@ -1,0 +1,161 @@
+"""The ``[search]`` campaign mode: critical-shear searches run stage by stage.
+
+A search study holds one search per point of its sweep (psi_bar, Delta, B2).
+The campaign runs in stages: every case the searches asked for runs under the
+same MPI scheduler; then rank 0 classifies the finished cases
+(:func:`hpcves.regimes.classify`, with the study's ``[analysis]`` thresholds),
+lets every search take its next step (:func:`hpcves.search.step`) and adds the
+cases they ask for to the file. The searches advance together, so the cases of
+all of them share the ranks.
+
+Nothing about a search is stored but its cases: the state of every search is
+recomputed from the regimes of the cases in the file, so a resumed campaign
+takes the same steps and asks for the same cases as an uninterrupted one.
+
+This module is the part that reads the file; the logic is in search.py.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from .analysis import analyse_case, case_data
+from .checkpoint import FAILED, FINISHED, STATUS_NAMES
+from .regimes import AnalysisSettings
+from .search import RUNNING, SearchSettings, SearchState, step
+from .study import SEARCHABLE, Study
+
+#: the columns of critical_shear.csv
+CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "status", "cases", "reason")
+
+
+@dataclass(frozen=True)
+class SearchOutcome:
+    """Where one search stands: its parameters, its state, the regimes it found."""
+
+    index: int
+    point: dict                # psi_bar, excess_length, B2 of the search (swept or from the base case)
+    state: SearchState
+    regimes: dict              # {shear rate: regime} of its finished cases
+    swept_keys: tuple = ()     # the keys of ``point`` that the study sweeps
+
+    def row(self) -> dict:
+        """One row of critical_shear.csv."""
+        reason = self.state.reason
+        if self.state.status == RUNNING:
+            reason = f"unfinished: next S = {', '.join(f'{s:g}' for s in self.state.next_shear_rates)} ({reason})"
+        return {**self.point, "S_C": self.state.critical, "bracket_low": self.state.low,
+                "bracket_high": self.state.high, "status": self.state.status, "cases": len(self.regimes),
+                "reason": reason}
+
+
+def case_regime(row: dict) -> str:
+    """The regime a search sees for one classified case (analysis.analyse_case row): failed cases say so."""
+    return "failed" if row["status"] == STATUS_NAMES[FAILED] else row["regime"]
+
+
+def outcomes(settings: SearchSettings, points: list[dict], found: list[tuple[int, float, str]],
+             swept_keys: tuple = ()) -> list[SearchOutcome]:
+    """The state of every search from ``found`` = (search, shear rate, regime) of its finished cases."""
+    by_search = [{} for _ in points]
+    for search, shear_rate, regime in found:
+        by_search[search][shear_rate] = regime
+    return [SearchOutcome(i, point, step(settings, regimes), regimes, tuple(swept_keys))
+            for i, (point, regimes) in enumerate(zip(points, by_search))]
+
+
+def search_points(study: Study) -> list[dict]:
+    """psi_bar, excess_length and B2 of every search of ``study``."""
+    physics = study.base.physics
+    return [{k: float(point.get(k, getattr(physics, k))) for k in SEARCHABLE} for point in study.searches]
+
+
+def cases_from_file(study: Study, campaign) -> Study:
+    """``study`` with the cases its file holds already (a resumed search), checked against it."""
+    searches = campaign.searches_of_cases()
+    shear_rates = campaign.h5["index/shear_rate"][:]
+    cases = [study.search_case(search, float(s), case_id)
+             for case_id, search, s in zip(campaign.case_ids, searches, shear_rates)]
+    return study.with_cases(cases)
+
+
+class SearchDriver:
+    """Rank 0's side of a search campaign: classify what finished, ask for the next stage."""
+
+    def __init__(self, study: Study, settings: AnalysisSettings | None = None):
+        self.settings = settings or study.analysis
+        self.points = search_points(study)
+        self._regimes: dict[str, str] = {}      # case id -> regime (finished and failed cases only)
+
+    def regime(self, campaign, case_id: str) -> str | None:
+        """The regime of one case, or None while it is not finished (or failed)."""
+        if case_id not in self._regimes:
+            store = campaign.store(case_id)
+            if store.status not in (FINISHED, FAILED):
+                return None
+            row = analyse_case(case_data(store, case_id), self.settings)
+            self._regimes[case_id] = case_regime(row)
+        return self._regimes[case_id]
+
+    def next_stage(self, study: Study, campaign) -> tuple[list[SearchOutcome], list]:
+        """(outcome of every search, the new StudyCases to run: none once every search has ended)."""
+        found = []
+        for c in study.cases:
+            regime = self.regime(campaign, c.case_id)
+            if regime is not None:
+                found.append((c.search, c.swept["shear_rate"], regime))
+        states = outcomes(study.search, self.points, found, tuple(study.sweep))
+        new = []
+        taken = {(c.search, c.swept["shear_rate"]) for c in study.cases}
+        for outcome in states:
+            for shear_rate in outcome.state.next_shear_rates:
+                if (outcome.index, shear_rate) in taken:       # asked for, not finished: cannot happen after a stage
+                    raise RuntimeError(f"search {outcome.index}: S = {shear_rate:g} was run but is not finished")
+                case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
+                new.append(study.search_case(outcome.index, shear_rate, case_id))
+        return states, new
+
+
+def write_critical_csv(rows: list[dict], path: Path) -> None:
+    """critical_shear.csv: one row per search (CRITICAL_COLUMNS)."""
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(CRITICAL_COLUMNS)
+        for row in rows:
+            writer.writerow([_cell(row[c]) for c in CRITICAL_COLUMNS])
+
+
+def _cell(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}" if math.isfinite(value) else ""
+    return str(value)
+
+
+def critical_rows(source, rows: list[dict]) -> list[dict]:
+    """critical_shear.csv rows of a search file (analysis.Source) from its cases' classification ``rows``.
+
+    The searches are replayed with these regimes: with the campaign's own
+    ``[analysis]`` thresholds they reproduce the campaign's verdicts; with
+    others (``--set``) a search may want cases the file does not hold (its
+    status is then "running", its reason names them).
+    """
+    from .study import study_from_toml
+
+    study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
+    found = [(case.search, case.parameters["shear_rate"], case_regime(row)) for case, row in zip(source.cases, rows)
+             if row["status"] in (STATUS_NAMES[FINISHED], STATUS_NAMES[FAILED])]
+    return [o.row() for o in outcomes(study.search, search_points(study), found, tuple(study.sweep))]
+
+
+def critical_markdown(name: str, searches: list[dict]) -> str:
+    from .analysis import markdown_table
+
+    header = ["psi_bar", "Delta", "B2", "S_C", "bracket", "cases", "status", "reason"]
+    body = [[f"{r['psi_bar']:g}", f"{r['excess_length']:g}", f"{r['B2']:g}", _cell(r["S_C"]),
+             f"[{_cell(r['bracket_low'])}, {_cell(r['bracket_high'])}]", str(r["cases"]), r["status"], r["reason"]]
+            for r in searches]
+    return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
+            "between the largest TT and the smallest PT/TU shear rate.\n\n"
+            + markdown_table(header, body, left=(6, 7)) + "\n")

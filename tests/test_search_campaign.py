@@ -1,0 +1,195 @@
+"""The [search] campaign mode: critical-shear searches run by the campaign runner, end to end.
+
+Tiny real cases (N = 32, t_end = 1.5): at Delta = 0.194 the homogeneous
+vesicle tank-treads at every S (no S_C in the range), psi_bar = 0.3 goes from
+TT to PT between S = 70 and 85 (VALIDATION.md: TT at 40, PT at 80).
+"""
+import csv
+import os
+import signal
+import time
+
+import h5py
+import pytest
+
+from hpcves import campaign_file
+from hpcves.analysis import analyze
+from hpcves.campaign import run_campaign
+from hpcves.checkpoint import FINISHED
+from hpcves.params import ConfigError
+from hpcves.search import CONVERGED, UNBRACKETED
+from hpcves.search_campaign import CRITICAL_COLUMNS
+from hpcves.study import study_from_toml
+
+from test_campaign import assert_same_results, hpcves, job_pids, needs_mpi, start_job, statuses
+
+SEARCH = """
+[campaign]
+name = "search"
+output = "{output}"
+t_end = 1.5
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+sample_interval = 0.005
+snapshot_interval = 0.05
+checkpoint_interval = {checkpoint}
+checkpoint_wall = 0
+[search]
+low = 30.0
+high = 120.0
+rel_tol = 0.25
+[sweep]
+psi_bar = [0.0, 0.3]
+"""
+
+
+def write_search(tmp_path, checkpoint=0.5):
+    output = tmp_path / "search.h5"
+    path = tmp_path / "search.toml"
+    path.write_text(SEARCH.format(output=output, checkpoint=checkpoint))
+    return path, output
+
+
+@pytest.fixture(scope="module")
+def searched(tmp_path_factory):
+    """The tiny search run serially in this process: (study, file, summary)."""
+    path, output = write_search(tmp_path_factory.mktemp("search"))
+    study = study_from_toml(path.read_text())
+    stages = []
+    summary = run_campaign(study, output, on_stage=stages.append)
+    assert summary.exit_status == 0
+    return study, output, summary, stages
+
+
+def test_the_searches_bracket_s_c_or_say_it_lies_outside(searched):
+    study, output, summary, stages = searched
+    homogeneous, mixed = summary.searches
+    assert homogeneous.point["psi_bar"] == 0.0 and homogeneous.state.status == UNBRACKETED
+    assert "S_C > 120" in homogeneous.state.reason and set(homogeneous.regimes.values()) == {"TT"}
+    assert mixed.state.status == CONVERGED
+    low, high = mixed.state.low, mixed.state.high
+    assert 60 < low < high < 90 and high / low - 1 <= 0.25          # TT at 70 (N = 64), PT at 80
+    assert mixed.regimes[low] == "TT" and mixed.regimes[high] == "PT"
+    assert mixed.state.critical == pytest.approx((low * high) ** 0.5)
+    assert len(mixed.regimes) <= study.search.cases_needed()
+    # stage by stage: both ends first, then one bisection at a time for the search still running
+    assert [len([o for o in s if o.state.status == "running"]) for s in stages][-1] == 0
+    assert summary.searches == tuple(stages[-1])
+
+
+def test_the_file_holds_every_case_of_every_stage(searched):
+    study, output, summary, _ = searched
+    n = sum(len(o.regimes) for o in summary.searches)
+    with h5py.File(output, "r") as f:
+        assert f.attrs["mode"] == "search" and f.attrs["n_cases"] == n == len(f["cases"])
+        ids = [i.decode() for i in f["index/case_id"][:]]
+        assert ids == [f"{i:04d}" for i in range(n)]
+        assert list(f["index/search"][:4]) == [0, 0, 1, 1]                 # stage 1: both ends of both
+        assert list(f["index/shear_rate"][:4]) == [30, 120, 30, 120]
+        assert list(f["searches/psi_bar"][:]) == [0.0, 0.3]
+        for case_id, search, shear_rate in zip(ids, f["index/search"][:], f["index/shear_rate"][:]):
+            g = f[f"cases/{case_id}"]
+            assert g.attrs["physics.shear_rate"] == shear_rate
+            assert g.attrs["physics.psi_bar"] == [0.0, 0.3][search]
+    assert set(statuses(output).values()) == {FINISHED}
+
+
+def test_analyze_replays_the_searches_into_critical_shear_csv(searched, tmp_path):
+    _, output, summary, _ = searched
+    report = analyze(output, tmp_path, write_to_file=False, case_figures=False)
+    with open(tmp_path / "critical_shear.csv") as f:
+        table = list(csv.DictReader(f))
+    assert tuple(table[0]) == CRITICAL_COLUMNS and len(table) == 2
+    mixed = summary.searches[1].state
+    assert float(table[1]["S_C"]) == pytest.approx(mixed.critical, rel=1e-6)
+    assert float(table[1]["bracket_low"]) == pytest.approx(mixed.low)
+    assert float(table[1]["bracket_high"]) == pytest.approx(mixed.high)
+    assert table[0]["S_C"] == "" and table[0]["status"] == "not bracketed"
+    assert [s["status"] for s in report.searches] == ["not bracketed", "converged"]
+    for name in ("critical_shear", "phase_diagram"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 1000
+    assert not (tmp_path / "periods.md").exists()            # irregular S: no period table
+    # stricter thresholds can undo a verdict; the replay then says what it would need
+    strict = analyze(output, tmp_path / "strict", write_to_file=False, case_figures=False,
+                     overrides={"min_cycles": 40.0})
+    assert strict.searches[1]["status"] != "converged"
+
+
+def test_a_stage_cut_short_while_adding_its_cases_is_made_again_on_resume(searched, tmp_path, monkeypatch):
+    _, reference, _, _ = searched
+    path, output = write_search(tmp_path)
+    study = study_from_toml(path.read_text())
+    real_add = campaign_file.CampaignFile.add_cases
+    calls = []
+
+    def add_then_die(self, cases):
+        calls.append(len(cases))
+        if len(calls) == 3:                                  # stage 2's cases: groups made, index not yet
+            for c in cases:
+                self._cases.create_group(c.case_id)
+            raise KeyboardInterrupt
+        real_add(self, cases)
+
+    monkeypatch.setattr(campaign_file.CampaignFile, "add_cases", add_then_die)
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(study, output)
+    monkeypatch.setattr(campaign_file.CampaignFile, "add_cases", real_add)
+    with h5py.File(output, "r") as f:
+        assert len(f["cases"]) > f.attrs["n_cases"] == 4
+    summary = run_campaign(study, output, resume=True)
+    assert summary.exit_status == 0 and min(r.case_id for r in summary.ran) == "0004"
+    assert_same_results(output, reference)
+
+
+def test_a_search_file_refuses_a_changed_search_or_thresholds(searched, tmp_path):
+    study, output, _, _ = searched
+    changed = study_from_toml(study.source.replace("rel_tol = 0.25", "rel_tol = 0.1"))
+    stricter = study_from_toml(study.source + "[analysis]\nmin_cycles = 5\n")
+    assert len({study.fingerprint, changed.fingerprint, stricter.fingerprint}) == 3
+    with pytest.raises(ConfigError, match="different version"):
+        run_campaign(changed, output, resume=True)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[search]\nlow = 10.0\nhigh = 100.0\n[sweep]\nshear_rate = [1, 2]\n", "leave shear_rate out of"),
+    ("[search]\nlow = 10.0\nhigh = 100.0\nspan = 3\n", "unknown key span"),
+    ("[search]\nlow = 10.0\n", "give high"),
+    ("[search]\nlow = 100.0\nhigh = 10.0\n", "low < high"),
+    ("[search]\nlow = 10.0\nhigh = 100.0\n[sweep]\npsi_bar = [0.3, 1.5]\n", "of search 1.*psi_bar"),
+])
+def test_bad_search_tables_are_refused(text, message):
+    with pytest.raises(ConfigError, match=message):
+        study_from_toml(text)
+
+
+@needs_mpi
+@pytest.mark.parametrize("io", ["mpio", "relay"])
+def test_mpi_search_killed_between_stages_resumes_to_the_serial_result(searched, tmp_path, io):
+    """SIGKILL once the second stage runs, resume on two ranks: every case bitwise as in the serial search."""
+    _, reference, _, _ = searched
+    path, output = write_search(tmp_path, checkpoint=0.05)
+    job = start_job(2, "campaign", path, "--quiet", "--io", io)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        assert job.poll() is None, job.communicate()
+        try:
+            with h5py.File(output, "r", locking=False) as f:
+                if f.attrs["n_cases"] >= 5 and any(int(g["status"][()]) == 1 for g in f["cases"].values()):
+                    break
+        except (OSError, KeyError):
+            pass
+        time.sleep(0.05)
+    else:
+        raise AssertionError("the search never reached its second stage")
+    for pid in job_pids(job.pid):
+        os.kill(pid, signal.SIGKILL)
+    job.communicate()
+    result = hpcves("campaign", path, "--resume", "--io", io, n=2)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(output, reference)
+    with open(tmp_path / "search_critical_shear.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["status"] for r in rows] == ["not bracketed", "converged"]
+    assert float(rows[1]["S_C"]) == pytest.approx(searched[2].searches[1].state.critical, rel=1e-6)
