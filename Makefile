@@ -12,7 +12,10 @@ MPIRUN  ?= env OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
            OMPI_MCA_rmaps_base_oversubscribe=1 OMPI_MCA_pml=ob1 OMPI_MCA_btl=self,vader \
            OMPI_MCA_btl_vader_single_copy_mechanism=none mpirun
 
-.PHONY: setup test demo bench validate clean
+GRID    ?= coarse
+NP      ?= 2
+
+.PHONY: setup test demo bench validate reproduce clean
 
 setup:
 	@./scripts/bootstrap.sh
@@ -35,6 +38,11 @@ bench: setup
 validate: setup
 	$(PY) -m pytest -m slow -q
 	$(PY) analysis/validate.py --out VALIDATION.md
+
+# the published studies on coarse grids (~1 h on 2 cores; GRID=full for the full grids, NP ranks)
+reproduce: setup
+	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" \
+	    --out $(if $(filter full,$(GRID)),REPRODUCTION-full.md,REPRODUCTION.md)
 
 clean:
 	rm -rf out .pytest_cache

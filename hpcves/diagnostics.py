@@ -161,8 +161,9 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
             return Health(False, f"non-finite values in {name} at t = {solver.time(state):.6g}")
     if not (np.isfinite(state.center) and np.isfinite(state.shift)):
         return Health(False, f"non-finite position at t = {solver.time(state):.6g}")
-    if abs(last_correction) > run.max_area_error:
-        return Health(False, f"one step changed the area by {last_correction:.3g} (relative) at "
+    if abs(last_correction) > run.max_area_correction:
+        return Health(False, f"one step changed the area by {last_correction:.3g} (relative; "
+                             f"run.max_area_correction = {run.max_area_correction:g}) at "
                              f"t = {solver.time(state):.6g}: the time step is too large for this case")
     lo, hi = float(state.psi.min()), float(state.psi.max())
     if lo < run.psi_min or hi > run.psi_max:
