@@ -297,6 +297,8 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
         from .search_campaign import write_critical_csv
 
         write_critical_csv([o.row() for o in outcomes], critical_csv)
+        if not any(o.regimes for o in outcomes):          # a new search: nothing found yet
+            return
         ended = sum(1 for o in outcomes if o.state.status != "running")
         detail = "; ".join(_search_brief(o) for o in outcomes) if len(outcomes) <= 8 else f"see {critical_csv}"
         announce(f"searches: {ended} of {len(outcomes)} ended; {detail}", None, 0)

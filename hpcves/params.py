@@ -150,8 +150,8 @@ class RunControl:
     psi leaves [``psi_min``, ``psi_max``] or when anything becomes NaN.
     The start-up relaxation of the initial ellipse needs per-step corrections
     up to ~7e-3 in its first steps (Delta = 2.3, S = 5, dt = 2e-4; Delta = 0.94,
-    dt = 1e-3: 5e-3), and below 1e-8 after them; a diverging step grows past
-    0.05 within a few steps.
+    dt = 1e-3: 5e-3), and below 1e-7 once the shape has relaxed (t > 0.05);
+    the bound is a guard against runaway steps, well above both.
     """
 
     t_end: float = 1.0
