@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 from hpcves.analysis import analyze, markdown_table, read_source
+from hpcves.campaign_file import read_table
 from hpcves.study import load_study
 
 COARSE = ("periods", "sc_psi", "sc_b2", "psi048_delta_S", "delta094_S_psi", "delta230_S_psi")
@@ -140,10 +141,13 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
         f"Wall time of the campaigns in this call: {total / 60:.0f} min "
         + ", ".join(f"{n} {w / 60:.1f}" for n, w in walls.items()) + " (0 where they were complete already).",
         "", "Every campaign and its numerics:", ""]
-    lines += [f"* `{toml}` ({name}): {numerics_line(toml)}; {len(reports[name].rows)} cases" for name, toml in
-              jobs.items()]
-    lines += ["", f"Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
-              "the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`.", ""]
+    compute = {name: sum(row["wall"] for row in read_table(load_study(toml).output)[1]) for name, toml in jobs.items()}
+    lines += [f"* `{toml}` ({name}): {numerics_line(toml)}; {len(reports[name].rows)} cases, "
+              f"{compute[name] / 60:.1f} core-minutes" for name, toml in jobs.items()]
+    lines += ["", f"In all {sum(compute.values()) / 3600:.2f} core-hours of cases (summed over every call that "
+              f"advanced them), that is {sum(compute.values()) / np_ / 3600:.2f} h on {np_} cores."]
+    lines += ["", "Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
+              f"the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`.", ""]
 
     lines += ["## PT period at Delta = 0.194", "",
               "Period of theta +- its uncertainty; S T is the period in shear times (a 1/S law makes it "
