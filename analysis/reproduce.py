@@ -22,6 +22,7 @@ from pathlib import Path
 
 from hpcves.analysis import analyze, markdown_table, read_source
 from hpcves.campaign_file import read_table
+from hpcves.search_campaign import critical_table
 from hpcves.study import load_study
 
 COARSE = ("periods", "sc_psi", "sc_b2", "psi048_delta_S", "delta094_S_psi", "delta230_S_psi")
@@ -94,12 +95,6 @@ def period_table(report) -> str:
     return markdown_table(["psi_bar \\ S"] + [f"{s:g}" for s in rates], body)
 
 
-def critical_table(report, key: str) -> str:
-    body = [[f"{s[key]:g}", _fmt(s["S_C"]), f"[{_fmt(s['bracket_low'])}, {_fmt(s['bracket_high'])}]",
-             str(s["cases"]), s["status"], s["reason"]] for s in report.searches]
-    return markdown_table([key, "S_C", "bracket", "cases", "status", "reason"], body, left=(4, 5))
-
-
 def doubts(reports: dict) -> list[str]:
     """Everything that looks unconverged or unresolved, one line each."""
     lines = []
@@ -154,8 +149,8 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
               "constant).", "", period_table(reports["periods"]), ""]
     lines += ["## Critical shear rate at Delta = 0.194", "",
               "S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU].", "",
-              "### Against psi_bar (B2 = 0.1)", "", critical_table(reports["sc_psi"], "psi_bar"), "",
-              "### Against B2 at psi_bar = 0.3", "", critical_table(reports["sc_b2"], "B2"), ""]
+              "### Against psi_bar (B2 = 0.1)", "", critical_table(list(reports["sc_psi"].searches), ["psi_bar"]), "",
+              "### Against B2 at psi_bar = 0.3", "", critical_table(list(reports["sc_b2"].searches), ["B2"]), ""]
     for name in ("sc_psi", "sc_b2"):
         lines += [f"![{name}]({p.as_posix()})" for p in figures[name]] + [""]
     lines += ["## Phase diagrams", ""]

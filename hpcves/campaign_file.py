@@ -159,13 +159,6 @@ class CampaignFile:
         n = int(self.h5.attrs["n_cases"])
         return [int(v) for v in index["search"][:n]] if "search" in index else [-1] * n
 
-    def search_points(self) -> list[dict]:
-        """Search files: the swept values of every search, in order."""
-        group = self.h5["searches"]
-        keys = [k for k in self.sweep_keys if k in group]
-        return [dict(zip(keys, values)) for values in zip(*(group[k][:].tolist() for k in keys))] \
-            if keys else [{}]
-
     @property
     def sweep_keys(self) -> list[str]:
         keys = attr_text(self.h5.attrs.get("sweep_keys", ""))

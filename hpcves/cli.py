@@ -334,18 +334,9 @@ def _search_brief(outcome) -> str:
 
 
 def _print_searches(outcomes, critical_csv) -> None:
-    from .analysis import markdown_table
+    from .search_campaign import critical_table
 
-    keys = [k for k in outcomes[0].swept_keys]
-    body = []
-    for o in outcomes:
-        s = o.state
-        body.append([f"{o.point[k]:g}" for k in keys]
-                    + [f"{s.critical:.4g}" if s.critical == s.critical else "",
-                       f"[{s.low:g}, {s.high:g}]" if s.low == s.low and s.high == s.high else "",
-                       str(len(o.regimes)), s.status, o.row()["reason"]])
-    click.echo(markdown_table(keys + ["S_C", "bracket", "cases", "status", "reason"], body,
-                              left=(len(keys) + 3, len(keys) + 4)))
+    click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys))
     click.echo(f"critical shear rates: {critical_csv}")
 
 

@@ -53,6 +53,18 @@ def check_type(where: str, value, kind):
     raise ConfigError(f"{where}: unsupported parameter type {kind}")   # pragma: no cover
 
 
+def from_table(cls, values: dict, where: str, prefix: str):
+    """A settings dataclass from a TOML table: unknown keys refused, every value type-checked
+    (messages name ``where``, e.g. "[search]", and ``prefix.key``)."""
+    types = typing.get_type_hints(cls)
+    known = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
+                          f"(known: {', '.join(sorted(known))})")
+    return cls(**{key: check_type(f"{prefix}.{key}", value, types[key]) for key, value in values.items()})
+
+
 def group_from_dict(name: str, values: dict, base=None):
     """Build one parameter group from a dict, starting from ``base`` (or the defaults)."""
     cls = GROUPS[name]

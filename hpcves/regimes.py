@@ -23,7 +23,7 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from .config import check_type
+from .config import check_type, from_table
 from .params import ConfigError
 from .periodicity import analyse
 
@@ -53,12 +53,7 @@ class AnalysisSettings:
 
     @classmethod
     def from_dict(cls, values: dict, where: str = "[analysis]") -> "AnalysisSettings":
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
-                              f"(known: {', '.join(sorted(known))})")
-        return cls(**values)
+        return from_table(cls, values, where, "analysis")
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from .config import check_type
+from .config import from_table
 from .params import ConfigError
 from .regimes import PT, TT, TU
 
@@ -68,16 +68,11 @@ class SearchSettings:
 
     @classmethod
     def from_dict(cls, values: dict, where: str = "[search]") -> "SearchSettings":
-        known = {f.name: f.type for f in fields(cls)}
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
-                              f"(known: {', '.join(known)})")
+        unknown = set(values) - {f.name for f in fields(cls)}       # from_table names them
         missing = [k for k in ("low", "high") if k not in values]
-        if missing:
+        if missing and not unknown:
             raise ConfigError(f"{where}: give {' and '.join(missing)} (the range of S to search)")
-        return cls(**{k: check_type(f"search.{k}", v, int if known[k] == "int" else float)
-                      for k, v in values.items()})
+        return from_table(cls, values, where, "search")
 
 
 @dataclass(frozen=True)

@@ -21,11 +21,10 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from .analysis import analyse_case, case_data
+from .analysis import LABELS, analyse_case, case_data, markdown_table
 from .checkpoint import FAILED, FINISHED, STATUS_NAMES
-from .regimes import AnalysisSettings
 from .search import RUNNING, SearchSettings, SearchState, step
-from .study import SEARCHABLE, Study
+from .study import SEARCHABLE, Study, study_from_toml
 
 #: the columns of critical_shear.csv
 CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "status", "cases", "reason")
@@ -73,7 +72,8 @@ def search_points(study: Study) -> list[dict]:
 
 
 def cases_from_file(study: Study, campaign) -> Study:
-    """``study`` with the cases its file holds already (a resumed search), checked against it."""
+    """``study`` with the cases its file holds already (a resumed search; the file's fingerprint
+    guarantees they are the cases this study makes)."""
     searches = campaign.searches_of_cases()
     shear_rates = campaign.h5["index/shear_rate"][:]
     cases = [study.search_case(search, float(s), case_id)
@@ -84,8 +84,8 @@ def cases_from_file(study: Study, campaign) -> Study:
 class SearchDriver:
     """Rank 0's side of a search campaign: classify what finished, ask for the next stage."""
 
-    def __init__(self, study: Study, settings: AnalysisSettings | None = None):
-        self.settings = settings or study.analysis
+    def __init__(self, study: Study):
+        self.settings = study.analysis
         self.points = search_points(study)
         self._regimes: dict[str, str] = {}      # case id -> regime (finished and failed cases only)
 
@@ -141,21 +141,26 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
     others (``--set``) a search may want cases the file does not hold (its
     status is then "running", its reason names them).
     """
-    from .study import study_from_toml
-
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
     found = [(case.search, case.parameters["shear_rate"], case_regime(row)) for case, row in zip(source.cases, rows)
              if row["status"] in (STATUS_NAMES[FINISHED], STATUS_NAMES[FAILED])]
     return [o.row() for o in outcomes(study.search, search_points(study), found, tuple(study.sweep))]
 
 
-def critical_markdown(name: str, searches: list[dict]) -> str:
-    from .analysis import markdown_table
+def critical_table(rows: list[dict], keys) -> str:
+    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
+    body = [[f"{r[k]:g}" for k in keys]
+            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]", str(r["cases"]),
+               r["status"], r["reason"]] for r in rows]
+    return markdown_table([LABELS.get(k, k) for k in keys] + ["S_C", "bracket", "cases", "status", "reason"],
+                          body, left=(len(keys) + 3, len(keys) + 4))
 
-    header = ["psi_bar", "Delta", "B2", "S_C", "bracket", "cases", "status", "reason"]
-    body = [[f"{r['psi_bar']:g}", f"{r['excess_length']:g}", f"{r['B2']:g}", _cell(r["S_C"]),
-             f"[{_cell(r['bracket_low'])}, {_cell(r['bracket_high'])}]", str(r["cases"]), r["status"], r["reason"]]
-            for r in searches]
+
+def _fmt(value: float) -> str:
+    return f"{value:.4g}" if math.isfinite(value) else ""
+
+
+def critical_markdown(name: str, searches: list[dict]) -> str:
     return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
             "between the largest TT and the smallest PT/TU shear rate.\n\n"
-            + markdown_table(header, body, left=(6, 7)) + "\n")
+            + critical_table(searches, SEARCHABLE) + "\n")

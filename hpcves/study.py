@@ -124,10 +124,15 @@ class Study:
         return self.cases[int(case_id)]
 
     @property
+    def most_cases(self) -> int:
+        """Every case the study can have: the grid, or max_cases for every search."""
+        points = math.prod(len(v) for v in self.sweep.values())
+        return points * (self.search.max_cases if self.search else 1)
+
+    @property
     def id_width(self) -> int:
         """Digits of a case id: enough for every case the study can have."""
-        most = len(self.searches) * self.search.max_cases if self.search else len(self.cases)
-        return max(4, len(str(most - 1)))
+        return max(4, len(str(self.most_cases - 1)))
 
     def make_case(self, case_id: str, swept: dict, search: int = -1) -> StudyCase:
         """The base case with ``swept`` values and the end-time rule applied (validated)."""
@@ -250,15 +255,13 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
                               "(the search range is [search] low and high)")
         raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
     sweep = {key: sweep_values(key, spec) for key, spec in sweep_spec.items()}
-    n_points = math.prod(len(v) for v in sweep.values())
-    n_cases = n_points * (search.max_cases if search else 1)
-    if n_cases > MAX_CASES:
-        raise ConfigError(f"the sweep has {n_cases} cases; more than {MAX_CASES} is surely a mistake")
     study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
                   analysis=analysis, base=base, end_time=end_time, search=search)
+    if study.most_cases > MAX_CASES:
+        raise ConfigError(f"the sweep has {study.most_cases} cases; more than {MAX_CASES} is surely a mistake")
     points = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())]
     if search is None:
-        width = max(4, len(str(n_points - 1)))
+        width = study.id_width
         return study.with_cases(study.make_case(f"{i:0{width}d}", swept) for i, swept in enumerate(points))
     study = dataclasses.replace(study, searches=tuple(points))
     for i in range(len(points)):         # validate every search at both ends of its range

@@ -24,12 +24,8 @@ HPCVES = [sys.executable, "-m", "hpcves.cli"]
 MPIRUN = shutil.which("mpirun")
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
-STUDY = """
-[campaign]
-name = "{name}"
-output = "{output}"
-t_end = {t_end}
-[numerics]
+#: numerics and recording of the tiny test cases (N = 32); ``{checkpoint}`` is filled in by the study
+TINY_RUN = """[numerics]
 N = 32
 dt = 1e-3
 [run]
@@ -37,7 +33,14 @@ sample_interval = 0.005
 snapshot_interval = 0.05
 checkpoint_interval = {checkpoint}
 checkpoint_wall = 0
-[sweep]
+"""
+
+STUDY = """
+[campaign]
+name = "{name}"
+output = "{output}"
+t_end = {t_end}
+""" + TINY_RUN + """[sweep]
 shear_rate = {shear}
 psi_bar = [0.3, 0.5]
 """

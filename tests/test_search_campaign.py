@@ -21,22 +21,14 @@ from hpcves.search import CONVERGED, UNBRACKETED
 from hpcves.search_campaign import CRITICAL_COLUMNS
 from hpcves.study import study_from_toml
 
-from test_campaign import assert_same_results, hpcves, job_pids, needs_mpi, start_job, statuses
+from test_campaign import TINY_RUN, assert_same_results, hpcves, job_pids, needs_mpi, start_job, statuses
 
 SEARCH = """
 [campaign]
 name = "search"
 output = "{output}"
 t_end = 1.5
-[numerics]
-N = 32
-dt = 1e-3
-[run]
-sample_interval = 0.005
-snapshot_interval = 0.05
-checkpoint_interval = {checkpoint}
-checkpoint_wall = 0
-[search]
+""" + TINY_RUN + """[search]
 low = 30.0
 high = 120.0
 rel_tol = 0.25
