@@ -3,7 +3,8 @@
 1. Milliseconds per time step at N = 64, 128, 256 on one core (medians of
    repeated blocks; the machine is shared, so medians and ratios from one run).
 2. Where the time goes at N = 128 (each section timed on its own, medians).
-3. The FFT backend behind the choice of pre-planned FFTW.
+3. The FFT backend behind the choice of pre-planned FFTW, and the tension
+   matrix by 2-D FFT (the method before its closed form) for comparison.
 4. The largest dt at N = 128 for which psi_bar = 0.3, S = 80, Delta = 0.194 runs
    to t = 1 with the period of theta within 1 % of a run at dt/4.
 """
@@ -27,7 +28,7 @@ from hpcves.periodicity import crossing_period
 from hpcves.forces import bending_force
 from hpcves.params import Case, Numerics, Physics, RunControl
 from hpcves.quadrature import StokesSLP
-from hpcves.spectral import BothSidesDerivative, Spectral
+from hpcves.spectral import Spectral
 from hpcves.timestepping import Solver
 
 
@@ -84,6 +85,49 @@ def step_timings():
     return rows
 
 
+class FFTBothSides:
+    """T = D_s K D_s for a stack of N x N matrices by one 2-D real FFT: the way the tension
+    matrix was formed before its closed form (StokesSLP.constraint_matrix), kept to compare.
+
+    (K D)_ij = -(d/ds along j), so the two axes get factors i k and -i k'.
+    """
+
+    def __init__(self, sp: Spectral, n_stack: int = 3, backend: str = "fftw"):
+        N = sp.N
+        k_row = sp.kc.copy()
+        k_row[N // 2] = 0.0
+        self._symbol = k_row[:, None] * sp.ik.imag[None, :]
+        self._N = N
+        shape = (n_stack, N, N)
+        if backend == "fftw":
+            import pyfftw
+
+            self.input = pyfftw.empty_aligned(shape, dtype="float64")
+            spectrum = pyfftw.empty_aligned((n_stack, N, N // 2 + 1), dtype="complex128")
+            self._spectrum = spectrum
+            output = pyfftw.empty_aligned(shape, dtype="float64")
+            self._forward = pyfftw.FFTW(self.input, spectrum, axes=(1, 2), flags=("FFTW_ESTIMATE",))
+            self._backward = pyfftw.FFTW(spectrum, output, axes=(1, 2), direction="FFTW_BACKWARD",
+                                         flags=("FFTW_ESTIMATE", "FFTW_DESTROY_INPUT"))
+        else:
+            self.input = np.empty(shape)
+            self._forward = None
+
+    def __call__(self) -> np.ndarray:
+        if self._forward is None:
+            return np.fft.irfft2(self._symbol * np.fft.rfft2(self.input), s=(self._N, self._N))
+        self._forward()
+        self._spectrum *= self._symbol
+        return self._backward()
+
+    def constraint_matrix(self, blocks, tangent):
+        """A = -sum_ab diag(t_a) T_ab diag(t_b)."""
+        self.input[...] = blocks
+        T_xx, T_xy, T_yy = self()
+        c, s = tangent.real, tangent.imag
+        return -(np.outer(c, c) * T_xx + np.outer(s, s) * T_yy + (np.outer(c, s) + np.outer(s, c)) * T_xy)
+
+
 def section_timings(N=128):
     solver = make(N, psi_bar=0.3, shear_rate=80.0)
     state = solver.initial_state()
@@ -93,22 +137,28 @@ def section_timings(N=128):
     shape = solver.shape(state)
     psi_nodes = state.psi
     psi_s = sp.ds(psi_nodes)
-    blocks = flow.slp.assemble(shape.z, shape.tangent, out=flow._dsd.input)
+    slp = flow.slp
+    blocks = slp.assemble(shape.z, shape.tangent).copy()
     f_b = bending_force(shape.curvature, psi_nodes, psi_s, shape.tangent, phys, sp)
-    A = flow.constraint_matrix(blocks, shape.tangent).copy()
+    A = slp.constraint_matrix(shape.tangent, shape.curvature).copy()
+    by_fft = FFTBothSides(sp)
+    difference = np.abs(by_fft.constraint_matrix(blocks, shape.tangent) - A).max() / np.abs(A).max()
     factor = lapack.dpotrf(A.copy(), lower=1)[0]
     rates = solver.rates(state)
+    work = np.empty((N, N))
     parts = [
-        ("Stokeslet assembly (3 N x N blocks, log)", lambda: flow.slp.assemble(shape.z, shape.tangent,
-                                                                                out=flow._dsd.input)),
-        ("D G D by 2-D FFT (3 N x N blocks)", lambda: flow._dsd()),
-        ("tension matrix (D G D + weights)", lambda: flow.constraint_matrix(blocks, shape.tangent)),
+        ("Stokeslet assembly (3 N x N blocks, log)", lambda: slp.assemble(shape.z, shape.tangent)),
+        ("tension matrix, closed form", lambda: slp.constraint_matrix(shape.tangent, shape.curvature, out=work)),
+        ("tension matrix by 2-D FFT of the blocks (not used; "
+         f"differs by {difference:.0e} relative)", lambda: by_fft.constraint_matrix(blocks, shape.tangent)),
         ("Cholesky factorisation (dpotrf)", lambda: lapack.dpotrf(A, lower=1, overwrite_a=0)),
         ("Cholesky solve (dpotrs)", lambda: lapack.dpotrs(factor, psi_s, lower=1)),
         ("single-layer matvec", lambda: StokesSLP.apply(blocks, f_b)),
         ("Cahn-Hilliard linearized solve (circulant + low rank)", lambda: solver.cahn_hilliard.solve_linearized(
             state.psi, 1500.0, state.psi.copy(), -15.0)),
         ("one 1-D FFT derivative (pair)", lambda: sp.ds(psi_nodes)),
+        ("membrane flow (assembly, tension with refinement, velocity)",
+         lambda: flow.solve(shape, psi_nodes, psi_s)),
         ("whole right-hand side (rates)", lambda: solver.rates(state)),
         ("update + projections (step given rates)", lambda: solver.step(state, rates)),
         ("whole step", lambda: solver.step(state)),
@@ -121,10 +171,10 @@ def fft_backends(N=128):
     for backend in ("numpy", "fftw"):
         sp = Spectral(N, 2.6442, backend=backend)
         x = np.random.default_rng(0).standard_normal(N)
-        dsd = BothSidesDerivative(sp, 3, backend=backend)
-        dsd.input[...] = np.random.default_rng(1).standard_normal((3, N, N))
+        both = FFTBothSides(sp, 3, backend=backend)
+        both.input[...] = np.random.default_rng(1).standard_normal((3, N, N))
         rows.append((backend, 1e6 * median_time(lambda: sp.ds(x), repeats=15, inner=200)[0],
-                     1e6 * median_time(dsd, repeats=15, inner=10)[0]))
+                     1e6 * median_time(both, repeats=15, inner=10)[0]))
     return rows
 
 

@@ -12,10 +12,17 @@ s . D_s = [diag(s_x) D_s, diag(s_y) D_s] = -B^T, the tension solves
     A Lambda~ = s . D_s (u_inf + G f_b),     A = B^T G B,
 
 with G the assembled single-layer matrix. A is symmetric positive definite
-(G is, on forces of zero total, and B has no kernel); it is formed with FFT
-derivatives along both axes of the kernels -- D_s G D_s costs O(N^2 log N),
-not the O(N^3) of matrix products -- and solved by Cholesky, O(N^3/6), which
-stays small against the rest up to N of a few hundred.
+(G is, on forces of zero total, and B has no kernel). D_s G D_s is formed in
+closed form from the kernels' analytic derivatives
+(:meth:`hpcves.quadrature.StokesSLP.constraint_matrix`, O(N^2) elementwise)
+and factorised by Cholesky, O(N^3/6). That A differs from the discrete B^T G B
+by the spectral error of the derivatives (1e-11 relative on resolved shapes),
+so the tension is refined against the exact discrete constraint (iterative
+refinement with the same factor): each pass costs one matvec and shrinks the
+residual s . du/ds by about that relative error times the condition number, and
+passes stop once it is below 1e-13 of the stretching s . du0/ds that the tension
+cancels, or stops falling (round-off). (Forming D_s G D_s by a 2-D FFT of the blocks
+instead cost 3x more at N = 128; docs/numerics.md.)
 """
 from __future__ import annotations
 
@@ -28,7 +35,7 @@ from .forces import bending_force, tension_force
 from .geometry import Shape
 from .params import Physics
 from .quadrature import StokesSLP
-from .spectral import BothSidesDerivative, Spectral
+from .spectral import Spectral
 
 
 @dataclass(frozen=True)
@@ -46,50 +53,42 @@ class Flow:
 class MembraneFlow:
     """Computes :class:`Flow` for a shape and a phase field."""
 
+    REFINEMENT_TOLERANCE = 1e-13      # residual s . du/ds relative to the stretching of u0
+    MAX_REFINEMENTS = 8
+
     def __init__(self, physics: Physics, sp: Spectral):
         self.physics = physics
         self.sp = sp
         self.slp = StokesSLP(sp.N, sp.length)
-        self._dsd = BothSidesDerivative(sp, 3, backend=sp.fft.name)
+        self._blocks = np.empty((3, sp.N, sp.N))
         self._A = np.empty((sp.N, sp.N))          # constraint matrix, factorised in place
-
-    def constraint_matrix(self, blocks: np.ndarray, tangent: np.ndarray) -> np.ndarray:
-        """A = B^T G B (N x N, symmetric positive definite).
-
-        With T_ab = D_s G_ab D_s and (c, s) = (cos, sin) theta,
-        A = -[ diag(c) T_xx diag(c) + diag(s) T_yy diag(s) + diag(c) T_xy diag(s) + diag(s) T_xy diag(c) ].
-        """
-        if blocks is not self._dsd.input:
-            self._dsd.input[...] = blocks
-        T_xx, T_xy, T_yy = self._dsd()
-        c, s = -tangent.real, tangent.imag          # the sign of A folded into c
-        A = np.multiply(T_xx, c, out=self._A)
-        A *= -c[:, None]
-        T_yy *= s
-        T_yy *= -s[:, None]
-        A += T_yy
-        T_xy *= s
-        T_xy *= c[:, None]
-        A += T_xy
-        A += T_xy.T
-        return A
 
     def solve(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
         """Velocity of the membrane and its effective tension."""
         sp, phys = self.sp, self.physics
         tangent = shape.tangent
-        blocks = self.slp.assemble(shape.z, tangent, out=self._dsd.input)
+        blocks = self.slp.assemble(shape.z, tangent, out=self._blocks)
         f_b = bending_force(shape.curvature, psi, psi_s, tangent, phys, sp)
         u0 = phys.shear_rate * shape.z.imag + StokesSLP.apply(blocks, f_b)
         rhs = np.real(np.conj(tangent) * sp.ds_complex(u0))
-        A = self.constraint_matrix(blocks, tangent)
+        A = self.slp.constraint_matrix(tangent, shape.curvature, out=self._A)
         factor, info = lapack.dpotrf(A, lower=1, overwrite_a=1, clean=0)
         if info != 0:
             raise TensionSolveError(
                 "the inextensibility system is not positive definite: the shape is no longer "
                 "resolved (reduce dt or increase N)")
-        tension, info = lapack.dpotrs(factor, rhs, lower=1)
+        tension, _ = lapack.dpotrs(factor, rhs, lower=1)
         u = u0 + StokesSLP.apply(blocks, tension_force(tension, tangent, sp))
+        limit, previous = self.REFINEMENT_TOLERANCE * np.abs(rhs).max(), np.inf
+        for _ in range(self.MAX_REFINEMENTS):
+            residual = np.real(np.conj(tangent) * sp.ds_complex(u))   # = rhs - (B^T G B) tension
+            size = np.abs(residual).max()
+            if size <= limit or size > 0.5 * previous:                # converged, or at round-off
+                break
+            previous = size
+            correction, _ = lapack.dpotrs(factor, residual, lower=1)
+            tension = tension + correction
+            u = u + StokesSLP.apply(blocks, tension_force(correction, tangent, sp))
         return Flow(velocity=u, tension_eff=tension)
 
 

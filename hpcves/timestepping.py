@@ -144,6 +144,7 @@ class Solver:
             self.lam_psi = phasefield.implicit_symbol(k, phys.mobility, phys.a0, phys.epsilon,
                                                       num.phase_stabilization)
             self.cahn_hilliard = phasefield.LinearizedImplicit(self.sp, phys.mobility, phys.a0, phys.epsilon)
+        self._applicable_memo: tuple = ()
         self.area0 = geometry.enclosed_area(self.initial_state().theta + self._two_pi_alpha, self.sp)
 
     # ------------------------------------------------------------------ set-up
@@ -263,7 +264,7 @@ class Solver:
         level_prev = prev_hat * to_prev
         psi_star = fft.irfft(2.0 * level_n - level_prev)
         V_star = L * (2.0 * rates.shift - state.prev_rate_shift)
-        if ch.applicable(psi_star) and ch.applicable(state.psi) and ch.applicable(state.prev_psi):
+        if ch.applicable(psi_star) and self._applicable(state.psi) and self._applicable(state.prev_psi):
             explicit = fft.irfft((2.0 / dt) * level_n - (0.5 / dt) * level_prev
                                  + 2.0 * fft.rfft(rates.psi) * to_n - fft.rfft(state.prev_rate_psi) * to_prev)
             psi = ch.solve_linearized(psi_star, 1.5 / dt, explicit, V_star - W)
@@ -293,13 +294,27 @@ class Solver:
             psi = state.psi
         else:
             psi = None
-            if self.cahn_hilliard.applicable(state.psi):
+            if self._applicable(state.psi):
                 psi = self.cahn_hilliard.solve_linearized(state.psi, 1.0 / dt, state.psi / dt + rates.psi, V)
             if psi is None or not phasefield.plausible(psi):
                 psi = self._stabilized_euler_phase(state.psi, rates.psi, dt, V)
             psi = self._conserve(psi, state.psi)
         return State(step=state.step, theta=theta, psi=psi, center=state.center + dt * rates.center,
                      shift=state.shift + dt * rates.shift)
+
+    def _applicable(self, psi) -> bool:
+        """cahn_hilliard.applicable(psi), remembered for the last few levels.
+
+        Each level is checked in two consecutive steps (as psi^n, then as
+        psi^{n-1}); a state's arrays are never modified, so the answer is
+        looked up by identity. Restarts recompute it: the same answer.
+        """
+        for array, answer in self._applicable_memo:
+            if array is psi:
+                return answer
+        answer = self.cahn_hilliard.applicable(psi)
+        self._applicable_memo = self._applicable_memo[-2:] + ((psi, answer),)
+        return answer
 
     def _stabilized_euler_phase(self, psi, rate, dt, advection):
         """IMEX Euler with linear stabilisation and implicit advection at speed V = ``advection``:

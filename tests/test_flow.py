@@ -1,20 +1,31 @@
 import numpy as np
+import pytest
 
 from conftest import advance, make_solver
+from hpcves.flow import MembraneFlow
 
 
-def test_tension_makes_the_flow_inextensible_and_the_system_is_spd():
-    solver = make_solver(N=64, dt=1e-3, shear_rate=80.0, psi_bar=0.3, excess_length=0.94)
-    state = advance(solver, solver.initial_state(), 20)
-    rates = solver.rates(state)
-    shape, flow = rates.shape, rates.flow
-    stretching = flow.stretching(shape.tangent, solver.sp)
-    velocity_gradient = np.abs(solver.sp.ds_complex(flow.velocity)).max()
-    assert np.abs(stretching).max() < 1e-10 * velocity_gradient
-    blocks = solver.flow.slp.assemble(shape.z, shape.tangent)
-    A = solver.flow.constraint_matrix(blocks, shape.tangent).copy()
-    assert np.abs(A - A.T).max() < 1e-10 * np.abs(A).max()
-    assert np.linalg.eigvalsh(0.5 * (A + A.T)).min() > 0
+@pytest.mark.parametrize("excess_length, shear_rate", [(0.94, 80.0), (2.3, 10.0)])
+def test_tension_makes_the_flow_inextensible_and_the_system_is_spd(excess_length, shear_rate, monkeypatch):
+    """The closed-form tension matrix is off by the spectral error of the kernels'
+    derivatives (1e-4 relative on the sharp tips of Delta = 2.3 at N = 64); the
+    refinement brings the stretching down to round-off all the same."""
+    solver = make_solver(N=64, dt=5e-4, shear_rate=shear_rate, psi_bar=0.3, excess_length=excess_length)
+    state = advance(solver, solver.initial_state(), 200)
+    shape = solver.shape(state)
+
+    def stretching(flow):
+        gradient = solver.sp.ds_complex(flow.velocity)
+        return np.abs(flow.stretching(shape.tangent, solver.sp)).max() / np.abs(gradient).max()
+
+    assert stretching(solver.flow.solve(shape, state.psi, solver.sp.ds(state.psi))) < 1e-12
+    monkeypatch.setattr(MembraneFlow, "MAX_REFINEMENTS", 0)
+    unrefined = stretching(solver.flow.solve(shape, state.psi, solver.sp.ds(state.psi)))
+    assert unrefined > 1e-12                   # what the refinement removes
+    solver.flow.slp.assemble(shape.z, shape.tangent)
+    A = solver.flow.slp.constraint_matrix(shape.tangent, shape.curvature)
+    assert np.abs(A - A.T).max() < 1e-14 * np.abs(A).max()
+    assert np.linalg.eigvalsh(A).min() > 0
 
 
 def test_flow_is_area_preserving():

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from hpcves.spectral import BothSidesDerivative, Spectral
+from hpcves.spectral import Spectral
 
 L = 2.6442
 
@@ -33,17 +33,6 @@ def test_shift_and_interpolation_agree_with_the_function():
     assert np.allclose(sp.interpolate(samples, points), f(points), atol=1e-13)
     stacked = sp.interpolate(np.stack([samples, 2 * samples]), 0.37)
     assert stacked.shape == (2,) and np.isclose(stacked[1], 2 * f(0.37))
-
-
-@pytest.mark.parametrize("N", [16, 32])
-def test_both_sides_derivative_matches_the_matrix_product(N, rng):
-    sp = Spectral(N, L)
-    D = np.array([sp.ds(e) for e in np.eye(N)]).T          # D @ v = ds(v)
-    K = rng.standard_normal((3, N, N))
-    K = K + K.transpose(0, 2, 1)                            # symmetric, like the Stokeslet blocks
-    dsd = BothSidesDerivative(sp, 3)
-    dsd.input[...] = K
-    assert np.allclose(dsd(), D @ K @ D, rtol=0, atol=1e-10 * np.abs(D @ K @ D).max())
 
 
 def test_transforms_never_write_into_their_inputs():
