@@ -120,11 +120,13 @@ def doubts(reports: dict) -> list[str]:
 def numerics_line(toml: str) -> str:
     study = load_study(toml)
     base = study.base
-    rule = study.end_time
+    rule = study.times
     end = (f"t_end = {rule.t_end:g}" if rule.t_end is not None else
            f"t_end = max({rule.shear_times:g} / S, {rule.t_end_min:g})" if rule.shear_times is not None
            else f"t_end = {base.run.t_end:g}")
-    return f"N = {base.numerics.N}, dt = {base.numerics.dt:g}, {end}"
+    sampling = (f"samples every min({base.run.sample_interval:g}, 1/({rule.samples_per_shear_time:g} S))"
+                if rule.samples_per_shear_time is not None else f"samples every {base.run.sample_interval:g}")
+    return f"N = {base.numerics.N}, dt = {base.numerics.dt:g}, {end}, {sampling}"
 
 
 def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict, walls: dict, np_: int) -> None:

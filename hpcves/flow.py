@@ -21,7 +21,9 @@ so the tension is refined against the exact discrete constraint (iterative
 refinement with the same factor): each pass costs one matvec and shrinks the
 residual s . du/ds by about that relative error times the condition number, and
 passes stop once it is below 1e-13 of the stretching s . du0/ds that the tension
-cancels, or stops falling (round-off). (Forming D_s G D_s by a 2-D FFT of the blocks
+cancels, or stops falling (round-off); a residual still above 1e-6 of it
+means the closed form is far from B^T G B, i.e. the shape is not resolved,
+and stops the run like a divergence. (Forming D_s G D_s by a 2-D FFT of the blocks
 instead cost 3x more at N = 128; docs/numerics.md.)
 """
 from __future__ import annotations
@@ -55,6 +57,7 @@ class MembraneFlow:
 
     REFINEMENT_TOLERANCE = 1e-13      # residual s . du/ds relative to the stretching of u0
     MAX_REFINEMENTS = 8
+    UNRESOLVED = 1e-6                 # a residual above this after refining: the shape is not resolved
 
     def __init__(self, physics: Physics, sp: Spectral):
         self.physics = physics
@@ -79,16 +82,22 @@ class MembraneFlow:
                 "resolved (reduce dt or increase N)")
         tension, _ = lapack.dpotrs(factor, rhs, lower=1)
         u = u0 + StokesSLP.apply(blocks, tension_force(tension, tangent, sp))
-        limit, previous = self.REFINEMENT_TOLERANCE * np.abs(rhs).max(), np.inf
-        for _ in range(self.MAX_REFINEMENTS):
+        scale = np.abs(rhs).max()
+        previous = np.inf
+        for refinements in range(self.MAX_REFINEMENTS + 1):
             residual = np.real(np.conj(tangent) * sp.ds_complex(u))   # = rhs - (B^T G B) tension
             size = np.abs(residual).max()
-            if size <= limit or size > 0.5 * previous:                # converged, or at round-off
+            if size <= self.REFINEMENT_TOLERANCE * scale or size > 0.5 * previous \
+                    or refinements == self.MAX_REFINEMENTS:           # converged, at round-off, or done
                 break
             previous = size
             correction, _ = lapack.dpotrs(factor, residual, lower=1)
             tension = tension + correction
             u = u + StokesSLP.apply(blocks, tension_force(correction, tangent, sp))
+        if size > self.UNRESOLVED * scale:
+            raise TensionSolveError(
+                f"the tension leaves a stretching of {size / scale:.1e} of what it cancels: "
+                "the shape is no longer resolved (reduce dt or increase N)")
         return Flow(velocity=u, tension_eff=tension)
 
 

@@ -59,7 +59,7 @@ from .search import SearchSettings
 
 SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
-CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "stop_timeout")
+CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "samples_per_shear_time", "stop_timeout")
 MAX_CASES = 1_000_000
 
 
@@ -97,8 +97,8 @@ class Study:
     stop_timeout: float = 10.0
     source: str = ""               # the campaign file's text (kept in the HDF5 file)
     analysis: AnalysisSettings = AnalysisSettings()   # thresholds of hpcves analyze ([analysis])
-    base: Case | None = None       # the base case (swept values and t_end replaced per case)
-    end_time: EndTime = field(default_factory=lambda: EndTime())
+    base: Case | None = None       # the base case (swept values, t_end and sampling replaced per case)
+    times: TimeRules = field(default_factory=lambda: TimeRules())
     search: SearchSettings | None = None
     searches: tuple = ()           # search studies: the swept values of each search, in sweep order
 
@@ -108,7 +108,7 @@ class Study:
 
         Comments and formatting of the TOML do not change it; any parameter does.
         A search study's cases are not known up front: its fingerprint covers
-        what decides them -- base case, end-time rule, sweep, search range and
+        what decides them -- base case, time rules, sweep, search range and
         the classification thresholds (which decide where the search goes next).
         """
         if self.search is None:
@@ -116,7 +116,7 @@ class Study:
                        "cases": [[c.case_id, c.case.to_dict()] for c in self.cases]}
         else:
             payload = {"name": self.name, "mode": "search", "base": self.base.to_dict(),
-                       "end_time": dataclasses.asdict(self.end_time), "searches": list(self.searches),
+                       "times": dataclasses.asdict(self.times), "searches": list(self.searches),
                        "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
@@ -135,11 +135,14 @@ class Study:
         return max(4, len(str(self.most_cases - 1)))
 
     def make_case(self, case_id: str, swept: dict, search: int = -1) -> StudyCase:
-        """The base case with ``swept`` values and the end-time rule applied (validated)."""
+        """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated)."""
         where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
         try:
             physics = dataclasses.replace(self.base.physics, **swept)
-            run = dataclasses.replace(self.base.run, t_end=self.end_time(physics.shear_rate, self.base.run.t_end))
+            S, run = physics.shear_rate, self.base.run
+            run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
+                                      sample_interval=self.times.sample_interval(S, run.sample_interval,
+                                                                                 self.base.numerics.dt))
             case = Case(physics=physics, numerics=self.base.numerics, run=run)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
@@ -243,7 +246,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     stop_timeout = check_type("campaign.stop_timeout", campaign.get("stop_timeout", 10.0), float)
     if not stop_timeout > 0:
         raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
-    end_time = EndTime.from_campaign(campaign)
+    times = TimeRules.from_campaign(campaign)
     analysis = AnalysisSettings.from_dict(tables["analysis"])
     search = SearchSettings.from_dict(tables["search"]) if is_search else None
 
@@ -256,7 +259,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
     sweep = {key: sweep_values(key, spec) for key, spec in sweep_spec.items()}
     study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
-                  analysis=analysis, base=base, end_time=end_time, search=search)
+                  analysis=analysis, base=base, times=times, search=search)
     if study.most_cases > MAX_CASES:
         raise ConfigError(f"the sweep has {study.most_cases} cases; more than {MAX_CASES} is surely a mistake")
     points = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())]
@@ -271,15 +274,22 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
 
 
 @dataclass(frozen=True)
-class EndTime:
-    """t_end of a case from its shear rate: ``max(t_end, t_end_min)``, or
-    ``max(shear_times / S, t_end_min)``, or the base case's t_end (at least t_end_min)."""
+class TimeRules:
+    """Per-case times from the shear rate S ([campaign] keys).
+
+    t_end: ``max(t_end, t_end_min)``, or ``max(shear_times / S, t_end_min)``, or
+    the base case's t_end (at least t_end_min). The sampling interval of the
+    time series: the base case's, or -- with ``samples_per_shear_time`` = k --
+    ``min(base, 1 / (k S))`` (but at least dt), so that fast motion (a phase-treading period
+    is ~7 shear times) is sampled as finely at S = 320 as at S = 20.
+    """
 
     t_end: float | None = None
     shear_times: float | None = None
     t_end_min: float = 0.0
+    samples_per_shear_time: float | None = None
 
-    def __call__(self, shear_rate: float, base: float) -> float:
+    def end_time(self, shear_rate: float, base: float) -> float:
         if self.t_end is not None:
             return max(self.t_end, self.t_end_min)
         if self.shear_times is not None:
@@ -290,8 +300,13 @@ class EndTime:
             return _round(max(self.shear_times / shear_rate, self.t_end_min))
         return max(base, self.t_end_min)
 
+    def sample_interval(self, shear_rate: float, base: float, dt: float) -> float:
+        if self.samples_per_shear_time is None or shear_rate == 0:
+            return base
+        return _round(max(dt, min(base, 1.0 / (self.samples_per_shear_time * shear_rate))))
+
     @classmethod
-    def from_campaign(cls, campaign: dict) -> "EndTime":
+    def from_campaign(cls, campaign: dict) -> "TimeRules":
         absolute = campaign.get("t_end")
         shear_times = campaign.get("shear_times")
         if absolute is not None and shear_times is not None:
@@ -307,4 +322,9 @@ class EndTime:
             shear_times = check_type("campaign.shear_times", shear_times, float)
             if not shear_times > 0:
                 raise ConfigError(f"campaign.shear_times = {shear_times}: must be > 0")
-        return cls(absolute, shear_times, floor)
+        samples = campaign.get("samples_per_shear_time")
+        if samples is not None:
+            samples = check_type("campaign.samples_per_shear_time", samples, float)
+            if not samples > 0:
+                raise ConfigError(f"campaign.samples_per_shear_time = {samples}: must be > 0")
+        return cls(absolute, shear_times, floor, samples)

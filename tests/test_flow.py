@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from conftest import advance, make_solver
-from hpcves.flow import MembraneFlow
+from hpcves.flow import MembraneFlow, TensionSolveError
 
 
 @pytest.mark.parametrize("excess_length, shear_rate", [(0.94, 80.0), (2.3, 10.0)])
@@ -20,8 +20,13 @@ def test_tension_makes_the_flow_inextensible_and_the_system_is_spd(excess_length
 
     assert stretching(solver.flow.solve(shape, state.psi, solver.sp.ds(state.psi))) < 1e-12
     monkeypatch.setattr(MembraneFlow, "MAX_REFINEMENTS", 0)
+    monkeypatch.setattr(MembraneFlow, "UNRESOLVED", np.inf)
     unrefined = stretching(solver.flow.solve(shape, state.psi, solver.sp.ds(state.psi)))
     assert unrefined > 1e-12                   # what the refinement removes
+    # a residual that refinement does not remove means an unresolved shape: the run stops
+    monkeypatch.setattr(MembraneFlow, "UNRESOLVED", 1e-9)
+    with pytest.raises(TensionSolveError, match="no longer resolved"):
+        solver.flow.solve(shape, state.psi, solver.sp.ds(state.psi))
     solver.flow.slp.assemble(shape.z, shape.tangent)
     A = solver.flow.slp.constraint_matrix(shape.tangent, shape.curvature)
     assert np.abs(A - A.T).max() < 1e-14 * np.abs(A).max()

@@ -41,6 +41,16 @@ def test_end_time_in_shear_times_with_a_floor():
     assert [c.case.run.t_end for c in absolute.cases] == [2.5, 2.5]
 
 
+def test_sampling_in_samples_per_shear_time_never_coarser_than_the_base():
+    s = study("shear_rate = [1, 10, 40, 1000]", "shear_times = 50\nsamples_per_shear_time = 20")
+    base, dt = s.base.run.sample_interval, s.base.numerics.dt
+    assert (base, dt) == (0.01, 1e-3)
+    # 1 / (20 S) = 0.05 (coarser than the base: the base), 0.005, 0.00125, 5e-5 (finer than dt: dt)
+    assert [c.case.run.sample_interval for c in s.cases] == [0.01, 0.005, 0.00125, 1e-3]
+    plain = study("shear_rate = [10, 1000]", "shear_times = 50")
+    assert [c.case.run.sample_interval for c in plain.cases] == [base, base]
+
+
 def test_cost_orders_by_steps_and_resolution():
     s = study("shear_rate = [10, 100]", "shear_times = 50")
     assert s.cases[0].cost == pytest.approx(10 * s.cases[1].cost)
