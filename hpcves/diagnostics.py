@@ -151,6 +151,23 @@ def snapshot(solver: Solver, state: State, rates: Rates) -> dict:
     }
 
 
+def _overshoot_context(solver: Solver, state: State) -> str:
+    """Where psi overshot, when it is the soft phase pulled past 1 at a sharp tip.
+
+    B(psi) = (1 - psi) B1 + psi B2 vanishes at psi = B1 / (B1 - B2) (1.11 for
+    B2 = 0.1); seen at Delta = 2.3, S <= 20, where psi's maximum sits at the
+    curvature maximum and both grow together (docs/numerics.md).
+    """
+    phys = solver.case.physics
+    j = int(np.argmax(state.psi))
+    curvature = np.abs(solver.shape(state).curvature)
+    if phys.B2 >= phys.B1 or curvature[j] < 0.5 * curvature.max():
+        return ""
+    return (f"; the maximum of psi sits where |H| = {curvature[j]:.3g} (largest |H| {curvature.max():.3g}): "
+            f"the soft phase is drawn past 1 at a sharp tip, towards psi = {phys.B1 / (phys.B1 - phys.B2):.3g} "
+            "where the linear B(psi) of the model vanishes")
+
+
 def health(solver: Solver, state: State, row: dict | None, last_correction: float = 0.0) -> Health:
     """Is the run still sane? NaN, area/length error, psi range (RunControl bounds)."""
     run = solver.case.run
@@ -168,7 +185,7 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
     lo, hi = float(state.psi.min()), float(state.psi.max())
     if lo < run.psi_min or hi > run.psi_max:
         return Health(False, f"psi left [{run.psi_min}, {run.psi_max}] (range [{lo:.4g}, {hi:.4g}]) at "
-                             f"t = {solver.time(state):.6g}")
+                             f"t = {solver.time(state):.6g}" + _overshoot_context(solver, state))
     if row is not None:
         if abs(row["area_error"]) > run.max_area_error:
             return Health(False, f"relative area error {row['area_error']:.3g} exceeds "

@@ -5,8 +5,10 @@ velocity of the phase pattern in the lab frame, V_psi + V_L, against the
 membrane's tank-treading velocity V (all recorded by diagnostics.py).
 
 * **TT**: after the transient theta is steady and the pattern is fixed in the
-  lab frame: |<V_psi + V_L>| <= pattern_tol |<V>| (for psi = 0 there is no
-  pattern and theta alone decides).
+  lab frame: |<V_psi + V_L>| <= pattern_tol |<V>| (for psi = 0, or a mixture
+  that never separates -- psi_max - psi_min < MIXED = 0.5 over the settled
+  part, as for psi_bar = 0.1, outside the spinodal -- there is no pattern and
+  theta alone decides).
 * **PT**: the pattern moves in the lab frame and theta oscillates with a
   period (checked two ways, periodicity.py), at least ``min_cycles`` settled
   periods long, with min theta >= 0.
@@ -29,6 +31,12 @@ from .periodicity import analyse
 
 TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
 REGIMES = (TT, PT, TU, UNDECIDED)
+
+#: psi_max - psi_min below which psi is a mixture, not a pattern of domains. Separated
+#: domains span ~[0, 1]; a mixture outside the spinodal (psi_bar = 0.1) decays to a
+#: contrast of ~0.03, and the velocity of its vanishing first mode is meaningless.
+#: A constant, not an [analysis] setting: search files fingerprint those settings.
+MIXED = 0.5
 
 
 @dataclass(frozen=True)
@@ -93,6 +101,13 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     lab = None
     if "V_psi" in series and "V_L" in series:
         lab = np.asarray(series["V_psi"], dtype=float) + np.asarray(series["V_L"], dtype=float)
+    contrast = float("nan")
+    if "psi_min" in series and "psi_max" in series:
+        contrast = _settled_mean(t, np.asarray(series["psi_max"], dtype=float)
+                                 - np.asarray(series["psi_min"], dtype=float), t_settle)
+        if contrast < MIXED:
+            lab = None          # a mixture that did not separate (e.g. psi_bar outside the spinodal):
+                                # the velocity of its decaying first mode means nothing
     tt = series.get("tank_treading_velocity")
     v_lab = _settled_mean(t, lab, t_settle)
     v_tt = abs(_settled_mean(t, None if tt is None else np.asarray(tt, dtype=float), t_settle))
@@ -120,7 +135,7 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
             return verdict(UNDECIDED, f"theta steady at {a.mean:.4f} but the pattern {pattern}")
         return verdict(TT, f"theta steady at {a.mean:.4f} rad (within {a.tolerance:.1e}) from "
                            f"t = {a.t_settle:.4g}; " + (f"the pattern {pattern}" if np.isfinite(speed)
-                                                        else "no phase pattern"))
+                                                        else _no_pattern(contrast)))
     band = max(a.tolerance, settings.rel_tol * 2 * a.amplitude)
     if abs(a.drift) > band:
         return verdict(UNDECIDED, f"theta still drifting: its one-period mean moves by {a.drift:.2g} rad "
@@ -137,8 +152,14 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
         return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}")
     if np.isfinite(speed) and speed > settings.pattern_tol:
         return verdict(PT, f"the pattern {pattern}; theta oscillates, min {a.minimum:.3f} > 0; {periodic}")
-    what = f"the pattern {pattern}" if np.isfinite(speed) else "there is no phase pattern"
+    what = f"the pattern {pattern}" if np.isfinite(speed) else f"there is {_no_pattern(contrast)}"
     return verdict(UNDECIDED, f"theta oscillates ({periodic}) but {what}")
+
+
+def _no_pattern(contrast: float) -> str:
+    if np.isfinite(contrast):
+        return f"no phase pattern (psi stays mixed: max - min = {contrast:.2g})"
+    return "no phase pattern"
 
 
 def _pattern_words(speed: float, settings: AnalysisSettings) -> str:

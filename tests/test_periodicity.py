@@ -92,6 +92,18 @@ def test_tank_treading_phase_treading_and_tumbling_are_told_apart():
     assert tu.regime == TU and tu.theta_min < 0 and tu.period == pytest.approx(T, rel=5e-3), tu
 
 
+def test_a_mixture_that_never_separates_has_no_pattern_to_move():
+    """psi_bar = 0.1 lies outside the spinodal: psi stays mixed (contrast ~0.03) and the
+    'velocity' of its vanishing first mode is noise -- twice the membrane speed in one
+    run at Delta = 0.94, S = 80. theta alone decides; a separated pattern still counts."""
+    mixed = series(0.42 + 0.0 * t, pattern_speed=2.0)
+    mixed["psi_min"], mixed["psi_max"] = np.full(t.size, 0.09), np.full(t.size, 0.12)
+    c = classify(mixed)
+    assert c.regime == TT and "psi stays mixed" in c.reason and np.isnan(c.pattern_speed)
+    separated = dict(mixed, psi_min=np.full(t.size, -0.003), psi_max=np.full(t.size, 1.02))
+    assert classify(separated).regime == UNDECIDED       # steady theta, moving pattern: as before
+
+
 def test_homogeneous_vesicle_without_a_pattern_is_tank_treading():
     s = series(0.6 + 0.0 * t)
     s["V_psi"][:] = np.nan                           # psi = 0 everywhere: no phase position

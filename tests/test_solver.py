@@ -181,3 +181,21 @@ def test_near_critical_spinodal_growth_does_not_blow_up_the_phase_step():
         lowest, highest = min(lowest, state.psi.min()), max(highest, state.psi.max())
     assert -0.02 < lowest and highest < 1.02, (lowest, highest)
     assert not plausible(np.array([0.5, 1.35])) and plausible(np.array([-0.01, 1.01]))
+
+
+def test_soft_phase_drawn_past_one_at_a_sharp_tip_stops_the_run_and_says_why():
+    """Delta = 2.3, S = 20, psi_bar = 0.5: the soft phase gathers at a tip, the tip
+    sharpens (|H| 14 -> 28) and psi passes 1.1 there at t ~ 0.95 (N = 64 and 128
+    alike): a limit of the model's linear B(psi), which vanishes at psi = 1.11."""
+    from hpcves import diagnostics
+
+    solver = make_solver(N=64, dt=5e-4, shear_rate=20.0, psi_bar=0.5, excess_length=2.3)
+    state = solver.initial_state()
+    for _ in range(2400):
+        state, _ = solver.step(state)
+        verdict = diagnostics.health(solver, state, None)
+        if not verdict.ok:
+            break
+    assert not verdict.ok and 0.8 < solver.time(state) < 1.1
+    assert "psi left [-0.25, 1.1]" in verdict.reason
+    assert "drawn past 1 at a sharp tip" in verdict.reason and "psi = 1.11" in verdict.reason
