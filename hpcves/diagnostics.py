@@ -155,8 +155,9 @@ def _overshoot_context(solver: Solver, state: State) -> str:
     """Where psi overshot, when it is the soft phase pulled past 1 at a sharp tip.
 
     B(psi) = (1 - psi) B1 + psi B2 vanishes at psi = B1 / (B1 - B2) (1.11 for
-    B2 = 0.1); seen at Delta = 2.3, S <= 20, where psi's maximum sits at the
-    curvature maximum and both grow together (docs/numerics.md).
+    B2 = 0.1); seen at Delta = 2.3 (S <= 20; at N = 128 also S = 320), where
+    psi's maximum sits at the curvature maximum and both grow together
+    (docs/numerics.md).
     """
     phys = solver.case.physics
     j = int(np.argmax(state.psi))

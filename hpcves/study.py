@@ -115,9 +115,13 @@ class Study:
             payload = {"name": self.name,
                        "cases": [[c.case_id, c.case.to_dict()] for c in self.cases]}
         else:
+            times = dataclasses.asdict(self.times)
+            samples = times.pop("samples_per_shear_time")
             payload = {"name": self.name, "mode": "search", "base": self.base.to_dict(),
-                       "times": dataclasses.asdict(self.times), "searches": list(self.searches),
+                       "end_time": times, "searches": list(self.searches),
                        "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
+            if samples is not None:        # absent from files written before the rule existed
+                payload["samples_per_shear_time"] = samples
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
     def by_id(self, case_id: str) -> StudyCase:

@@ -105,3 +105,32 @@ def test_every_study_in_jobs_is_valid():
         assert len(load_study(path).cases) >= 4, path
     for path in set(jobs.glob("*.toml")) - set(studies):
         load_case(path)
+
+
+SEARCH_TOML = """
+[campaign]
+name = "fp"
+output = "out/fp.h5"
+shear_times = 100
+t_end_min = 1.0
+[physics]
+excess_length = 0.194
+[numerics]
+N = 32
+[search]
+low = 5.0
+high = 80.0
+[sweep]
+psi_bar = [0.3, 0.5]
+"""
+
+
+def test_search_fingerprint_of_older_files_is_kept():
+    """A search file records a fingerprint of what decides its cases, and --resume refuses
+    any other. This one was written by the version before samples_per_shear_time existed:
+    new options must leave it unchanged when they are not used (change it only with a
+    migration of existing files)."""
+    assert study_from_toml(SEARCH_TOML).fingerprint == \
+        "b69211a0947811a2d19a661353dd2203f7313add8746547afb026fb05b8bb73d"
+    sampled = study_from_toml(SEARCH_TOML.replace("t_end_min = 1.0", "t_end_min = 1.0\nsamples_per_shear_time = 10"))
+    assert sampled.fingerprint != study_from_toml(SEARCH_TOML).fingerprint
