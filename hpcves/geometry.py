@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize, special
+from scipy.linalg import lapack
 
 from .params import ConfigError
 from .spectral import Spectral
@@ -118,8 +119,7 @@ def close_curve(theta: np.ndarray, tol: float = 1e-15, max_iterations: int = 4) 
 
 def _area_from_tangent(tangent: np.ndarray, sp: Spectral) -> float:
     """A = 1/2 oint z . n ds with z = int e^{i theta} ds, n = -i e: z . n = -Im(conj(e) z)."""
-    z = sp.antiderivative_complex(tangent, 0.0)
-    return -0.5 * sp.length * float(np.imag(np.vdot(tangent, z))) / sp.N
+    return _area(tangent, sp.antiderivative_complex(tangent, 0.0), sp)
 
 
 def enclosed_area(theta: np.ndarray, sp: Spectral) -> float:
@@ -130,38 +130,82 @@ def enclosed_area(theta: np.ndarray, sp: Spectral) -> float:
 def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
     """Project a tangent angle (full angle theta) onto closed curves of a given area.
 
-    Closure: Newton steps on mean(e^{i theta}) = 0 (see :func:`close_curve`).
-    Area (when ``area`` is given): the periodic part of theta about its mean is
-    scaled, theta_tilde -> (1 + e) theta_tilde (at fixed length a larger deviation
-    from the circle encloses less area), with one Newton step on e using
-    dA/de = oint delta z . n ds, delta z = i int e^{i theta} theta_tilde ds, then
-    the curve is closed again; repeated while the relative area defect exceeds
-    1e-13 (after a time step the defects are of the size of the local error, and
-    one Newton step usually suffices). A circle has no scaling direction and
-    keeps its area. Returns (theta, area before the correction).
+    Closure alone (``area`` None): one Newton step on mean(e^{i theta}) = 0 (see
+    :func:`close_curve`). With an area, the three constraints
+
+        Re sum e^{i theta} = 0,   Im sum e^{i theta} = 0,   A(theta) = area
+
+    are solved together by Newton's method for a correction
+    delta theta = lam_1 (-sin theta) + lam_2 cos theta + lam_3 theta_tilde: the
+    closure directions of :func:`close_curve` and a scaling of the periodic part
+    theta_tilde of theta about its mean (at fixed length a larger deviation from
+    the circle encloses less area). The area gradient is exact for the discrete
+    area (:func:`area_gradient`). The Jacobian is formed once, at the incoming
+    theta (a chord method): after a time step the defects are of the size of the
+    local error (1e-7 relative), so the first correction is ~1e-6 and each
+    further one is smaller by about that factor. Steps stop once the constraints
+    hold (closure to 1e-15, area to 1e-13 relative) or the last correction times
+    the first -- the size of what remains -- is below 1e-16. A (near) circle, whose
+    area does not change under scaling (|dA/dlam_3| <= 1e-12 A), is only closed.
+    Returns (theta, area before the correction).
     """
-    theta = _closure_step(theta, np.exp(1j * theta))
     if area is None:
-        return theta, None
-    before = None
-    for _ in range(3):
+        return _closure_step(theta, np.exp(1j * theta)), None
+    rows = np.empty((4, sp.N))        # directions: scaling, -sin, cos; then the area gradient
+    direction, sin_direction, cos_direction, gradient = rows
+    np.subtract(theta, 2.0 * np.pi * sp.alpha, out=direction)
+    direction -= direction.sum() / sp.N
+    e = np.exp(1j * theta)
+    z = sp.antiderivative_complex(e, 0.0)
+    A = before = _area(e, z, sp)
+    np.negative(e.imag, out=sin_direction)
+    cos_direction[:] = e.real
+    area_gradient(e, z, sp, out=gradient)
+    jacobian = rows[1:] @ rows[:3].T          # d(Re sum e, Im sum e, A) / d(lam)
+    if abs(jacobian[2, 0]) <= 1e-12 * area:  # (nearly) a circle: no scaling direction
+        return _closure_step(theta, e), before
+    first = None
+    for _ in range(6):
+        defect = e.sum()
+        if abs(A - area) <= 1e-13 * area and abs(defect) <= 1e-15 * sp.N:
+            break
+        lam, info = _solve3(jacobian, np.array([-defect.real, -defect.imag, area - A]))
+        if info != 0:
+            return _closure_step(theta, e), before
+        correction = lam @ rows[:3]
+        theta = theta + correction
+        size = np.abs(correction).max()
+        first = size if first is None else first
+        if size * first <= 1e-16:             # what remains: O(this correction x the first)
+            break
         e = np.exp(1j * theta)
-        direction = theta - 2.0 * np.pi * sp.alpha
-        direction -= direction.sum() / sp.N
-        A = _area_from_tangent(e, sp)
-        before = A if before is None else before
-        if abs(A - area) <= 1e-13 * area:
-            break
-        dz = sp.antiderivative_complex(e * direction, 0.0)
-        dA = -sp.length * float(np.real(np.vdot(e, dz))) / sp.N     # (i dz) . n = -Re(conj(e) dz)
-        if abs(dA) <= 1e-12 * area:
-            break
-        scale = (area - A) / dA
-        theta = theta + scale * direction
-        theta = _closure_step(theta, np.exp(1j * theta))
-        if abs(scale) < 1e-8:       # Newton: the remaining defect is O(scale^2), below round-off
-            break
+        z = sp.antiderivative_complex(e, 0.0)
+        A = _area(e, z, sp)
     return theta, before
+
+
+def _area(tangent: np.ndarray, z: np.ndarray, sp: Spectral) -> float:
+    """A = 1/2 oint z . n ds = -(L / 2N) Im(sum conj(e) z), z the mean-free antiderivative of e."""
+    return -0.5 * sp.length * float(np.imag(np.vdot(tangent, z))) / sp.N
+
+
+def area_gradient(tangent: np.ndarray, z: np.ndarray, sp: Spectral, out=None) -> np.ndarray:
+    """dA/dtheta_j = (L / N) Re(conj(e_j) z_j) = (L / N) z_j . s_j of the discrete area.
+
+    With z = Z e (Z the spectral antiderivative, real and skew: Z^T = -Z),
+    dA = -(L/N) Im(delta e^H z) and delta e = i e delta theta. ``z`` must be the
+    mean-free antiderivative that the area was computed from.
+    """
+    out = np.empty(sp.N) if out is None else out
+    np.multiply(tangent.real, z.real, out=out)
+    out += tangent.imag * z.imag
+    out *= sp.length / sp.N
+    return out
+
+
+def _solve3(matrix, rhs):
+    _, _, x, info = lapack.dgesv(matrix, rhs)
+    return x, info
 
 
 @dataclass(frozen=True)

@@ -55,8 +55,10 @@ def initial_phase(psi_bar, delta, coordinate):
     return psi_bar + delta * (3.0 * np.cos(a) + 0.5 * np.cos(3 * a) + 0.5 * np.cos(4 * a))
 
 
-#: g''(psi) < 0 exactly for psi strictly between these roots of 1 - 6 psi + 6 psi^2
-SPINODAL = (0.5 - np.sqrt(3.0) / 6.0, 0.5 + np.sqrt(3.0) / 6.0)
+#: g''(psi) < 0 exactly for psi strictly between these roots of 1 - 6 psi + 6 psi^2,
+#: i.e. for |psi - 1/2| < SPINODAL_HALF_WIDTH
+SPINODAL_HALF_WIDTH = np.sqrt(3.0) / 6.0
+SPINODAL = (0.5 - SPINODAL_HALF_WIDTH, 0.5 + SPINODAL_HALF_WIDTH)
 
 
 def longest_spinodal_run(psi, length):
@@ -140,13 +142,31 @@ class LinearizedImplicit:
         self._k2 = sp.k2                                        # symbol of D^2 (Nyquist kept)
         self._ik = sp.ik                                        # symbol of D (Nyquist dropped)
         self._bulk = (mobility * a0 * eps) * sp.k2**2 - 0.5 * self._c2 * sp.k2   # J at g'' = 1/2
+        self._c2_k2 = self._c2 * sp.k2
         self._max_run = 2.0 * np.pi * eps           # pi eps / sqrt(max(-g'')) with max(-g'') = 1/4
         self._length = sp.length
+        # a stretch is too long once it has this many points (longest_spinodal_run > max_run)
+        points = 1
+        while points <= self.N and float(points) * sp.length / self.N <= self._max_run:
+            points += 1
+        self._run_points = points
+        self._window = np.ones(points)
 
     def applicable(self, psi_star) -> bool:
-        """Short spinodal stretches only, and no overshoot beyond [-0.05, 1.05]."""
-        return (psi_star.min() >= -0.05 and psi_star.max() <= 1.05
-                and longest_spinodal_run(psi_star, self._length) <= self._max_run)
+        """Short spinodal stretches only (longest_spinodal_run <= 2 pi eps), and no
+        overshoot beyond [-0.05, 1.05].
+
+        A stretch is too long when ``_run_points`` consecutive points (periodically)
+        lie in the spinodal range: a moving sum over that window reaches its length.
+        """
+        deviation = np.abs(psi_star - 0.5)
+        if not deviation.max() <= 0.55:
+            return False
+        points = self._run_points
+        if points > self.N:
+            return True
+        inside = deviation < SPINODAL_HALF_WIDTH
+        return np.convolve(np.concatenate((inside, inside[: points - 1])), self._window, "valid").max() < points
 
     def excess_curvature(self, psi_star, truncated=True):
         """e = g''(psi*) - 1/2, set to 0 where |e| <= cutoff if ``truncated``."""
@@ -172,24 +192,29 @@ class LinearizedImplicit:
         With z = K^{-1} rhs and Q = K^{-1} D^2 (circulant, one transform):
         psi_new = z + nu (a0/eps) Q E_P y, (I - nu (a0/eps) diag(e_P) Q_PP) y = e_P z_P.
         """
+        fft = self._fft
+        return self.solve_spectral(psi_star, fft.rfft(psi_star), c, fft.rfft(explicit), advection)
+
+    def solve_spectral(self, psi_star, psi_star_hat, c, explicit_hat, advection=0.0):
+        """:meth:`solve_linearized` given the rfft spectra of psi* and of the explicit side."""
         fft, N, c2 = self._fft, self.N, self._c2
-        e = self.excess_curvature(psi_star)
-        P = np.flatnonzero(e)
+        e = 3.0 * psi_star * (psi_star - 1.0)                 # g''(psi*) - 1/2
+        P = np.flatnonzero(np.abs(e) > self.cutoff)
+        rhs_hat = explicit_hat + self._bulk * psi_star_hat
+        kappa = (c + self._bulk) + advection * self._ik
+        if P.size == 0:
+            return fft.irfft(rhs_hat / kappa)
         e_P = e[P]
         w = np.zeros(N)
         w[P] = e_P * psi_star[P]
-        rhs_hat = fft.rfft(explicit) + self._bulk * fft.rfft(psi_star) - (c2 * self._k2) * fft.rfft(w)
-        kappa = (c + self._bulk) + advection * self._ik
+        rhs_hat -= self._c2_k2 * fft.rfft(w)
         z = fft.irfft(rhs_hat / kappa)
-        if P.size == 0:
-            return z
         Q_symbol = self._k2 / kappa
         q = fft.irfft(Q_symbol)
-        capacitance = np.subtract.outer(P, P)
-        capacitance %= N
-        capacitance = q[capacitance]
-        capacitance *= -c2 * e_P[:, None]
-        capacitance.flat[:: P.size + 1] += 1.0
+        # capacitance: Q_PP[a, b] = q[(P_a - P_b) mod N], read from q[1:], q laid end to end
+        capacitance = np.concatenate((q[1:], q))[np.subtract.outer(P + (N - 1), P)]
+        capacitance *= (-c2 * e_P)[:, None]
+        capacitance.reshape(-1)[:: P.size + 1] += 1.0
         lu, piv, y, info = lapack.dgesv(capacitance, e_P * z[P], overwrite_a=1, overwrite_b=1)
         if info != 0:
             raise ArithmeticError("Cahn-Hilliard step: singular linear system")

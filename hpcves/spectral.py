@@ -112,7 +112,10 @@ class Spectral:
         self._inv_ikc = np.zeros(N, dtype=complex)
         self._inv_ikc[self.ikc != 0] = 1.0 / self.ikc[self.ikc != 0]
         self.alpha = np.arange(N) / N
-        self._m2pi = (2.0 * np.pi * m, (2.0 * np.pi * m) ** 2)
+        self._m2pi = 2.0 * np.pi * m
+        self._im2pi = 1j * self._m2pi
+        self._m2pi_powers = np.array([self._m2pi, self._m2pi**2])
+        self._lag_index = {}
 
     # -- real fields ------------------------------------------------------------
     def ds(self, f):
@@ -129,10 +132,16 @@ class Spectral:
         Mode m gets e^{-2 pi i m a}; the Nyquist mode, whose sine part is not
         representable on the grid, gets cos(pi N a).
         """
-        m = np.arange(self.N // 2 + 1)
-        symbol = np.exp(-2j * np.pi * m * a)
+        symbol = np.exp(-a * self._im2pi)
         symbol[-1] = np.cos(np.pi * self.N * a)
         return symbol
+
+    def shift_symbols(self, a):
+        """(shift_symbol(a), shift_symbol(2 a)), the second as the square of the first."""
+        once = self.shift_symbol(a)
+        twice = once * once
+        twice[-1] = np.cos(2.0 * np.pi * self.N * a)
+        return once, twice
 
     def project(self, f, keep):
         """f with its rfft modes multiplied by ``keep`` (a mask or filter)."""
@@ -143,7 +152,8 @@ class Spectral:
 
         a maximises the cross-correlation R(a) = sum_j f(alpha_j) g(alpha_j - a)
         of the trigonometric interpolants (R is itself a trigonometric polynomial,
-        with coefficients f_m conj(g_m)): the best grid point, then Newton on R'.
+        with coefficients f_m conj(g_m)): the best grid point, the vertex of the
+        parabola through it and its neighbours, then Newton on R' (two steps).
         Returns 0 if f and g have no variation (nothing to align). ``spectra``
         may pass (rfft(f), rfft(g)) if the caller has them.
         """
@@ -152,22 +162,28 @@ class Spectral:
         q = f_hat * np.conj(g_hat)
         q[0] = 0.0
         q[-1] = 0.0                                  # the Nyquist mode has no phase to align
-        if not np.any(q):
+        if not q.any():
             return 0.0
         R = self.fft.irfft(q)
-        reach = max(1, int(window * N))
-        lags = np.arange(-reach, reach + 1)
-        a = a_grid = lags[np.argmax(R[lags % N])] / N
-        m2pi, m2pi_sq = self._m2pi
+        if window not in self._lag_index:
+            reach = max(1, int(window * N))
+            lags = np.arange(-reach, reach + 1)
+            self._lag_index[window] = (lags, lags % N)
+        lags, index = self._lag_index[window]
+        best = int(np.argmax(R[index]))
+        a = a_grid = lags[best] / N
+        j = int(index[best])
+        before, peak, after = R[j - 1], R[j], R[(j + 1) % N]
+        if before - 2.0 * peak + after < 0.0:            # start Newton at the parabola's vertex
+            a += 0.5 * (before - after) / (before - 2.0 * peak + after) / N
         for _ in range(20):
-            wave = q * np.exp(1j * m2pi * a)
-            d1 = -np.dot(m2pi, wave.imag)                # R'(a) / 2, up to a positive factor
-            d2 = -np.dot(m2pi_sq, wave.real)             # R''(a) / 2, same factor
-            if d2 >= 0.0:                                # not at a maximum: keep the grid point
+            wave = q * np.exp(a * self._im2pi)
+            _, slope, curvature, _ = (self._m2pi_powers @ wave.view(np.float64).reshape(-1, 2)).ravel().tolist()
+            if curvature <= 0.0:                         # not at a maximum: keep the grid point
                 break
-            step = d1 / d2
+            step = slope / curvature                     # Newton on R'(a), R' ~ -slope, R'' ~ -curvature
             a -= step
-            if abs(step) < 1e-13:
+            if abs(step) < 1e-8:                         # quadratic: what remains is O(step^2 N)
                 break
         if not abs(a - a_grid) <= 1.0 / N:               # Newton left the grid point's bracket
             return float(a_grid)

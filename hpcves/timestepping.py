@@ -259,15 +259,16 @@ class Solver:
         psi_hat, prev_hat = fft.rfft(state.psi), fft.rfft(state.prev_psi)
         moved = sp.displacement(state.psi, state.prev_psi, spectra=(psi_hat, prev_hat))   # W dt / L
         W = L * moved / dt
-        to_n, to_prev = sp.shift_symbol(moved), sp.shift_symbol(2.0 * moved)
+        to_n, to_prev = sp.shift_symbols(moved)
         level_n = psi_hat * to_n
         level_prev = prev_hat * to_prev
-        psi_star = fft.irfft(2.0 * level_n - level_prev)
+        star_hat = 2.0 * level_n - level_prev
+        psi_star = fft.irfft(star_hat)
         V_star = L * (2.0 * rates.shift - state.prev_rate_shift)
         if ch.applicable(psi_star) and self._applicable(state.psi) and self._applicable(state.prev_psi):
-            explicit = fft.irfft((2.0 / dt) * level_n - (0.5 / dt) * level_prev
-                                 + 2.0 * fft.rfft(rates.psi) * to_n - fft.rfft(state.prev_rate_psi) * to_prev)
-            psi = ch.solve_linearized(psi_star, 1.5 / dt, explicit, V_star - W)
+            explicit_hat = (((2.0 / dt) * psi_hat + 2.0 * fft.rfft(rates.psi)) * to_n
+                            - ((0.5 / dt) * prev_hat + fft.rfft(state.prev_rate_psi)) * to_prev)
+            psi = ch.solve_spectral(psi_star, star_hat, 1.5 / dt, explicit_hat, V_star - W)
             if phasefield.plausible(psi):
                 return psi
         return self._stabilized_euler_phase(state.psi, rates.psi, dt, V_star)

@@ -73,3 +73,26 @@ def test_projection_closes_the_curve_and_restores_the_area(rng):
     assert geometry.enclosed_area(projected, sp) == pytest.approx(target, rel=1e-13)
     assert before != pytest.approx(target, rel=1e-9)
     assert np.abs(projected - perturbed).max() < 1e-3        # a small correction
+
+
+def test_area_gradient_is_the_derivative_of_the_discrete_area(rng):
+    N = 64
+    sp = Spectral(N, REFERENCE_LENGTH)
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 0.94)
+    theta = geometry.ellipse_equal_arclength(a, b, N)[1] + 1e-3 * np.cos(6 * np.pi * sp.alpha)
+    e = np.exp(1j * theta)
+    gradient = geometry.area_gradient(e, sp.antiderivative_complex(e, 0.0), sp)
+    h = 1e-6
+    for _ in range(3):            # random directions: neither closing nor area-preserving
+        v = rng.standard_normal(N)
+        fd = (geometry.enclosed_area(theta + h * v, sp) - geometry.enclosed_area(theta - h * v, sp)) / (2 * h)
+        assert gradient @ v == pytest.approx(fd, rel=1e-7, abs=1e-12)
+
+
+def test_projection_keeps_a_circle_and_closes_it():
+    sp = Spectral(32, REFERENCE_LENGTH)
+    circle = 2 * np.pi * sp.alpha
+    area = geometry.enclosed_area(circle, sp)
+    projected, before = geometry.project_closed(circle + 1e-9 * np.sin(2 * np.pi * sp.alpha), sp, area)
+    assert abs(geometry.closure_defect(projected)) < 1e-15
+    assert geometry.enclosed_area(projected, sp) == pytest.approx(area, rel=1e-13)

@@ -39,6 +39,22 @@ def test_longest_spinodal_run():
     assert phasefield.longest_spinodal_run(np.full(40, 0.5), L) == L
 
 
+@pytest.mark.parametrize("N", [32, 128])
+def test_applicable_is_short_spinodal_runs_and_no_overshoot(N, rng):
+    """The window test in LinearizedImplicit.applicable agrees with its definition."""
+    L, eps = 2.6442, 0.04
+    ch = phasefield.LinearizedImplicit(Spectral(N, L), 1.0, 100.0, eps)
+    for trial in range(300):
+        psi = np.where(rng.random(N) < 0.5, 0.02, 0.98)
+        start, length = rng.integers(N), rng.integers(0, N + 1)
+        psi[(start + np.arange(length)) % N] = 0.5                    # one stretch, maybe wrapping
+        if trial % 3 == 0:
+            psi[rng.integers(N)] = rng.choice([-0.06, 1.06, -0.04])  # overshoots, and one inside the bound
+        expected = (psi.min() >= -0.05 and psi.max() <= 1.05
+                    and phasefield.longest_spinodal_run(psi, L) <= 2 * np.pi * eps)
+        assert ch.applicable(psi) == expected
+
+
 def test_jacobian_is_the_derivative_of_the_cahn_hilliard_operator(rng):
     N, L, nu, a0, eps = 64, 2.6442, 1.0, 100.0, 0.04
     sp = Spectral(N, L)
