@@ -121,7 +121,7 @@ class FFTBothSides:
         return self._backward()
 
     def constraint_matrix(self, blocks, tangent):
-        """A = -sum_ab diag(t_a) T_ab diag(t_b)."""
+        """A = -sum_ab diag(t_a) T_ab diag(t_b), ``blocks`` = (G_xx, G_xy, G_yy)."""
         self.input[...] = blocks
         T_xx, T_xy, T_yy = self()
         c, s = tangent.real, tangent.imag
@@ -139,10 +139,11 @@ def section_timings(N=128):
     psi_s = sp.ds(psi_nodes)
     slp = flow.slp
     blocks = slp.assemble(shape.z, shape.tangent).copy()
+    cartesian = np.array(slp.cartesian(blocks))
     f_b = bending_force(shape.curvature, psi_nodes, psi_s, shape.tangent, phys, sp)
     A = slp.constraint_matrix(shape.tangent, shape.curvature).copy()
     by_fft = FFTBothSides(sp)
-    difference = np.abs(by_fft.constraint_matrix(blocks, shape.tangent) - A).max() / np.abs(A).max()
+    difference = np.abs(by_fft.constraint_matrix(cartesian, shape.tangent) - A).max() / np.abs(A).max()
     factor = lapack.dpotrf(A.copy(), lower=1)[0]
     rates = solver.rates(state)
     work = np.empty((N, N))
@@ -150,10 +151,10 @@ def section_timings(N=128):
         ("Stokeslet assembly (3 N x N blocks, log)", lambda: slp.assemble(shape.z, shape.tangent)),
         ("tension matrix, closed form", lambda: slp.constraint_matrix(shape.tangent, shape.curvature, out=work)),
         ("tension matrix by 2-D FFT of the blocks (not used; "
-         f"differs by {difference:.0e} relative)", lambda: by_fft.constraint_matrix(blocks, shape.tangent)),
+         f"differs by {difference:.0e} relative)", lambda: by_fft.constraint_matrix(cartesian, shape.tangent)),
         ("Cholesky factorisation (dpotrf)", lambda: lapack.dpotrf(A, lower=1, overwrite_a=0)),
         ("Cholesky solve (dpotrs)", lambda: lapack.dpotrs(factor, psi_s, lower=1)),
-        ("single-layer matvec", lambda: StokesSLP.apply(blocks, f_b)),
+        ("single-layer matvec", lambda: slp.apply(blocks, f_b)),
         ("Cahn-Hilliard linearized solve (circulant + low rank)", lambda: solver.cahn_hilliard.solve_linearized(
             state.psi, 1500.0, state.psi.copy(), -15.0)),
         ("one 1-D FFT derivative (pair)", lambda: sp.ds(psi_nodes)),

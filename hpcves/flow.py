@@ -68,32 +68,36 @@ class MembraneFlow:
 
     def solve(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
         """Velocity of the membrane and its effective tension."""
-        sp, phys = self.sp, self.physics
+        sp, phys, slp = self.sp, self.physics, self.slp
         tangent = shape.tangent
-        blocks = self.slp.assemble(shape.z, tangent, out=self._blocks)
+        conj_tangent = np.conj(tangent)
+        blocks = slp.assemble(shape.z, tangent, out=self._blocks)
         f_b = bending_force(shape.curvature, psi, psi_s, tangent, phys, sp)
-        u0 = phys.shear_rate * shape.z.imag + StokesSLP.apply(blocks, f_b)
-        rhs = np.real(np.conj(tangent) * sp.ds_complex(u0))
-        A = self.slp.constraint_matrix(tangent, shape.curvature, out=self._A)
-        factor, info = lapack.dpotrf(A, lower=1, overwrite_a=1, clean=0)
+        u0 = slp.apply(blocks, f_b)
+        u0 += phys.shear_rate * shape.z.imag
+        rhs = (conj_tangent * sp.ds_complex(u0)).real
+        A = slp.constraint_matrix(tangent, shape.curvature, out=self._A)
+        # A is symmetric and C-ordered: its transpose is the same matrix in the Fortran
+        # order LAPACK wants (no copy), and LAPACK's lower Cholesky is the faster one there
+        factor, info = lapack.dpotrf(A.T, lower=1, overwrite_a=1, clean=0)
         if info != 0:
             raise TensionSolveError(
                 "the inextensibility system is not positive definite: the shape is no longer "
                 "resolved (reduce dt or increase N)")
         tension, _ = lapack.dpotrs(factor, rhs, lower=1)
-        u = u0 + StokesSLP.apply(blocks, tension_force(tension, tangent, sp))
+        u = u0 + slp.apply(blocks, tension_force(tension, tangent, sp))
         scale = np.abs(rhs).max()
         previous = np.inf
         for refinements in range(self.MAX_REFINEMENTS + 1):
-            residual = np.real(np.conj(tangent) * sp.ds_complex(u))   # = rhs - (B^T G B) tension
+            residual = (conj_tangent * sp.ds_complex(u)).real       # = rhs - (B^T G B) tension
             size = np.abs(residual).max()
             if size <= self.REFINEMENT_TOLERANCE * scale or size > 0.5 * previous \
                     or refinements == self.MAX_REFINEMENTS:           # converged, at round-off, or done
                 break
             previous = size
             correction, _ = lapack.dpotrs(factor, residual, lower=1)
-            tension = tension + correction
-            u = u + StokesSLP.apply(blocks, tension_force(correction, tangent, sp))
+            tension += correction
+            u += slp.apply(blocks, tension_force(correction, tangent, sp))
         if size > self.UNRESOLVED * scale:
             raise TensionSolveError(
                 f"the tension leaves a stretching of {size / scale:.1e} of what it cancels: "

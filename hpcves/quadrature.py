@@ -19,9 +19,15 @@ real symmetric 2N x 2N matrix
     G = [[G_xx, G_xy], [G_xy, G_yy]] = [[M + P, Q], [Q, M - P]],
     M = w(-log|r| + 1/2),  P + i Q = w/2 r/conj(r),
 
-acting on (f_x, f_y). Only the three symmetric N x N blocks (G_xx, G_xy, G_yy)
-are assembled, O(N^2) per shape; everything that depends only on N and L is
-precomputed. One matrix product applies all three to any number of densities.
+acting on (f_x, f_y). Three symmetric N x N arrays are assembled per shape,
+O(N^2), with as few elementwise passes as possible (12, of which one logarithm):
+
+    M / w = base / w - log|r|^2,   P = w Re(r / conj r),   Q / 2 = w Im(r / conj r) / 2,
+
+w = L / (8 pi N) (so c_log = -w), in this order; G_xx = M + P, G_yy = M - P,
+G_xy = Q. Everything that depends only on N and L is precomputed. One matrix
+product applies all three to a density (:meth:`StokesSLP.apply`);
+:meth:`StokesSLP.cartesian` gives (G_xx, G_xy, G_yy).
 
 The tension system of :mod:`hpcves.flow` needs T_ab = D_s G_ab D_s, with D_s the
 spectral derivative (Nyquist dropped). Since (K D_s)_ij = -d/ds_j K(s_i, s_j),
@@ -89,20 +95,21 @@ class StokesSLP:
         csc2 = np.where(off, 2.0 * (np.pi / L) ** 2 / sin2, 0.0)
         self._E = self._c_log * csc2 + circulant(dkd)
         self._A_diag0 = (2.0 / 3.0) * self._c_dir * (np.pi / L) ** 2 - dkd[0]
-        self._diag = np.arange(N)
+        self._signs = np.array([1.0, -1.0])
+        self._base_w = base / self._c_dir        # M / w = base / w - log|r|^2
         # workspace: N x N temporaries are reused (allocating them costs page faults)
         self._pairs = np.empty((N, 2))          # rank-2 factors of x_i - x_j etc. (see assemble)
-        self._pairs_T = np.empty((2, 3 * N))
+        self._pairs_T = np.empty((2, 2 * N))
+        self._tangent_pairs = np.empty((3, 2, N))
         self._xy = np.empty((4, N, N))           # x, y, x^2, y^2 of r = z_i - z_j
-        self._r2 = np.empty((N, N))
-        self._M = np.empty((N, N))
-        self._P = np.empty((N, N))
-        self._outer = np.empty((N, 3 * N))
-        self._work = np.empty((2, N, N))
-        self._assembled = None                   # (blocks, inv) of the last assembled curve
+        self._inv = np.empty((N, N))             # w / |r|^2
+        self._outer = np.empty((3, N, N))
+        self._work = np.empty((N, N))
+        self._assembled = None                   # blocks of the last assembled curve
 
     def _rank_two(self, left0, left1, right, out):
-        """out_ij = left0_i right[0, j] + left1_i right[1, j] (``right`` of shape (2, m)).
+        """out_ij = left0_i right[0, j] + left1_i right[1, j] (``right`` of shape (2, m) or a
+        stack (k, 2, m)).
 
         Outer products by BLAS: about twice as fast as numpy broadcasting at N ~ 100.
         """
@@ -110,14 +117,19 @@ class StokesSLP:
         self._pairs[:, 1] = left1
         return np.matmul(self._pairs, right, out=out)
 
+    @staticmethod
+    def _diagonal(matrix: np.ndarray) -> np.ndarray:
+        """A writable view of the diagonal of a C-contiguous square matrix."""
+        return matrix.reshape(-1)[:: matrix.shape[0] + 1]
+
     def assemble(self, z: np.ndarray, tangent: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """The blocks (G_xx, G_xy, G_yy) of G as a (3, N, N) array.
+        """The kernel arrays (M / w, P, Q / 2) of G (module docstring) as a (3, N, N) array.
 
         ``out``, if given, is filled and returned.
         """
-        d, N = self._diag, self.N
+        N, w = self.N, self._c_dir
         x, y, x2, y2 = self._xy
-        right = self._pairs_T[:, : 2 * N]
+        right = self._pairs_T
         right[0] = 1.0
         right[1, :N], right[1, N:] = -z.real, -z.imag
         ones = right[0, :N]
@@ -125,25 +137,21 @@ class StokesSLP:
         self._rank_two(z.imag, ones, right[:, N:], out=y)          # y_i - y_j
         np.square(x, out=x2)
         np.square(y, out=y2)
-        r2 = np.add(x2, y2, out=self._r2)
-        r2[d, d] = 1.0
+        r2 = np.add(x2, y2, out=self._inv)
+        self._diagonal(r2)[:] = 1.0
         blocks = np.empty((3, N, N)) if out is None else out
-        Gxx, Gxy, Gyy = blocks
-        M = np.log(r2, out=self._M)
-        M *= self._c_log
-        M += self._base
-        inv = np.divide(self._c_dir, r2, out=r2)
-        P = np.subtract(x2, y2, out=self._P)
-        P *= inv                            # P = Re(r / conj r) * w/2
-        np.multiply(x, y, out=Gxy)
-        Gxy *= inv
-        Gxy *= 2.0                          # Q = Im(r / conj r) * w/2
+        M, P, Q = blocks
+        np.log(r2, out=M)
+        np.subtract(self._base_w, M, out=M)
+        inv = np.divide(w, r2, out=r2)
+        np.subtract(x2, y2, out=P)
+        P *= inv                            # P = w Re(r / conj r)
+        np.multiply(x, y, out=Q)
+        Q *= inv                            # Q / 2 = w Im(r / conj r) / 2
         t2 = tangent * tangent              # diagonal limit of r / conj r: s^2
-        P[d, d] = self._c_dir * t2.real
-        Gxy[d, d] = self._c_dir * t2.imag
-        np.subtract(M, P, out=Gyy)
-        np.add(M, P, out=Gxx)
-        self._assembled = (blocks, inv)
+        self._diagonal(P)[:] = w * t2.real
+        self._diagonal(Q)[:] = (0.5 * w) * t2.imag
+        self._assembled = blocks
         return blocks
 
     def constraint_matrix(self, tangent: np.ndarray, curvature: np.ndarray,
@@ -158,6 +166,8 @@ class StokesSLP:
             A_ij = -Re(t_i conj t_j) E_ij - (w / |r|^2) (4 X^2 / w^2 - 2)   (i != j),
             A_ii = -(7/6) w H_i^2 + (2/3) w (pi / L)^2 - (D_s K D_s)_ii.
 
+        (2 X / w = (2/w) Re(t_i t_j) P + (4/w) Im(t_i t_j) Q/2: the factors go into
+        the rank-2 outer products, so the off-diagonal part is eight passes.)
         It equals the spectral B^T G B up to the (spectral) error of derivatives
         of the smooth kernels: 1e-11 relative on a resolved shape, 1e-5 on the
         sharp tips of Delta = 2.3 at N = 128. :class:`hpcves.flow.MembraneFlow`
@@ -165,44 +175,51 @@ class StokesSLP:
         """
         if self._assembled is None:
             raise RuntimeError("assemble a curve first")
-        (_, Q, _), inv = self._assembled
-        P, w = self._P, self._c_dir
-        N = self.N
+        _, P, Q_half = self._assembled
+        inv, w, N = self._inv, self._c_dir, self.N
         A = np.empty((N, N)) if out is None else out
         c, s = tangent.real, tangent.imag
-        right = self._pairs_T
-        right[0, :N], right[1, :N] = c, s            # -> Re(t_i conj t_j) = c_i c_j + s_i s_j
-        right[0, N:2 * N], right[1, N:2 * N] = c, -s  # -> Re(t_i t_j) = c_i c_j - s_i s_j
-        right[0, 2 * N:], right[1, 2 * N:] = s, c     # -> Im(t_i t_j) = c_i s_j + s_i c_j
-        outer = self._rank_two(c, s, right, out=self._outer)
-        dot, real, imag = outer[:, :N], outer[:, N:2 * N], outer[:, 2 * N:]
+        right = self._tangent_pairs
+        right[0, 0], right[0, 1] = c, s                            # -> Re(t_i conj t_j)
+        np.multiply(c, 2.0 / w, out=right[1, 0])                   # -> (2/w) Re(t_i t_j)
+        np.multiply(s, -2.0 / w, out=right[1, 1])
+        np.multiply(s, 4.0 / w, out=right[2, 0])                   # -> (4/w) Im(t_i t_j)
+        np.multiply(c, 4.0 / w, out=right[2, 1])
+        dot, real, imag = self._rank_two(c, s, right, out=self._outer)
         np.multiply(dot, self._E, out=A)
-        X, Y = self._work
-        np.multiply(real, P, out=X)
-        np.multiply(imag, Q, out=Y)
-        X += Y                               # X = Re(t_i t_j) P + Im(t_i t_j) Q
+        X, Y = real, self._work
+        X *= P
+        np.multiply(imag, Q_half, out=Y)
+        X += Y                               # X = 2 X / w of the docstring
         np.square(X, out=X)
-        X *= -4.0 / w**2
-        X += 2.0
+        np.subtract(2.0, X, out=X)
         X *= inv
         np.subtract(X, A, out=A)
-        d = self._diag
-        A[d, d] = self._A_diag0 - (7.0 / 6.0) * w * curvature**2
+        self._diagonal(A)[:] = self._A_diag0 - (7.0 / 6.0) * w * curvature**2
         return A
 
-    @staticmethod
-    def apply(blocks: np.ndarray, f: np.ndarray) -> np.ndarray:
-        """Velocities (complex) from force densities f: one density (N,) or several (N, k)."""
-        N = blocks.shape[1]
-        single = f.ndim == 1
-        f2 = f[:, None] if single else f
-        k = f2.shape[1]
-        products = blocks.reshape(3 * N, N) @ np.concatenate([f2.real, f2.imag], axis=1)
-        xx, xy, yy = products[:N], products[N:2 * N], products[2 * N:]
-        u = (xx[:, :k] + xy[:, k:]) + 1j * (xy[:, :k] + yy[:, k:])
-        return u[:, 0] if single else u
+    def apply(self, blocks: np.ndarray, f: np.ndarray) -> np.ndarray:
+        """Velocities u = G f (complex, shape (N,)) from a force density f (complex, shape (N,)).
+
+        One product of the stacked arrays with (f_x, f_y) -- the interleaved real
+        view of f, no copy -- then u_x = M f_x + P f_x + Q f_y, u_y = M f_y - P f_y + Q f_x.
+        """
+        N = self.N
+        f = np.ascontiguousarray(f, dtype=np.complex128)
+        products = (blocks.reshape(3 * N, N) @ f.view(np.float64).reshape(N, 2)).reshape(3, N, 2)
+        u = np.empty(N, dtype=np.complex128)
+        pair = u.view(np.float64).reshape(N, 2)                  # (u_x, u_y)
+        np.multiply(products[0], self._c_dir, out=pair)          # M f
+        pair += products[1] * self._signs                        # (P f_x, -P f_y)
+        pair += products[2][:, ::-1] * 2.0                       # (Q f_y, Q f_x)
+        return u
+
+    def cartesian(self, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(G_xx, G_xy, G_yy) from assembled kernel arrays."""
+        M = self._c_dir * blocks[0]
+        return M + blocks[1], 2.0 * blocks[2], M - blocks[1]
 
     def matrix(self, blocks: np.ndarray) -> np.ndarray:
         """The real symmetric 2N x 2N matrix G acting on (f_x, f_y) (for tests and analysis)."""
-        Gxx, Gxy, Gyy = blocks
+        Gxx, Gxy, Gyy = self.cartesian(blocks)
         return np.block([[Gxx, Gxy], [Gxy, Gyy]])

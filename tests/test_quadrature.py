@@ -67,7 +67,7 @@ def test_spectral_convergence_on_an_ellipse():
 def spectral_constraint_matrix(slp, blocks, tangent, sp):
     """B^T G B by its definition: -sum_ab diag(t_a) (D G_ab D) diag(t_b), D the spectral derivative."""
     D = np.array([sp.ds(e) for e in np.eye(sp.N)]).T          # D @ v = ds(v)
-    T_xx, T_xy, T_yy = (D @ block @ D for block in blocks)
+    T_xx, T_xy, T_yy = (D @ block @ D for block in slp.cartesian(blocks))
     c, s = tangent.real, tangent.imag
     return -(np.outer(c, c) * T_xx + np.outer(s, s) * T_yy + (np.outer(c, s) + np.outer(s, c)) * T_xy)
 
