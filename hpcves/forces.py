@@ -36,9 +36,14 @@ def bending_force(curvature, psi, psi_s, tangent, physics: Physics, sp: Spectral
     f_b = [ (B H)_ss + B/2 H^3 ] n + B'/2 H^2 psi_s s,  n = -i s.
     """
     B = physics.bending(psi)
-    normal_part = sp.ds2(B * curvature) + 0.5 * B * curvature**3
-    tangential_part = 0.5 * physics.dbending * curvature**2 * psi_s
-    return tangent * (tangential_part - 1j * normal_part)
+    BH = B * curvature
+    normal_part = sp.ds2(BH)
+    normal_part += 0.5 * (BH * curvature) * curvature
+    density = np.empty_like(tangent)
+    np.multiply(curvature * curvature, 0.5 * physics.dbending * psi_s, out=density.real)
+    np.negative(normal_part, out=density.imag)
+    density *= tangent
+    return density
 
 
 def tension_force(tension, tangent, sp: Spectral):

@@ -138,6 +138,8 @@ class Solver:
         self._resolved[-2:] = 0.0                    # modes N/2 - 1 and N/2 of theta_tilde
         self._two_pi_alpha = 2.0 * np.pi * self.sp.alpha
         self.lam_theta = num.bending_stabilization * max(phys.B1, phys.B2) * k**3 / 4.0
+        self._theta_inverse = 1.0 / (1.5 / self.dt + self.lam_theta)     # SBDF2's implicit theta side
+        self._mobility_k2 = phys.mobility * self.sp.k2                   # symbol of nu d^2/ds^2
         if phys.homogeneous:
             self.lam_psi, self.cahn_hilliard = None, None
         else:
@@ -194,13 +196,13 @@ class Solver:
         # theta_t = -n . d/ds (X_t), X_t = u - V s the velocity of the nodes; the
         # derivative is taken of X_t as a whole, consistently with z = int e^{i theta} ds.
         node_velocity_s = sp.ds_complex(flow.velocity - V * shape.tangent)
-        theta_t = -np.real(np.conj(shape.normal) * node_velocity_s)
+        theta_t = (np.conj(shape.tangent) * node_velocity_s).imag     # -n . dX_t/ds, n = -i s
         if phys.homogeneous:
             psi_t, mu = np.zeros_like(psi), None
         else:
             mu = phasefield.chemical_potential(psi, psi_ss, shape.curvature, phys.dbending,
                                                phys.a0, phys.epsilon)
-            psi_t = fft.irfft((phys.mobility * sp.k2) * fft.rfft(mu))
+            psi_t = fft.irfft(self._mobility_k2 * fft.rfft(mu))
         return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
                      shift=V / sp.length, mean_tangential_velocity=V, flow=flow,
                      shape=shape, psi_s=psi_s, mu=mu)
@@ -231,8 +233,8 @@ class Solver:
         dt, fft = self.dt, self.sp.fft
         explicit = _bdf2_explicit(state.theta, state.prev_theta, rates.theta, state.prev_rate_theta, dt)
         theta_star = 2.0 * state.theta - state.prev_theta
-        theta_hat = (fft.rfft(explicit) + self.lam_theta * fft.rfft(theta_star)) / (1.5 / dt + self.lam_theta)
-        theta, correction = self._project(fft.irfft(theta_hat))
+        theta_hat = (fft.rfft(explicit) + self.lam_theta * fft.rfft(theta_star)) * self._theta_inverse
+        theta, correction = self._project(theta_hat)
         if self.case.physics.homogeneous:
             psi = state.psi
         else:
@@ -279,7 +281,7 @@ class Solver:
         full = self._euler(state, rates, dt)
         half = self._euler(state, rates, 0.5 * dt)
         half = self._euler(half, self.rates(half), 0.5 * dt)
-        theta, correction = self._project(2.0 * half.theta - full.theta)
+        theta, correction = self._project(self.sp.fft.rfft(2.0 * half.theta - full.theta))
         psi = state.psi if self.case.physics.homogeneous else \
             self._conserve(2.0 * half.psi - full.psi, state.psi)
         return (theta, psi, 2.0 * half.center - full.center, 2.0 * half.shift - full.shift, correction)
@@ -289,7 +291,7 @@ class Solver:
         fft = self.sp.fft
         theta_hat = (fft.rfft(state.theta + dt * rates.theta) + dt * self.lam_theta * fft.rfft(state.theta)) \
             / (1.0 + dt * self.lam_theta)
-        theta, _ = self._project(fft.irfft(theta_hat))
+        theta, _ = self._project(theta_hat)
         V = rates.mean_tangential_velocity
         if self.case.physics.homogeneous:
             psi = state.psi
@@ -329,8 +331,9 @@ class Solver:
         damping = 1.0 + dt * (self.lam_psi + advection * self.sp.ik)
         return fft.irfft(fft.rfft(psi + dt * rate) / damping + fft.rfft(psi) * (dt * self.lam_psi / damping))
 
-    def _project(self, theta_tilde):
-        """Project theta_tilde onto resolved modes, closed curves and (optionally) the initial area.
+    def _project(self, theta_hat):
+        """Project theta_tilde, given by its rfft ``theta_hat``, onto resolved modes, closed curves
+        and (optionally) the initial area.
 
         Modes N/2 - 1 and N/2 of the tangent angle are invisible to the discrete
         force (multiplication by e^{i theta} moves them onto the complex Nyquist
@@ -340,7 +343,7 @@ class Solver:
         correction made).
         """
         sp = self.sp
-        theta = sp.project(theta_tilde, self._resolved) + self._two_pi_alpha
+        theta = sp.fft.irfft(self._resolved * theta_hat) + self._two_pi_alpha
         target = self.area0 if self.case.numerics.area_correction else None
         theta, before = geometry.project_closed(theta, sp, target)
         correction = 0.0 if before is None else (self.area0 - before) / self.area0
