@@ -95,13 +95,14 @@ class StokesSLP:
         csc2 = np.where(off, 2.0 * (np.pi / L) ** 2 / sin2, 0.0)
         self._E = self._c_log * csc2 + circulant(dkd)
         self._A_diag0 = (2.0 / 3.0) * self._c_dir * (np.pi / L) ** 2 - dkd[0]
-        self._signs = np.array([1.0, -1.0])
+        w = self._c_dir                          # (M f_x, M f_y, P f_x, P f_y, Q/2 f_x, Q/2 f_y) -> (u_x, u_y)
+        self._combine = np.array([[w, 0.0], [0.0, w], [1.0, 0.0], [0.0, -1.0], [0.0, 2.0], [2.0, 0.0]])
         self._base_w = base / self._c_dir        # M / w = base / w - log|r|^2
         # workspace: N x N temporaries are reused (allocating them costs page faults)
         self._pairs = np.empty((N, 2))          # rank-2 factors of x_i - x_j etc. (see assemble)
         self._pairs_T = np.empty((2, 2 * N))
         self._tangent_pairs = np.empty((3, 2, N))
-        self._xy = np.empty((4, N, N))           # x, y, x^2, y^2 of r = z_i - z_j
+        self._xy = np.empty((2, N, N))           # x, y of r = z_i - z_j, then their squares
         self._inv = np.empty((N, N))             # w / |r|^2
         self._outer = np.empty((3, N, N))
         self._work = np.empty((N, N))
@@ -128,25 +129,25 @@ class StokesSLP:
         ``out``, if given, is filled and returned.
         """
         N, w = self.N, self._c_dir
-        x, y, x2, y2 = self._xy
+        x, y = self._xy
         right = self._pairs_T
         right[0] = 1.0
         right[1, :N], right[1, N:] = -z.real, -z.imag
         ones = right[0, :N]
         self._rank_two(z.real, ones, right[:, :N], out=x)          # x_i - x_j
         self._rank_two(z.imag, ones, right[:, N:], out=y)          # y_i - y_j
-        np.square(x, out=x2)
-        np.square(y, out=y2)
-        r2 = np.add(x2, y2, out=self._inv)
-        self._diagonal(r2)[:] = 1.0
         blocks = np.empty((3, N, N)) if out is None else out
         M, P, Q = blocks
+        np.multiply(x, y, out=Q)
+        x *= x
+        y *= y
+        r2 = np.add(x, y, out=self._inv)
+        self._diagonal(r2)[:] = 1.0
+        np.subtract(x, y, out=P)
         np.log(r2, out=M)
         np.subtract(self._base_w, M, out=M)
         inv = np.divide(w, r2, out=r2)
-        np.subtract(x2, y2, out=P)
         P *= inv                            # P = w Re(r / conj r)
-        np.multiply(x, y, out=Q)
         Q *= inv                            # Q / 2 = w Im(r / conj r) / 2
         t2 = tangent * tangent              # diagonal limit of r / conj r: s^2
         self._diagonal(P)[:] = w * t2.real
@@ -202,17 +203,14 @@ class StokesSLP:
         """Velocities u = G f (complex, shape (N,)) from a force density f (complex, shape (N,)).
 
         One product of the stacked arrays with (f_x, f_y) -- the interleaved real
-        view of f, no copy -- then u_x = M f_x + P f_x + Q f_y, u_y = M f_y - P f_y + Q f_x.
+        view of f, no copy -- gives M f_a, P f_a, Q/2 f_a; a second, (N x 6) by
+        (6 x 2), combines them: u_x = M f_x + P f_x + Q f_y, u_y = M f_y - P f_y + Q f_x.
         """
         N = self.N
         f = np.ascontiguousarray(f, dtype=np.complex128)
-        products = (blocks.reshape(3 * N, N) @ f.view(np.float64).reshape(N, 2)).reshape(3, N, 2)
-        u = np.empty(N, dtype=np.complex128)
-        pair = u.view(np.float64).reshape(N, 2)                  # (u_x, u_y)
-        np.multiply(products[0], self._c_dir, out=pair)          # M f
-        pair += products[1] * self._signs                        # (P f_x, -P f_y)
-        pair += products[2][:, ::-1] * 2.0                       # (Q f_y, Q f_x)
-        return u
+        products = blocks.reshape(3 * N, N) @ f.view(np.float64).reshape(N, 2)
+        by_node = products.reshape(3, N, 2).transpose(1, 0, 2).reshape(N, 6)
+        return (by_node @ self._combine).view(np.complex128).ravel()
 
     def cartesian(self, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(G_xx, G_xy, G_yy) from assembled kernel arrays."""
