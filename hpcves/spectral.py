@@ -153,7 +153,13 @@ class Spectral:
         a maximises the cross-correlation R(a) = sum_j f(alpha_j) g(alpha_j - a)
         of the trigonometric interpolants (R is itself a trigonometric polynomial,
         with coefficients f_m conj(g_m)): the best grid point, the vertex of the
-        parabola through it and its neighbours, then Newton on R' (two steps).
+        parabola through it and its neighbours, then Newton on R' until a step is
+        below 1e-5 (usually the first: the vertex is within ~1e-6 of a pattern
+        moving by less than a grid spacing, and after a step d what remains is
+        ~ d^2 R'''/(2 R''): 5e-16 after d = 1.6e-6 on a phase-treading pattern). The solver
+        uses a as the velocity of a moving frame, where any value gives a
+        consistent step: it needs to be near the pattern's shift, and a
+        deterministic function of f and g.
         Returns 0 if f and g have no variation (nothing to align). ``spectra``
         may pass (rfft(f), rfft(g)) if the caller has them.
         """
@@ -183,7 +189,7 @@ class Spectral:
                 break
             step = slope / curvature                     # Newton on R'(a), R' ~ -slope, R'' ~ -curvature
             a -= step
-            if abs(step) < 1e-8:                         # quadratic: what remains is O(step^2 N)
+            if abs(step) < 1e-5:                         # quadratic: what remains is ~ step^2 R'''/R''
                 break
         if not abs(a - a_grid) <= 1.0 / N:               # Newton left the grid point's bracket
             return float(a_grid)
