@@ -143,6 +143,7 @@ class LinearizedImplicit:
         self._ik = sp.ik                                        # symbol of D (Nyquist dropped)
         self._bulk = (mobility * a0 * eps) * sp.k2**2 - 0.5 * self._c2 * sp.k2   # J at g'' = 1/2
         self._c2_k2 = self._c2 * sp.k2
+        self._diagonal = {}                          # c -> c + bulk symbol
         self._max_run = 2.0 * np.pi * eps           # pi eps / sqrt(max(-g'')) with max(-g'') = 1/4
         self._length = sp.length
         # a stretch is too long once it has this many points (longest_spinodal_run > max_run)
@@ -197,11 +198,13 @@ class LinearizedImplicit:
 
     def solve_spectral(self, psi_star, psi_star_hat, c, explicit_hat, advection=0.0):
         """:meth:`solve_linearized` given the rfft spectra of psi* and of the explicit side."""
-        fft, N, c2 = self._fft, self.N, self._c2
+        fft, N = self._fft, self.N
         e = 3.0 * psi_star * (psi_star - 1.0)                 # g''(psi*) - 1/2
-        P = np.flatnonzero(np.abs(e) > self.cutoff)
+        P = (np.abs(e) > self.cutoff).nonzero()[0]
         rhs_hat = explicit_hat + self._bulk * psi_star_hat
-        kappa = (c + self._bulk) + advection * self._ik
+        if c not in self._diagonal:
+            self._diagonal = {c: c + self._bulk}             # the same c every step
+        kappa = self._diagonal[c] + advection * self._ik
         if P.size == 0:
             return fft.irfft(rhs_hat / kappa)
         e_P = e[P]
@@ -209,15 +212,15 @@ class LinearizedImplicit:
         w[P] = e_P * psi_star[P]
         rhs_hat -= self._c2_k2 * fft.rfft(w)
         z = fft.irfft(rhs_hat / kappa)
-        Q_symbol = self._k2 / kappa
+        Q_symbol = self._c2_k2 / kappa                        # nu (a0/eps) K^{-1} D^2
         q = fft.irfft(Q_symbol)
-        # capacitance: Q_PP[a, b] = q[(P_a - P_b) mod N], read from q[1:], q laid end to end
-        capacitance = np.concatenate((q[1:], q))[np.subtract.outer(P + (N - 1), P)]
-        capacitance *= (-c2 * e_P)[:, None]
+        # capacitance I - diag(e_P) Q_PP, Q_PP[a, b] = q[(P_a - P_b) mod N] read from q[1:], q end to end
+        capacitance = np.concatenate((q[1:], q)).take((P + (N - 1))[:, None] - P)
+        capacitance *= -e_P[:, None]
         capacitance.reshape(-1)[:: P.size + 1] += 1.0
         lu, piv, y, info = lapack.dgesv(capacitance, e_P * z[P], overwrite_a=1, overwrite_b=1)
         if info != 0:
             raise ArithmeticError("Cahn-Hilliard step: singular linear system")
         w[:] = 0.0
         w[P] = y
-        return z + c2 * fft.irfft(Q_symbol * fft.rfft(w))
+        return z + fft.irfft(Q_symbol * fft.rfft(w))
