@@ -16,14 +16,22 @@ with G the assembled single-layer matrix. A is symmetric positive definite
 closed form from the kernels' analytic derivatives
 (:meth:`hpcves.quadrature.StokesSLP.constraint_matrix`, O(N^2) elementwise)
 and factorised by Cholesky, O(N^3/6). That A differs from the discrete B^T G B
-by the spectral error of the derivatives (1e-11 relative on resolved shapes),
-so the tension is refined against the exact discrete constraint (iterative
-refinement with the same factor): each pass costs one matvec and shrinks the
-residual s . du/ds by about that relative error times the condition number, and
-passes stop once it is below 1e-13 of the stretching s . du0/ds that the tension
-cancels, or stops falling (round-off); a residual still above 1e-6 of it
-means the closed form is far from B^T G B, i.e. the shape is not resolved,
-and stops the run like a divergence. (Forming D_s G D_s by a 2-D FFT of the blocks
+by the spectral error of the derivatives (9e-13 relative at psi_bar = 0.3,
+Delta = 0.194, N = 128, which leaves a stretching of ~6e-10 of what the
+tension cancels; 1e-4 on the tips of Delta = 2.3 at N = 64), so the
+tension is refined against the exact discrete constraint (iterative refinement
+with the same factor): each pass costs one matvec and shrinks the residual
+s . du/ds by about that relative error times the condition number. Passes stop
+once it is below REFINEMENT_TOLERANCE = 1e-8 of the stretching s . du0/ds that
+the tension cancels, or stops falling (round-off). Refining further, to round-off
+(1e-13), changed theta(t) by 4e-14 and psi by 9e-13 over t = 1 (N = 128, dt =
+1e-3; psi_bar = 0.3, S = 80 and psi_bar = 0.5, Delta = 0.94, S = 40), where
+halving dt moves theta by 2e-3 and 3e-2 (docs/numerics.md), and cost a pass (~30 us)
+every step; now 95 % of the steps at psi_bar = 0.3, Delta = 0.194 take none,
+70 % at Delta = 0.94 take one, and the tips of Delta = 2.3 one (N = 128) or
+two (N = 64). A residual still above UNRESOLVED = 1e-6 of it means the closed form is
+far from B^T G B, i.e. the shape is not resolved, and stops the run like a
+divergence. (Forming D_s G D_s by a 2-D FFT of the blocks
 instead cost 3x more at N = 128; docs/numerics.md.)
 """
 from __future__ import annotations
@@ -55,7 +63,7 @@ class Flow:
 class MembraneFlow:
     """Computes :class:`Flow` for a shape and a phase field."""
 
-    REFINEMENT_TOLERANCE = 1e-13      # residual s . du/ds relative to the stretching of u0
+    REFINEMENT_TOLERANCE = 1e-8       # residual s . du/ds relative to the stretching of u0
     MAX_REFINEMENTS = 8
     UNRESOLVED = 1e-6                 # a residual above this after refining: the shape is not resolved
 
