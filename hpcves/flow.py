@@ -92,7 +92,7 @@ class MembraneFlow:
             raise TensionSolveError(
                 "the inextensibility system is not positive definite: the shape is no longer "
                 "resolved (reduce dt or increase N)")
-        tension = _cholesky_solve(factor, rhs)
+        tension = cholesky_solve(factor, rhs)
         u = u0 + slp.apply(blocks, tension_force(tension, tangent, sp))
         scale = np.abs(rhs).max()
         previous = np.inf
@@ -103,7 +103,7 @@ class MembraneFlow:
                     or refinements == self.MAX_REFINEMENTS:           # converged, at round-off, or done
                 break
             previous = size
-            correction = _cholesky_solve(factor, residual)
+            correction = cholesky_solve(factor, residual)
             tension += correction
             u += slp.apply(blocks, tension_force(correction, tangent, sp))
         if size > self.UNRESOLVED * scale:
@@ -113,7 +113,7 @@ class MembraneFlow:
         return Flow(velocity=u, tension_eff=tension)
 
 
-def _cholesky_solve(factor, b):
+def cholesky_solve(factor, b):
     """x with L L^T x = b, L = ``factor`` (lower, Fortran order): two triangular solves
     (BLAS dtrsv; 6.7 us against 8.7 for LAPACK's dpotrs at N = 128)."""
     return blas.dtrsv(factor, blas.dtrsv(factor, b, lower=1), lower=1, trans=1)
