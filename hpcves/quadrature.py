@@ -80,12 +80,11 @@ class StokesSLP:
         sin2[off] = np.sin(np.pi * diff[off] / N) ** 2
         # M = c [ -(L/(4 pi)) R  - (L/(2N)) (log|r|^2 - log 4 sin^2)  + (L/N)/2 ]
         #   = c_log * log|r|^2 + base       (diagonal: log|r|^2 := 0, limit folded into base)
-        self._c_log = -c * L / (2.0 * N)
+        c_log = -c * L / (2.0 * N)
         self._c_dir = c * L / (2.0 * N)          # weight of the r/conj(r) conj(f) part
         kress = -c * L / (4.0 * np.pi) * kress_weights(N)
         base = kress + self._c_dir * np.where(off, np.log(4.0 * sin2), 0.0) + self._c_dir
-        base[~off] += self._c_log * 2.0 * np.log(L / (2.0 * np.pi))
-        self._base = base
+        base[~off] += c_log * 2.0 * np.log(L / (2.0 * np.pi))
         # constraint operator (module docstring): D_s K D_s of the Kress part is
         # circulant with symbol -k^2 K_hat; the smooth log part contributes
         # -c_log (2 Re(t_i t_j / r^2) - csc2) off the diagonal.
@@ -93,7 +92,7 @@ class StokesSLP:
         k[N // 2] = 0.0
         dkd = np.fft.ifft(-(k**2) * np.fft.fft(kress[:, 0])).real
         csc2 = np.where(off, 2.0 * (np.pi / L) ** 2 / sin2, 0.0)
-        self._E = self._c_log * csc2 + circulant(dkd)
+        self._E = c_log * csc2 + circulant(dkd)
         self._A_diag0 = (2.0 / 3.0) * self._c_dir * (np.pi / L) ** 2 - dkd[0]
         w = self._c_dir                          # (M f_x, M f_y, P f_x, P f_y, Q/2 f_x, Q/2 f_y) -> (u_x, u_y)
         self._combine = np.array([[w, 0.0], [0.0, w], [1.0, 0.0], [0.0, -1.0], [0.0, 2.0], [2.0, 0.0]])
