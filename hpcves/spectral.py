@@ -38,6 +38,15 @@ class _NumpyFFT:
     def ifft(self, x):
         return np.fft.ifft(x)
 
+    def multiply(self, x, symbol):
+        return np.fft.irfft(symbol * np.fft.rfft(x), n=self.n)
+
+    def multiply_complex(self, x, symbol, mode0=None):
+        spectrum = symbol * np.fft.fft(x)
+        if mode0 is not None:
+            spectrum[0] = mode0
+        return np.fft.ifft(spectrum)
+
 
 class _FFTW:
     """Planned FFTW transforms of length n."""
@@ -92,6 +101,30 @@ class _FFTW:
         execute()
         return np.multiply(output, self._scale)
 
+    # Fourier multipliers: the spectrum goes from one plan's output straight into
+    # the inverse plan's input (same arithmetic as irfft(symbol * rfft(x))).
+    def multiply(self, x, symbol):
+        """irfft(symbol * rfft(x))."""
+        buffer, execute, output = self._rfft
+        buffer[...] = x
+        execute()
+        buffer, execute_inverse, output_inverse = self._irfft
+        np.multiply(symbol, output, out=buffer)
+        execute_inverse()
+        return np.multiply(output_inverse, self._scale)
+
+    def multiply_complex(self, x, symbol, mode0=None):
+        """ifft(symbol * fft(x)), with mode 0 of the product set to ``mode0`` if given."""
+        buffer, execute, output = self._fft
+        buffer[...] = x
+        execute()
+        buffer_inverse, execute_inverse, output_inverse = self._ifft
+        np.multiply(symbol, output, out=buffer_inverse)
+        if mode0 is not None:
+            buffer_inverse[0] = mode0
+        execute_inverse()
+        return np.multiply(output_inverse, self._scale)
+
 
 def make_fft(n: int, backend: str = "fftw"):
     if backend == "numpy":
@@ -133,11 +166,11 @@ class Spectral:
     # -- real fields ------------------------------------------------------------
     def ds(self, f):
         """d f / ds."""
-        return self.fft.irfft(self.ik * self.fft.rfft(f))
+        return self.fft.multiply(f, self.ik)
 
     def ds2(self, f):
         """d^2 f / ds^2."""
-        return self.fft.irfft(self.k2 * self.fft.rfft(f))
+        return self.fft.multiply(f, self.k2)
 
     def shift_symbol(self, a):
         """rfft multiplier that turns samples of f(alpha) into samples of f(alpha - a).
@@ -158,7 +191,7 @@ class Spectral:
 
     def project(self, f, keep):
         """f with its rfft modes multiplied by ``keep`` (a mask or filter)."""
-        return self.fft.irfft(keep * self.fft.rfft(f))
+        return self.fft.multiply(f, keep)
 
     def displacement(self, f, g, window: float = 0.125, spectra=None):
         """The shift a, |a| <= ``window``, for which f(alpha) ~ g(alpha - a).
@@ -211,16 +244,14 @@ class Spectral:
     # -- complex fields (positions z = x + i y) ---------------------------------
     def ds_complex(self, z):
         """d z / ds for a complex field."""
-        return self.fft.ifft(self.ikc * self.fft.fft(z))
+        return self.fft.multiply_complex(z, self.ikc)
 
     def antiderivative_complex(self, w, mean):
         """The periodic z with dz/ds = w and mean(z) = ``mean``.
 
         Requires mean(w) = 0 (a closed curve); the mean of w is ignored.
         """
-        zh = self.fft.fft(w) * self._inv_ikc
-        zh[0] = mean * self.N
-        return self.fft.ifft(zh)
+        return self.fft.multiply_complex(w, self._inv_ikc, mode0=mean * self.N)
 
     # -- interpolation -----------------------------------------------------------
     def interpolate(self, f, alpha):

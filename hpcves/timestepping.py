@@ -202,7 +202,7 @@ class Solver:
         else:
             mu = phasefield.chemical_potential(psi, psi_ss, shape.curvature, phys.dbending,
                                                phys.a0, phys.epsilon)
-            psi_t = fft.irfft(self._mobility_k2 * fft.rfft(mu))
+            psi_t = fft.multiply(mu, self._mobility_k2)
         return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
                      shift=V / sp.length, mean_tangential_velocity=V, flow=flow,
                      shape=shape, psi_s=psi_s, mu=mu)
