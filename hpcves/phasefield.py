@@ -162,14 +162,16 @@ class LinearizedImplicit:
         while points <= self.N and float(points) * sp.length / self.N <= self._max_run:
             points += 1
         self._run_points = points
-        self._window = np.ones(points)
+        self._too_long = b"\x01" * points
 
     def applicable(self, psi_star) -> bool:
         """Short spinodal stretches only (longest_spinodal_run <= 2 pi eps), and no
         overshoot beyond [-0.05, 1.05].
 
         A stretch is too long when ``_run_points`` consecutive points (periodically)
-        lie in the spinodal range: a moving sum over that window reaches its length.
+        lie in the spinodal range: the flags of the points, as bytes, then contain
+        that many ones in a row (a substring search: 0.5 us against 4 for a moving
+        sum over the window at N = 128).
         """
         deviation = np.abs(psi_star - 0.5)
         if not deviation.max() <= 0.55:
@@ -177,8 +179,8 @@ class LinearizedImplicit:
         points = self._run_points
         if points > self.N:
             return True
-        inside = deviation < SPINODAL_HALF_WIDTH
-        return np.convolve(np.concatenate((inside, inside[: points - 1])), self._window, "valid").max() < points
+        flags = (deviation < SPINODAL_HALF_WIDTH).tobytes()          # b"\x00" / b"\x01" per point
+        return self._too_long not in flags + flags[: points - 1]
 
     @staticmethod
     def _excess(psi_star):

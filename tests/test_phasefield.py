@@ -41,7 +41,7 @@ def test_longest_spinodal_run():
 
 @pytest.mark.parametrize("N", [32, 128])
 def test_applicable_is_short_spinodal_runs_and_no_overshoot(N, rng):
-    """The window test in LinearizedImplicit.applicable agrees with its definition."""
+    """The run test in LinearizedImplicit.applicable agrees with its definition."""
     L, eps = 2.6442, 0.04
     ch = phasefield.LinearizedImplicit(Spectral(N, L), 1.0, 100.0, eps)
     for trial in range(300):
