@@ -45,6 +45,7 @@ from .forces import bending_force, tension_force
 from .geometry import Shape
 from .params import Physics
 from .quadrature import StokesSLP
+from .reductions import largest_magnitude
 from .spectral import Spectral
 
 
@@ -94,11 +95,11 @@ class MembraneFlow:
                 "resolved (reduce dt or increase N)")
         tension = cholesky_solve(factor, rhs)
         u = u0 + slp.apply(blocks, tension_force(tension, tangent, sp))
-        scale = np.abs(rhs).max()
+        scale = largest_magnitude(rhs)
         previous = np.inf
         for refinements in range(self.MAX_REFINEMENTS + 1):
             residual = (conj_tangent * sp.ds_complex(u)).real       # = rhs - (B^T G B) tension
-            size = np.abs(residual).max()
+            size = largest_magnitude(residual)
             if size <= self.REFINEMENT_TOLERANCE * scale or size > 0.5 * previous \
                     or refinements == self.MAX_REFINEMENTS:           # converged, at round-off, or done
                 break

@@ -20,6 +20,7 @@ from scipy import optimize, special
 from scipy.linalg import lapack
 
 from .params import ConfigError
+from .reductions import largest_magnitude
 from .spectral import Spectral
 
 
@@ -182,7 +183,7 @@ def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
             return _closure_step(theta, e), before
         correction = lam @ rows[:3]
         theta = theta + correction
-        size = np.abs(correction).max()
+        size = largest_magnitude(correction)
         first = size if first is None else first
         if size * first <= PROJECTION_REMAINDER:    # what remains: O(this correction x the first)
             break

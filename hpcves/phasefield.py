@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.linalg import lapack
 
+from .reductions import maximum, minimum
+
 
 def double_well(psi):
     """g(psi) = psi^2 (1 - psi)^2 / 4."""
@@ -102,7 +104,7 @@ def plausible(psi) -> bool:
     within about [-0.005, 1.005], so an overshoot beyond 0.1 means the step
     is not to be trusted and the robust stabilised Euler step is taken instead.
     """
-    return PLAUSIBLE[0] <= psi.min() and psi.max() <= PLAUSIBLE[1]
+    return PLAUSIBLE[0] <= minimum(psi) and maximum(psi) <= PLAUSIBLE[1]
 
 
 #: |g''(psi*) - 1/2| below which the Jacobian keeps the bulk value g'' = 1/2 (see LinearizedImplicit)
@@ -174,7 +176,7 @@ class LinearizedImplicit:
         sum over the window at N = 128).
         """
         deviation = np.abs(psi_star - 0.5)
-        if not deviation.max() <= 0.55:
+        if not maximum(deviation) <= 0.55:
             return False
         points = self._run_points
         if points > self.N:
