@@ -214,8 +214,6 @@ class Spectral:
         q = f_hat * np.conj(g_hat)
         q[0] = 0.0
         q[-1] = 0.0                                  # the Nyquist mode has no phase to align
-        if not q.any():
-            return 0.0
         R = self.fft.irfft(q)
         if window not in self._lag_index:
             reach = max(1, int(window * N))
@@ -226,6 +224,8 @@ class Spectral:
         a = a_grid = lags[best] / N
         j = int(index[best])
         before, peak, after = R[j - 1], R[j], R[(j + 1) % N]
+        if peak == 0.0 and not q.any():                  # f or g without variation: nothing to align
+            return 0.0
         if before - 2.0 * peak + after < 0.0:            # start Newton at the parabola's vertex
             a += 0.5 * (before - after) / (before - 2.0 * peak + after) / N
         for _ in range(20):
