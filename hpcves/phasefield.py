@@ -211,7 +211,9 @@ class LinearizedImplicit:
         kappa = c + nu a0 eps k^4 + nu (a0/eps) k^2 / 2 + i k V) and
         U W^T = -nu (a0/eps) D^2 E_P diag(e_P) E_P^T, P the p points where e != 0.
         With z = K^{-1} rhs and Q = K^{-1} D^2 (circulant, one transform):
-        psi_new = z + nu (a0/eps) Q E_P y, (I - nu (a0/eps) diag(e_P) Q_PP) y = e_P z_P.
+        psi_new = z + nu (a0/eps) Q E_P y, (I - nu (a0/eps) diag(e_P) Q_PP) y = e_P z_P,
+        solved as (diag(1/e_P) - nu (a0/eps) Q_PP) y = z_P (rows divided by e_P != 0:
+        no p x p scaling pass).
         """
         fft = self._fft
         return self.solve_spectral(psi_star, fft.rfft(psi_star), c, fft.rfft(explicit), advection)
@@ -233,12 +235,11 @@ class LinearizedImplicit:
         rhs_hat -= self._c2_k2 * fft.rfft(w)
         z = fft.irfft(rhs_hat / kappa)
         Q_symbol = self._c2_k2 / kappa                        # nu (a0/eps) K^{-1} D^2
-        q = fft.irfft(Q_symbol)
-        # capacitance I - diag(e_P) Q_PP, Q_PP[a, b] = q[(P_a - P_b) mod N] read from q[1:], q end to end
-        capacitance = np.concatenate((q[1:], q)).take((P + (N - 1))[:, None] - P)
-        capacitance *= -e_P[:, None]
-        capacitance.reshape(-1)[:: P.size + 1] += 1.0
-        lu, piv, y, info = lapack.dgesv(capacitance, e_P * z[P], overwrite_a=1, overwrite_b=1)
+        minus_q = fft.irfft(-Q_symbol)
+        # capacitance diag(1/e_P) - Q_PP, Q_PP[a, b] = q[(P_a - P_b) mod N] read from q[1:], q end to end
+        capacitance = np.concatenate((minus_q[1:], minus_q)).take((P + (N - 1))[:, None] - P)
+        capacitance.reshape(-1)[:: P.size + 1] += 1.0 / e_P
+        lu, piv, y, info = lapack.dgesv(capacitance, z[P], overwrite_a=1, overwrite_b=1)
         if info != 0:
             raise ArithmeticError("Cahn-Hilliard step: singular linear system")
         w[:] = 0.0
