@@ -101,10 +101,10 @@ class StokesSLP:
         self._pairs = np.empty((N, 2))          # rank-2 factors of x_i - x_j etc. (see assemble)
         self._pairs_T = np.empty((2, 2 * N))
         self._tangent_pairs = np.empty((3, 2, N))
-        self._xy = np.empty((2, N, N))           # x, y of r = z_i - z_j, then their squares
+        # x, y of r = z_i - z_j (then their squares) while assembling, the three
+        # outer products of the tangents in constraint_matrix: one buffer, 4 N x N in all
+        self._scratch = np.empty((3, N, N))
         self._inv = np.empty((N, N))             # w / |r|^2
-        self._outer = np.empty((3, N, N))
-        self._work = np.empty((N, N))
         self._assembled = None                   # blocks of the last assembled curve
 
     def _rank_two(self, left0, left1, right, out):
@@ -128,7 +128,7 @@ class StokesSLP:
         ``out``, if given, is filled and returned.
         """
         N, w = self.N, self._c_dir
-        x, y = self._xy
+        x, y = self._scratch[0], self._scratch[1]
         right = self._pairs_T
         right[0] = 1.0
         right[1, :N], right[1, N:] = -z.real, -z.imag
@@ -185,12 +185,12 @@ class StokesSLP:
         np.multiply(s, -2.0 / w, out=right[1, 1])
         np.multiply(s, 4.0 / w, out=right[2, 0])                   # -> (4/w) Im(t_i t_j)
         np.multiply(c, 4.0 / w, out=right[2, 1])
-        dot, real, imag = self._rank_two(c, s, right, out=self._outer)
+        dot, real, imag = self._rank_two(c, s, right, out=self._scratch)
         np.multiply(dot, self._E, out=A)
-        X, Y = real, self._work
+        X = real
         X *= P
-        np.multiply(imag, Q_half, out=Y)
-        X += Y                               # X = 2 X / w of the docstring
+        imag *= Q_half
+        X += imag                            # X = 2 X / w of the docstring
         np.square(X, out=X)
         np.subtract(2.0, X, out=X)
         X *= inv
