@@ -161,8 +161,8 @@ def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
     if area is None:
         return _closure_step(theta, np.exp(1j * theta)), None
     rows = np.empty((4, sp.N))        # directions: scaling, -sin, cos; then the area gradient
-    direction, sin_direction, cos_direction, gradient = rows
-    np.subtract(theta, 2.0 * np.pi * sp.alpha, out=direction)
+    direction, sin_direction, cos_direction, gradient = rows[0], rows[1], rows[2], rows[3]
+    np.subtract(theta, sp.circle_angle, out=direction)
     direction -= direction.sum() / sp.N
     e = np.exp(1j * theta)
     z = sp.antiderivative_complex(e, 0.0)
@@ -195,7 +195,7 @@ def project_closed(theta: np.ndarray, sp: Spectral, area: float | None = None):
 
 def _area(tangent: np.ndarray, z: np.ndarray, sp: Spectral) -> float:
     """A = 1/2 oint z . n ds = -(L / 2N) Im(sum conj(e) z), z the mean-free antiderivative of e."""
-    return -0.5 * sp.length * float(np.imag(np.vdot(tangent, z))) / sp.N
+    return -0.5 * sp.length * float(np.vdot(tangent, z).imag) / sp.N
 
 
 def area_gradient(tangent: np.ndarray, z: np.ndarray, sp: Spectral, out=None) -> np.ndarray:
@@ -233,7 +233,7 @@ class Shape:
 
 def shape_from_angle(theta_tilde: np.ndarray, center: complex, sp: Spectral) -> Shape:
     """Positions, tangent and curvature of the curve theta = 2 pi alpha + theta_tilde."""
-    theta = 2.0 * np.pi * sp.alpha + theta_tilde
+    theta = sp.circle_angle + theta_tilde
     tangent = np.exp(1j * theta)
     z = sp.antiderivative_complex(tangent, center)
     curvature = 2.0 * np.pi / sp.length + sp.ds(theta_tilde)

@@ -158,6 +158,7 @@ class Spectral:
         self._inv_ikc = np.zeros(N, dtype=complex)
         self._inv_ikc[self.ikc != 0] = 1.0 / self.ikc[self.ikc != 0]
         self.alpha = np.arange(N) / N
+        self.circle_angle = 2.0 * np.pi * self.alpha            # tangent angle of a circle, 2 pi alpha
         m2pi = 2.0 * np.pi * m
         self._im2pi = 1j * m2pi
         self._m2pi_powers = np.array([m2pi, m2pi**2])

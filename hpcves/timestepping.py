@@ -136,7 +136,6 @@ class Solver:
         k = self.sp.k
         self._resolved = np.ones_like(k)
         self._resolved[-2:] = 0.0                    # modes N/2 - 1 and N/2 of theta_tilde
-        self._two_pi_alpha = 2.0 * np.pi * self.sp.alpha
         self.lam_theta = num.bending_stabilization * max(phys.B1, phys.B2) * k**3 / 4.0
         self._theta_inverse = 1.0 / (1.5 / self.dt + self.lam_theta)     # SBDF2's implicit theta side
         self._mobility_k2 = phys.mobility * self.sp.k2                   # symbol of nu d^2/ds^2
@@ -147,7 +146,7 @@ class Solver:
                                                       num.phase_stabilization)
             self.cahn_hilliard = phasefield.LinearizedImplicit(self.sp, phys.mobility, phys.a0, phys.epsilon)
         self._applicable_memo: tuple = ()
-        self.area0 = geometry.enclosed_area(self.initial_state().theta + self._two_pi_alpha, self.sp)
+        self.area0 = geometry.enclosed_area(self.initial_state().theta + self.sp.circle_angle, self.sp)
 
     # ------------------------------------------------------------------ set-up
     def initial_state(self) -> State:
@@ -155,8 +154,8 @@ class Solver:
         phys, sp = self.case.physics, self.sp
         a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
         t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
-        theta = sp.project(theta - self._two_pi_alpha, self._resolved) + self._two_pi_alpha
-        theta = geometry.close_curve(theta) - self._two_pi_alpha
+        theta = sp.project(theta - sp.circle_angle, self._resolved) + sp.circle_angle
+        theta = geometry.close_curve(theta) - sp.circle_angle
         if phys.homogeneous:
             psi = np.full(sp.N, phys.psi_bar)
         else:
@@ -343,11 +342,11 @@ class Solver:
         correction made).
         """
         sp = self.sp
-        theta = sp.fft.irfft(self._resolved * theta_hat) + self._two_pi_alpha
+        theta = sp.fft.irfft(self._resolved * theta_hat) + sp.circle_angle
         target = self.area0 if self.case.numerics.area_correction else None
         theta, before = geometry.project_closed(theta, sp, target)
         correction = 0.0 if before is None else (self.area0 - before) / self.area0
-        return theta - self._two_pi_alpha, correction
+        return theta - sp.circle_angle, correction
 
     @staticmethod
     def _conserve(psi_new, psi_old):
