@@ -132,7 +132,7 @@ class LinearizedImplicit:
     -- any J gives a consistent linearly implicit step, and the explicit rest
     stays a few per cent of the implicit part, mode by mode. The rest is a rank-p
     correction (p ~ 56 of N = 128 for two interfaces) solved by the Woodbury
-    identity: FFTs and a p x p LU instead of an N x N one (46 us instead of
+    identity: FFTs and a p x p LU instead of an N x N one (42 us instead of
     140-190 us at N = 128). At dt = 1e-3 the S = 80 phase-treading period is the
     same to 1e-6 with and without the cutoff. Since 1^T D = 1^T D^2 = 0 the
     solve keeps int psi ds as the right-hand side prescribes, up to round-off,
