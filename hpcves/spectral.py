@@ -38,18 +38,35 @@ class _NumpyFFT:
     def ifft(self, x):
         return np.fft.ifft(x)
 
-    def multiply(self, x, symbol):
-        return np.fft.irfft(symbol * np.fft.rfft(x), n=self.n)
+    def multiply(self, x, symbol, mode0=None):
+        """irfft(symbol * rfft(x)), mode 0 of the product set to ``mode0`` if given."""
+        return np.fft.irfft(_set_mode0(symbol * np.fft.rfft(x), mode0), n=self.n)
 
     def multiply_complex(self, x, symbol, mode0=None):
-        spectrum = symbol * np.fft.fft(x)
-        if mode0 is not None:
-            spectrum[0] = mode0
-        return np.fft.ifft(spectrum)
+        """ifft(symbol * fft(x)), mode 0 of the product set to ``mode0`` if given."""
+        return np.fft.ifft(_set_mode0(symbol * np.fft.fft(x), mode0))
+
+
+def _set_mode0(spectrum, mode0):
+    if mode0 is not None:
+        spectrum[0] = mode0
+    return spectrum
 
 
 class _FFTW:
-    """Planned FFTW transforms of length n."""
+    """Planned FFTW transforms of length n.
+
+    The input is always copied into the plan's own buffer. Passing it to
+    FFTW.__call__ instead would let pyfftw *adopt* a suitably aligned caller
+    array as its input buffer (update_arrays) and later copy a misaligned or
+    strided input *into that caller's array* -- silently overwriting it.
+    Plans are run by FFTW.execute, without __call__'s checks, and inverse
+    transforms scaled by 1/n as __call__ scales them (by its
+    _normalisation_scaling = 1/float(n)): the same bits, 0.1-0.2 us less per
+    transform at N = 128 (tests/test_spectral.py checks both). A Fourier
+    multiplier passes the spectrum from the forward plan's output straight into
+    the inverse plan's input (the arithmetic of irfft(symbol * rfft(x))).
+    """
 
     name = "fftw"
 
@@ -62,68 +79,50 @@ class _FFTW:
         cplx = pyfftw.empty_aligned(n, dtype="complex128")
         half = pyfftw.empty_aligned(n // 2 + 1, dtype="complex128")
         self.n = n
-        self._scale = 1 / float(n)                 # what FFTW.__call__ scales inverses by
         self.plans = {"rfft": fb.rfft(real, **kw), "irfft": fb.irfft(half, n=n, **kw),
                       "fft": fb.fft(cplx, **kw), "ifft": fb.ifft(cplx, **kw)}
-        # (input buffer, execute, output buffer) of each plan
-        self._rfft, self._irfft, self._fft, self._ifft = (
-            (plan.input_array, plan.execute, plan.output_array) for plan in self.plans.values())
+        scale = 1 / float(n)                                  # what FFTW.__call__ scales inverses by
+        plans = self.plans
+        self.rfft = _transform(plans["rfft"])
+        self.fft = _transform(plans["fft"])
+        self.irfft = _transform(plans["irfft"], scale)
+        self.ifft = _transform(plans["ifft"], scale)
+        self.multiply = _multiplier(plans["rfft"], plans["irfft"], scale)
+        self.multiply_complex = _multiplier(plans["fft"], plans["ifft"], scale)
 
-    # The input is always copied into the plan's own buffer. Passing it to
-    # FFTW.__call__ instead would let pyfftw *adopt* a suitably aligned caller
-    # array as its input buffer (update_arrays) and later copy a misaligned or
-    # strided input *into that caller's array* -- silently overwriting it.
-    # Plans are run by FFTW.execute, without __call__'s checks, and inverse
-    # transforms scaled by 1/n as __call__ scales them (by its
-    # _normalisation_scaling = 1/float(n)): the same bits, 0.2-0.7 us less per
-    # transform at N = 128 (tests/test_spectral.py checks both).
-    def rfft(self, x):
-        buffer, execute, output = self._rfft
+
+def _transform(plan, scale=None):
+    """x -> the plan's transform of x, scaled by ``scale`` if given (closures: one Python call)."""
+    buffer, execute, output = plan.input_array, plan.execute, plan.output_array
+
+    def unscaled(x):
         buffer[...] = x
         execute()
         return output.copy()
 
-    def irfft(self, x):
-        buffer, execute, output = self._irfft
+    def scaled(x):
         buffer[...] = x
         execute()
-        return np.multiply(output, self._scale)
+        return np.multiply(output, scale)
 
-    def fft(self, x):
-        buffer, execute, output = self._fft
-        buffer[...] = x
-        execute()
-        return output.copy()
+    return unscaled if scale is None else scaled
 
-    def ifft(self, x):
-        buffer, execute, output = self._ifft
-        buffer[...] = x
-        execute()
-        return np.multiply(output, self._scale)
 
-    # Fourier multipliers: the spectrum goes from one plan's output straight into
-    # the inverse plan's input (same arithmetic as irfft(symbol * rfft(x))).
-    def multiply(self, x, symbol):
-        """irfft(symbol * rfft(x))."""
-        buffer, execute, output = self._rfft
-        buffer[...] = x
-        execute()
-        buffer, execute_inverse, output_inverse = self._irfft
-        np.multiply(symbol, output, out=buffer)
-        execute_inverse()
-        return np.multiply(output_inverse, self._scale)
+def _multiplier(forward, inverse, scale):
+    """(x, symbol, mode0=None) -> inverse(symbol * forward(x)), mode 0 of the product set to ``mode0`` if given."""
+    buffer, execute, output = forward.input_array, forward.execute, forward.output_array
+    buffer_inverse, execute_inverse, output_inverse = inverse.input_array, inverse.execute, inverse.output_array
 
-    def multiply_complex(self, x, symbol, mode0=None):
-        """ifft(symbol * fft(x)), with mode 0 of the product set to ``mode0`` if given."""
-        buffer, execute, output = self._fft
+    def multiply(x, symbol, mode0=None):
         buffer[...] = x
         execute()
-        buffer_inverse, execute_inverse, output_inverse = self._ifft
         np.multiply(symbol, output, out=buffer_inverse)
         if mode0 is not None:
             buffer_inverse[0] = mode0
         execute_inverse()
-        return np.multiply(output_inverse, self._scale)
+        return np.multiply(output_inverse, scale)
+
+    return multiply
 
 
 def make_fft(n: int, backend: str = "fftw"):
