@@ -39,7 +39,7 @@ validate: setup
 	$(PY) -m pytest -m slow -q
 	$(PY) analysis/validate.py --out VALIDATION.md
 
-# the published studies on coarse grids (~30 min on 2 cores; GRID=full for the full grids, NP ranks)
+# the published studies on coarse grids (~25 min on 2 cores; GRID=full for the full grids, NP ranks)
 reproduce: setup
 	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" \
 	    --out $(if $(filter full,$(GRID)),REPRODUCTION-full.md,REPRODUCTION.md)
