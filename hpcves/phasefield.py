@@ -157,11 +157,10 @@ class LinearizedImplicit:
         self._bulk = (mobility * a0 * eps) * sp.k2**2 - 0.5 * self._c2 * sp.k2   # J at g'' = 1/2
         self._c2_k2 = self._c2 * sp.k2
         self._diagonal = {}                          # c -> c + bulk symbol
-        self._max_run = 2.0 * np.pi * eps           # pi eps / sqrt(max(-g'')) with max(-g'') = 1/4
-        self._length = sp.length
+        max_run = 2.0 * np.pi * eps                 # pi eps / sqrt(max(-g'')) with max(-g'') = 1/4
         # a stretch is too long once it has this many points (longest_spinodal_run > max_run)
         points = 1
-        while points <= self.N and float(points) * sp.length / self.N <= self._max_run:
+        while points <= self.N and float(points) * sp.length / self.N <= max_run:
             points += 1
         self._run_points = points
         self._too_long = b"\x01" * points

@@ -93,6 +93,7 @@ class Rates:
     shape: Shape
     psi_s: np.ndarray               # psi_s and mu at the nodes
     mu: np.ndarray | None
+    psi_hat: np.ndarray | None = None   # rfft of the state's psi (two-phase only)
 
 
 @dataclass(frozen=True)
@@ -185,7 +186,7 @@ class Solver:
         theta, psi, center = state.theta, state.psi, state.center
         shape = geometry.shape_from_angle(theta, center, sp)
         if phys.homogeneous:
-            psi_s, psi_ss = np.zeros_like(psi), None
+            psi_s, psi_ss, psi_hat = np.zeros_like(psi), None, None
         else:
             psi_hat = fft.rfft(psi)
             psi_s = fft.irfft(sp.ik * psi_hat)
@@ -204,7 +205,7 @@ class Solver:
             psi_t = fft.multiply(mu, self._mobility_k2)
         return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
                      shift=V / sp.length, mean_tangential_velocity=V, flow=flow,
-                     shape=shape, psi_s=psi_s, mu=mu)
+                     shape=shape, psi_s=psi_s, mu=mu, psi_hat=psi_hat)
 
     # ------------------------------------------------------------------ stepping
     def step(self, state: State, rates: Rates | None = None) -> tuple[State, Rates]:
@@ -257,7 +258,7 @@ class Solver:
         """
         sp, dt, fft, ch = self.sp, self.dt, self.sp.fft, self.cahn_hilliard
         L = sp.length
-        psi_hat, prev_hat = fft.rfft(state.psi), fft.rfft(state.prev_psi)
+        psi_hat, prev_hat = rates.psi_hat, fft.rfft(state.prev_psi)       # rates are those of state
         moved = sp.displacement(state.psi, state.prev_psi, spectra=(psi_hat, prev_hat))   # W dt / L
         W = L * moved / dt
         to_n, to_prev = sp.shift_symbols(moved)
