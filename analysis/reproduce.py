@@ -138,7 +138,8 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
         f"Wall time of the campaigns in this call: {total / 60:.0f} min "
         + ", ".join(f"{n} {w / 60:.1f}" for n, w in walls.items()) + " (0 where they were complete already).",
         "", "Every campaign and its numerics:", ""]
-    compute = {name: sum(row["wall"] for row in read_table(load_study(toml).output)[1]) for name, toml in jobs.items()}
+    compute = {name: sum(row["wall"] for row in read_table(load_study(toml).output).rows)
+               for name, toml in jobs.items()}
     lines += [f"* `{toml}` ({name}): {numerics_line(toml)}; {len(reports[name].rows)} cases, "
               f"{compute[name] / 60:.1f} core-minutes" for name, toml in jobs.items()]
     lines += ["", f"In all {sum(compute.values()) / 3600:.2f} core-hours of cases (summed over every call that "

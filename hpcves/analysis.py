@@ -17,10 +17,14 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
+from . import __version__, faults
+from .atomic import StorageError, copy_for_change, publish, remove_partial
+from .campaign_file import DAMAGED, CampaignFile
 from .campaign_file import FORMAT as CAMPAIGN_FORMAT
-from .campaign_file import CampaignFile
-from .checkpoint import FAILED, FINISHED, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file
+from .checkpoint import FAILED, FINISHED, HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, \
+    open_file, reading
+from .checkpoint import FORMAT as CASE_FORMAT
+from .lock import CampaignLock, real_path
 from .params import ConfigError
 from .regimes import REGIMES, UNDECIDED, AnalysisSettings, Classification, classify
 
@@ -42,6 +46,7 @@ class CaseData:
     message: str
     series: dict
     search: int = -1           # search files: the search the case belongs to
+    mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
 
 
 @dataclass(frozen=True)
@@ -63,7 +68,26 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     t, t_end = (float(v) for v in store.progress[:2])
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
-                    search)
+                    search, mark(store))
+
+
+def mark(store: CaseStore) -> tuple:
+    """What changes while a case runs: (status, t reached, samples, snapshots)."""
+    return store.status, float(store.progress[0]), store.n_samples, store.n_snapshots
+
+
+def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
+    """One case's data; a case that cannot be read or fails CaseStore.problems comes back "damaged"."""
+    try:
+        store = CaseStore.open(group, where=case_id)
+        problems = store.problems()
+        if not problems:
+            return case_data(store, case_id, search)
+        why = "; ".join(problems[:3]) + (f"; {len(problems) - 3} more" if len(problems) > 3 else "")
+    except (FileFormatError, *HDF5_ERRORS) as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    parameters = {k: float(swept.get(k, math.nan)) for k in PARAMETERS}
+    return CaseData(case_id, parameters, DAMAGED, math.nan, math.nan, why, {"t": np.zeros(0)}, search, (DAMAGED,))
 
 
 def settings_of(toml_text: str, where: str) -> AnalysisSettings:
@@ -76,31 +100,41 @@ def settings_of(toml_text: str, where: str) -> AnalysisSettings:
 
 
 def read_source(path) -> Source:
-    """Every case of a campaign file, or the case of a single-run file (read without locking)."""
+    """Every case of a campaign file, or the case of a single-run file (read without locking).
+
+    A campaign case whose data are damaged comes back with status "damaged" and what is wrong as its
+    message (the others are read as usual); a file whose own structure is damaged is refused.
+    """
     path = Path(path)
-    with open_file(path, "r", locking=False) as h5:
+    with open_file(path, "r", locking=False) as h5, reading(str(path)):
         fmt = attr_text(h5.attrs.get("format", ""))
-        try:
-            if fmt == CAMPAIGN_FORMAT:
-                campaign = CampaignFile.check(h5, str(path))
-                cases = tuple(case_data(campaign.store(c), c, search)
-                              for c, search in zip(campaign.case_ids, campaign.searches_of_cases()))
-                toml = attr_text(h5.attrs.get("campaign_toml", ""))
-                return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys),
-                              settings_of(toml, str(path)), cases, campaign.mode, toml)
-            store = CaseStore.open(h5, where=str(path))       # a single run (or a clear refusal)
-            return Source(path, "case", path.stem, (), AnalysisSettings(), (case_data(store, path.stem),))
-        except (KeyError, ValueError, OSError) as exc:
-            raise FileFormatError(f"{path}: damaged file ({type(exc).__name__}: {exc})") from None
+        if fmt not in (CAMPAIGN_FORMAT, CASE_FORMAT):
+            raise FileFormatError(f"{path}: not an hpcves campaign or run file (no format attribute)")
+        if fmt == CAMPAIGN_FORMAT:
+            campaign = CampaignFile.check(h5, str(path))
+            index = h5["index"]
+            cases = []
+            for i, (c, search) in enumerate(zip(campaign.case_ids, campaign.searches_of_cases())):
+                swept = {k: index[k][i] for k in campaign.sweep_keys}
+                cases.append(_read_case(h5["cases"].get(c), c, search, swept))
+            toml = attr_text(h5.attrs.get("campaign_toml", ""))
+            return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys),
+                          settings_of(toml, str(path)), tuple(cases), campaign.mode, toml)
+        store = CaseStore.open(h5, where=str(path))           # a single run (or a clear refusal)
+        problems = store.problems()
+        if problems:
+            raise FileFormatError(f"{path}: damaged ({'; '.join(problems[:3])})")
+        return Source(path, "case", path.stem, (), AnalysisSettings(), (case_data(store, path.stem),))
 
 
 def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     """One row of regimes.csv (COLUMNS) for one case."""
     base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end}
     n = len(case.series["t"])
-    if case.status == STATUS_NAMES[FAILED] or n == 0:
+    if case.status in (STATUS_NAMES[FAILED], DAMAGED) or n == 0:
         first = case.message.splitlines()[0] if case.message else ""
-        reason = f"case failed: {first}" if case.status == STATUS_NAMES[FAILED] else "not run yet"
+        reason = (f"case failed: {first}" if case.status == STATUS_NAMES[FAILED] else
+                  f"case damaged: {first}" if case.status == DAMAGED else "not run yet")
         empty = Classification(UNDECIDED, reason, *([math.nan] * (len(fields(Classification)) - 2)))
         return {**base, **empty.row()}
     found = classify(case.series, settings)
@@ -120,24 +154,89 @@ def analyse_source(source: Source, settings: AnalysisSettings | None = None, pro
 
 
 # ---------------------------------------------------------------------- results back into the file
-def write_back(path, rows: list[dict], settings: AnalysisSettings) -> None:
-    """Replace the file's ``analysis/`` group: one dataset per column (one row per case)."""
+def write_back(source: Source, rows: list[dict], settings: AnalysisSettings) -> str:
+    """Store ``rows`` as the file's ``analysis/`` group; "" if done, else why not (nothing is changed then).
+
+    Safe by construction (atomic.py): the group is written into a copy of the file, which then
+    replaces it; a kill or a full disk at any moment leaves the file as it was. Only while no
+    campaign writes the file (its lock) -- for a single-run file, while no ``hpcves run`` has it open
+    (HDF5's own lock) -- and only if no case changed since ``source`` was read: results of a file
+    that a campaign advanced in the meantime would be stale.
+    """
+    if any(case.status == DAMAGED for case in source.cases):
+        return "it holds damaged cases"
+    path = real_path(source.path)
+    try:
+        guard = CampaignLock(source.path).acquire() if source.kind == "campaign" else open_file(path, "r+")
+    except ConfigError as exc:
+        return str(exc)
+    try:
+        changed = _changes(source, None if isinstance(guard, CampaignLock) else guard)
+        if changed:
+            return f"the file changed while it was analysed ({changed}); analyse it again"
+        partial = copy_for_change(path, 200 * len(rows) * len(COLUMNS) + 65536, "storing the analysis")
+        try:
+            with open_file(partial, "r+") as h5:
+                _store(h5, rows, settings)
+        except (*HDF5_ERRORS, ConfigError) as exc:
+            remove_partial(path)
+            return f"cannot write into a copy of it ({str(exc).strip().splitlines()[0]}); the file is unchanged"
+        faults.point("analysis-stored")
+        publish(partial, path)
+        return ""
+    except StorageError as exc:
+        return str(exc)
+    finally:
+        if isinstance(guard, CampaignLock):
+            guard.release()
+        else:
+            guard.close()
+
+
+def read_marks(h5, where: str) -> list[tuple]:
+    """:func:`mark` of every case of an open campaign or single-run file, in case order."""
+    with reading(where):
+        if attr_text(h5.attrs.get("format", "")) == CAMPAIGN_FORMAT:
+            campaign = CampaignFile.check(h5, where)
+            return [mark(campaign.store(c)) for c in campaign.case_ids]
+        return [mark(CaseStore.open(h5, where=where))]
+
+
+def _changes(source: Source, h5=None) -> str:
+    """How the cases of the file (``h5`` if open) differ now from when ``source`` was read ("" if not)."""
+    if h5 is None:
+        with open_file(source.path, "r", locking=False) as opened:
+            now = read_marks(opened, str(source.path))
+    else:
+        now = read_marks(h5, str(source.path))
+    if len(now) != len(source.cases):
+        return f"{len(source.cases)} cases then, {len(now)} now"
+    changed = [(case, new) for case, new in zip(source.cases, now) if case.mark != new]
+    if not changed:
+        return ""
+    case, new = changed[0]
+    first = (f"case {case.case_id}: {case.status} at t = {case.t:.4g} when read, now "
+             f"{STATUS_NAMES.get(new[0], new[0])} at t = {new[1]:.4g}")
+    return first + (f"; {len(changed) - 1} more" if len(changed) > 1 else "")
+
+
+def _store(h5, rows: list[dict], settings: AnalysisSettings) -> None:
+    """Replace the ``analysis/`` group of an open file: one dataset per column (one row per case)."""
     import h5py
 
-    with open_file(path, "r+") as h5:
-        if "analysis" in h5:
-            del h5["analysis"]
-        group = h5.create_group("analysis")
-        group.attrs["hpcves_version"] = __version__
-        group.attrs["analysed_at"] = time.strftime("%Y-%m-%d %H:%M:%S")
-        group.attrs["settings"] = json.dumps(settings.__dict__)
-        text = h5py.string_dtype()
-        for column in COLUMNS:
-            values = [row[column] for row in rows]
-            if column in TEXT_COLUMNS:
-                group.create_dataset(column, data=np.array(values, dtype=object), dtype=text)
-            else:
-                group.create_dataset(column, data=np.array(values, dtype=float))
+    if "analysis" in h5:
+        del h5["analysis"]
+    group = h5.create_group("analysis")
+    group.attrs["hpcves_version"] = __version__
+    group.attrs["analysed_at"] = time.strftime("%Y-%m-%d %H:%M:%S")
+    group.attrs["settings"] = json.dumps(settings.__dict__)
+    text = h5py.string_dtype()
+    for column in COLUMNS:
+        values = [row[column] for row in rows]
+        if column in TEXT_COLUMNS:
+            group.create_dataset(column, data=np.array(values, dtype=object), dtype=text)
+        else:
+            group.create_dataset(column, data=np.array(values, dtype=float))
 
 
 def read_back(path) -> list[dict]:
@@ -286,6 +385,11 @@ class Report:
     def counts(self) -> dict:
         return regime_counts(self.rows)
 
+    @property
+    def damaged(self) -> list[CaseData]:
+        """Cases whose data could not be read (or contradict themselves); analysed as undecided."""
+        return [case for case in self.source.cases if case.status == DAMAGED]
+
 
 def parse_overrides(items) -> dict:
     """``key=value`` strings (values in TOML syntax) -> a dict for AnalysisSettings."""
@@ -305,8 +409,6 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
             case_figures: bool = True, axes=None, progress=None) -> Report:
     """Classify every case of ``path``; write the tables and figures to ``out_dir`` (default:
     ``<file>_analysis`` next to it) and the results back into the file."""
-    from . import plots
-    from .campaign import CampaignLock
 
     source = read_source(path)
     settings = source.settings
@@ -315,6 +417,22 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     rows = analyse_source(source, settings, progress=None if progress is None else
                           (lambda i, n: progress(f"classified {i}/{n} cases")))
     out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
+    try:
+        written, searches = _write_outputs(source, rows, out, axes, case_figures, progress)
+    except OSError as exc:
+        where = exc.filename or out
+        raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
+                           f"{source.path} is unchanged") from None
+    note = write_back(source, rows, settings) if write_to_file else ""
+    wrote_back = write_to_file and not note
+    return Report(source, tuple(rows), tuple(written), wrote_back,
+                  f"results not written into the file: {note}" if note else "", tuple(searches))
+
+
+def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures: bool, progress):
+    """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows)."""
+    from . import plots
+
     out.mkdir(parents=True, exist_ok=True)
     written = []
 
@@ -363,6 +481,8 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
         directory.mkdir(exist_ok=True)
         with open_file(source.path, "r", locking=False) as h5:
             for i, (case, row) in enumerate(zip(source.cases, rows)):
+                if case.status == DAMAGED:
+                    continue
                 group = h5 if source.kind == "case" else h5[f"cases/{case.case_id}"]
                 store = CaseStore(group)
                 title = (f"case {case.case_id}: " if source.kind == "campaign" else "") \
@@ -374,22 +494,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                     progress(f"case figures {i + 1}/{len(rows)}")
         written.append(directory / f"<case>.png ({len(rows)})")
 
-    wrote_back, note = False, ""
-    if write_to_file:
-        try:
-            lock = CampaignLock(source.path).acquire() if source.kind == "campaign" else None
-        except FileFormatError as exc:
-            note = f"results not written into the file: {exc}"
-        else:
-            try:
-                write_back(source.path, rows, settings)
-                wrote_back = True
-            except FileFormatError as exc:
-                note = f"results not written into the file: {exc}"
-            finally:
-                if lock is not None:
-                    lock.release()
-    return Report(source, tuple(rows), tuple(written), wrote_back, note, tuple(searches))
+    return written, searches
 
 
 def _save(fig, stem: Path) -> list[Path]:

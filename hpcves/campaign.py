@@ -22,18 +22,24 @@ aborts it (valid checkpoints are never at risk: see checkpoint.py).
 
 File access. With one process the file is opened with the default driver.
 With several ranks and an h5py built with MPI every rank opens it with the
-``mpio`` driver; the structure is created collectively up front and flushed,
-after which each case is written only by the rank running it (independent
-raw-data writes to preallocated datasets, which reach the file in program
-order -- the order the checkpoint protocol needs). Without MPI in h5py (or
-with ``io="relay"``) only rank 0 opens the file and applies the other ranks'
+``mpio`` driver; the structure is created collectively up front, under a
+temporary name that is renamed to the file's once complete (atomic.py), after
+which each case is written only by the rank running it (independent raw-data
+writes to preallocated datasets, which reach the file in program order -- the
+order the checkpoint protocol needs). A search stage's new cases are added
+the same way, to a copy that replaces the file. Without MPI in h5py (or with
+``io="relay"``) only rank 0 opens the file and applies the other ranks'
 writes, which they send it in order (relay.py).
+
+Who writes. Every rank holds its part of the file's lock (lock.py) for the
+whole campaign, so no second campaign starts while any rank of this one
+lives. When the file system refuses a write (a full disk), the case is not
+failed: the campaign stops as on SIGTERM, every case keeping its last valid
+checkpoint, and ends with exit status 2 and the reason.
 """
 from __future__ import annotations
 
-import fcntl
-import os
-import socket
+import logging
 import sys
 import threading
 import time
@@ -44,13 +50,18 @@ from pathlib import Path
 from typing import Callable
 
 from . import runner
+from .atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
+    remove_partial, require_space, size_text
 from .campaign_file import CampaignFile
-from .checkpoint import (FAILED, FINISHED, INTERRUPTED, PENDING, STATUS_NAMES, FileFormatError, attr_text,
-                         open_file)
+from .checkpoint import (FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, PENDING, STATUS_NAMES, FileFormatError,
+                         attr_text, open_file, reading, safe_flush, storage_bytes)
+from .lock import CampaignLock, LockError, real_path
 from .params import ConfigError
 from .relay import Relay, RemoteCampaign
 from .search_campaign import SearchDriver, cases_from_file
 from .study import Study
+
+log = logging.getLogger(__name__)
 
 TAG_REQUEST = 11      # worker -> rank 0: ("ready",) | ("done", CaseResult) | ("progress", id, fraction) | ("stop",)
                       #   | with --io relay, its file writes and reads (relay.py), on this tag to keep their order
@@ -59,6 +70,8 @@ TAG_STOP = 13         # rank 0 -> worker: checkpoint the running case and report
 TAG_REPLY = 14        # rank 0 -> worker: the answer to a file read (--io relay only)
 IO_MODES = ("auto", "mpio", "relay")
 PROGRESS_SECONDS = 2.0
+#: CaseResult.status of a case stopped because the file system refused a write (never stored in the file)
+NOT_WRITTEN = -1
 
 
 @dataclass(frozen=True)
@@ -81,10 +94,11 @@ class Summary:
     failed: tuple                   # (case_id, message) of every failed case in the file
     wall: float
     searches: tuple = ()            # search studies: SearchOutcome of every search (empty if stopped)
+    not_written: str = ""           # why the campaign stopped when the file system refused a write
 
     @property
     def exit_status(self) -> int:
-        return 1 if self.failed else 0
+        return 2 if self.not_written else 1 if self.failed else 0
 
 
 # ---------------------------------------------------------------------- helpers
@@ -114,74 +128,64 @@ def wait(request) -> None:
     wait_until(request.Test)
 
 
-class CampaignLock:
-    """An exclusive flock on ``<output>.lock``, held for the whole campaign.
-
-    The kernel drops it when the process dies, even by SIGKILL, so a killed
-    campaign can always be resumed; a second campaign on the same file while
-    the first runs is refused with the holder's pid and host.
-    """
-
-    def __init__(self, path: Path):
-        self.path = Path(str(path) + ".lock")
-        self._fd = None
-
-    def acquire(self) -> "CampaignLock":
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(fd, 200, 0).decode(errors="replace").strip() or "another process"
-            os.close(fd)
-            raise FileFormatError(f"{str(self.path)[:-5]}: a campaign is already running on this file "
-                                  f"({holder}); wait for it or stop it first") from None
-        except OSError as exc:            # a file system without flock: go on, but say so
-            print(f"warning: cannot lock {self.path} ({exc.strerror}); make sure no other campaign "
-                  "writes this file", file=sys.stderr)
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}"
-                  .encode(), 0)
-        self._fd = fd
-        return self
-
-    def release(self) -> None:
-        if self._fd is not None:
-            os.ftruncate(self._fd, 0)
-            os.close(self._fd)          # closing drops the lock; the empty file stays (see docs)
-            self._fd = None
+def bcast(comm, value, root: int = 0):
+    """``comm.bcast`` without spinning: a non-blocking barrier polled with a backoff first, so that
+    ranks waiting for rank 0's serial work (reading, copying, classifying) leave their cores alone."""
+    wait(comm.Ibarrier())
+    return comm.bcast(value, root=root)
 
 
 def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> str:
-    """Decide, on rank 0 and serially, whether to create the file or continue it; refuse bad files.
+    """Decide, on rank 0 holding the file's lock, whether to create the file or continue it; refuse
+    bad files, damaged cases and what the disk has no room for. Returns "create" or "continue".
 
-    Returns "create" or "continue".
+    A leftover ``.partial`` (a creation, stage or analysis cut short) is removed. With ``overwrite``
+    an existing file is only replaced once its successor is complete.
     """
-    if path.exists() and overwrite:
-        path.unlink()
-    if not path.exists():
-        return "create"
-    if not resume:
-        raise FileFormatError(f"{path}: exists already; use --resume to continue it or --overwrite to start over")
-    with open_file(path, "r", locking=False) as h5:
-        partial = (attr_text(h5.attrs.get("mode", "")) == "search"
-                   and len(h5.get("cases", ())) != int(h5.attrs.get("n_cases", -1)))
-    if partial:                 # killed while adding a stage's cases: those cases are made again
-        with open_file(path, "r+") as h5:
+    if remove_partial(path):
+        log.warning("%s: removed %s, left behind by an interrupted change", path, partial_path(path).name)
+    if path.exists() and not overwrite:
+        if not resume:
+            raise FileFormatError(f"{path}: exists already; use --resume to continue it or --overwrite to "
+                                  "start over")
+        _drop_partial_stage(path)
+        check_file(study, path)
+        return "continue"
+    needed = METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases)
+    replaced = " (the old file is replaced only once the new one is complete)" if path.exists() else ""
+    require_space(path, needed, f"the campaign file ({len(study.cases)} cases, every sample and snapshot "
+                                f"preallocated){replaced}")
+    return "create"
+
+
+def _drop_partial_stage(path: Path) -> None:
+    """Files of hpcves before stages were added by replacement: drop a half-added stage's cases."""
+    try:
+        with open_file(path, "r", locking=False) as h5:
+            partial = (attr_text(h5.attrs.get("mode", "")) == "search"
+                       and len(h5.get("cases", ())) != int(h5.attrs.get("n_cases", -1)))
+    except HDF5_ERRORS:
+        return                                     # check_file says what is wrong
+    if partial:
+        copy = copy_for_change(path, 0, "removing a half-added search stage")
+        with open_file(copy, "r+") as h5:
             dropped = CampaignFile.drop_partial_stage(h5)
-        print(f"{path}: removed {dropped} case{'s' * (dropped != 1)} of a search stage whose adding was "
-              "interrupted; the search makes them again", file=sys.stderr)
-    with open_file(path, "r", locking=False) as h5:
-        try:
-            campaign = CampaignFile.check(h5, str(path))
-            campaign.check_study(study, str(path))
-            for case_id in campaign.case_ids:     # every case readable (a damaged file fails here)
-                campaign.store(case_id).status
-        except (OSError, KeyError, ValueError) as exc:
-            if isinstance(exc, ConfigError):
-                raise
-            raise FileFormatError(f"{path}: damaged campaign file ({type(exc).__name__}: {exc})") from None
-    return "continue"
+        publish(copy, path)
+        log.warning("%s: removed %d case%s of a search stage whose adding was interrupted; the search makes "
+                    "them again", path, dropped, "s" * (dropped != 1))
+
+
+def check_file(study: Study, path: Path) -> None:
+    """Refuse a file to continue that is not this study's, or holds a damaged case (each one named)."""
+    with open_file(path, "r", locking=False) as h5, reading(str(path)):
+        campaign = CampaignFile.check(h5, str(path))
+        campaign.check_study(study, str(path))
+        damaged = campaign.damaged(study)
+    if damaged:
+        shown = "; ".join(f"case {case_id}: {problems[0]}" for case_id, problems in damaged[:3])
+        more = f"; {len(damaged) - 3} more" if len(damaged) > 3 else ""
+        raise FileFormatError(f"{path}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)}, not resumed "
+                              f"({shown}{more}); hpcves status lists them; --overwrite starts the study over")
 
 
 def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[tuple[str, bool]]:
@@ -211,10 +215,16 @@ def run_one(campaign: CampaignFile, case_id: str, resume: bool, flush: Callable[
     try:
         out = runner.run(store, flush, resume=resume, progress=tick, stop_requested=stop_requested)
         return CaseResult(case_id, out.status, out.message, out.t, out.steps, out.wall, rank)
+    except StorageError as exc:                  # the file, not the case: nothing more is written
+        return CaseResult(case_id, NOT_WRITTEN, str(exc), float("nan"), 0, time.perf_counter() - t0, rank)
     except Exception as exc:                     # noqa: BLE001 -- recorded in the file, the campaign goes on
         message = f"{type(exc).__name__}: {exc}"
-        store.set_status(FAILED, message, traceback.format_exc())
-        flush()
+        try:
+            store.set_status(FAILED, message, traceback.format_exc())
+            flush()
+        except StorageError as refused:
+            return CaseResult(case_id, NOT_WRITTEN, str(refused), float("nan"), 0, time.perf_counter() - t0,
+                              rank)
         return CaseResult(case_id, FAILED, message, float("nan"), 0, time.perf_counter() - t0, rank)
 
 
@@ -237,6 +247,7 @@ class Master:
         self.waiting: set[int] = set()
         self.results: list[CaseResult] = []
         self.stopping = False
+        self.not_written = ""                    # the first write the file system refused
         self.cost_total = sum(study.by_id(c).cost for c, _ in todo)
         if self.size > 1:
             from mpi4py import MPI
@@ -257,7 +268,10 @@ class Master:
                 active = True
                 kind = message[0]
                 if self.relay is not None and kind in Relay.KINDS:
-                    self.relay.handle(self.comm, source, message)
+                    try:
+                        self.relay.handle(self.comm, source, message)
+                    except StorageError as exc:      # the worker's case stops at its next step
+                        self.refused(str(exc))
                     continue
                 if kind == "progress":
                     self.fraction[message[1]] = message[2]
@@ -282,7 +296,18 @@ class Master:
             self.display(self)
         return active
 
+    def refused(self, why: str) -> None:
+        """The file system refused a write: stop the campaign, keep the reason for the summary."""
+        if not self.not_written:
+            self.not_written = why
+            print(f"\ncannot write the campaign file: {why}", file=sys.stderr)
+        self.begin_stop("the file system refused a write")
+
     def record(self, result: CaseResult) -> None:
+        if result.status == NOT_WRITTEN:
+            self.fraction.pop(result.case_id, None)
+            self.refused(result.message)
+            return
         self.results.append(result)
         self.fraction[result.case_id] = 1.0 if result.status in (FINISHED, FAILED) else self.fraction.get(
             result.case_id, 0.0)
@@ -394,9 +419,9 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
 
     A search study (``study.search``) runs in stages (search_campaign.py):
     after each, rank 0 classifies the finished cases, the searches choose
-    their next shear rates, and every rank adds those cases to the file
-    before the next stage runs them. Rank 0 calls ``on_stage(outcomes)`` with
-    the state of every search after each stage.
+    their next shear rates, and the file is replaced by a copy holding those
+    cases before the next stage runs them. Rank 0 calls ``on_stage(outcomes)``
+    with the state of every search after each stage.
 
     Rank 0 calls ``announce(text, None, n_finished)`` with the campaign's
     first line, ``announce(text, n_cases, n_finished_before)`` once the work
@@ -409,93 +434,121 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     rank = 0 if comm is None else comm.Get_rank()
     start = time.perf_counter()
     io = choose_io(io, size)
-    lock = None
+    given, path = Path(path), real_path(path)         # every change goes to the file itself, not a symlink
+    lock = CampaignLock(given)
     verdict = None
     if rank == 0:
         try:
-            lock = CampaignLock(path).acquire()
+            lock.acquire()
             verdict = ("ok", prepare_file(study, path, resume=resume, overwrite=overwrite))
         except ConfigError as exc:
-            if lock is not None:
-                lock.release()
-            verdict = ("error", str(exc))
+            lock.release()
+            verdict = ("error", str(exc).replace(str(path), str(given)))
     if size > 1:
-        verdict = comm.bcast(verdict, root=0)
+        verdict = bcast(comm, verdict)
     if verdict[0] == "error":
         raise FileFormatError(verdict[1])
     mode = verdict[1]
-
     try:
-        h5, campaign, flush = _open(study, path, comm, mode, io)
-        try:
-            results, outcomes = [], []
-            driver = None
-            if rank == 0 and study.search is not None:
-                driver = SearchDriver(study)
-                if mode == "continue":
-                    study = cases_from_file(study, campaign)
-            stage = 0
-            while True:
-                ran, stopped = _run_stage(study, path, comm, campaign, flush, io, mode, stage,
-                                          retry_failed and stage == 0, stop_flag, display, announce)
-                results += ran
-                if study.search is None:
-                    break
-                if io == "mpio":
-                    # Rank 0 is about to read the cases the others wrote: MPI-IO makes their writes
-                    # visible after a sync by the writers (H5Fflush, collective) and a barrier.
-                    h5.flush()
-                    comm.Barrier()
-                plan = ("stop",)
-                if rank == 0 and not stopped:
-                    outcomes, new = driver.next_stage(study, campaign)
-                    on_stage(outcomes)
-                    plan = ("add", new) if new else ("done",)
-                if size > 1:
-                    plan = comm.bcast(plan, root=0)
-                if plan[0] != "add":
-                    break
-                study = study.with_cases(plan[1]) if rank == 0 else study
-                if io == "mpio":
-                    # Adding cases is collective, and parallel HDF5 hangs in it when rank 0 alone has
-                    # just read much of the file (classifying): reopening gives every rank the same
-                    # metadata cache again.
-                    h5.close()
-                    h5 = None
-                    h5, campaign, flush = _open(study, path, comm, "continue", io)
-                    campaign.add_cases(plan[1])
-                    h5.flush()
-                elif rank == 0:
-                    campaign.add_cases(plan[1])
-                    flush()
-                stage += 1
-            summary = None
-            if rank == 0:
-                counts = {name: 0 for name in STATUS_NAMES.values()}
-                failed = []
-                for row in campaign.table():
-                    counts[row["status"]] += 1
-                    if row["status"] == "failed":
-                        failed.append((row["case"], row["message"]))
-                summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start,
-                                  tuple(outcomes))
-        finally:
+        if rank > 0:
+            refused = ""
+            try:
+                lock.join(rank)
+            except LockError as exc:
+                refused = str(exc)
+        if size > 1:
+            problems = [p for p in comm.allgather(refused if rank > 0 else "") if p]
+            if problems:
+                raise LockError(problems[0])
+        return _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, display, announce,
+                           on_stage)
+    finally:
+        lock.release()
+
+
+def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, display, announce, on_stage):
+    size = 1 if comm is None else comm.Get_size()
+    rank = 0 if comm is None else comm.Get_rank()
+    if mode == "create":
+        if rank == 0:
+            announce(f"creating {path} ({len(study.cases)} cases, "
+                     f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, 0)
+        _create(study, path, comm, io)
+        mode_seen = "create"
+    else:
+        mode_seen = "continue"
+    h5, campaign, flush = _open(path, comm, io)
+    not_written = ""
+    try:
+        results, outcomes = [], []
+        driver = None
+        if rank == 0 and study.search is not None:
+            driver = SearchDriver(study)
+            if mode_seen == "continue":
+                study = cases_from_file(study, campaign)
+        stage = 0
+        while True:
+            ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, io, mode_seen, stage,
+                                               retry_failed and stage == 0, stop_flag, display, announce)
+            results += ran
+            not_written = not_written or refused
+            if study.search is None:
+                break
+            if io == "mpio":
+                # Rank 0 is about to read the cases the others wrote: MPI-IO makes their writes
+                # visible after a sync by the writers (H5Fflush, collective) and a barrier.
+                h5.flush()
+                comm.Barrier()
+            plan = ("stop",)
+            if rank == 0 and not stopped:
+                outcomes, new = driver.next_stage(study, campaign)
+                on_stage(outcomes)
+                plan = ("add", new) if new else ("done",)
+            if size > 1:
+                plan = bcast(comm, plan)
+            if plan[0] != "add":
+                break
+            study = study.with_cases(plan[1]) if rank == 0 else study
             if h5 is not None:
                 h5.close()
-        if size > 1:
-            summary = comm.bcast(summary, root=0)
-        return summary
+                h5 = None
+            refused = _add_stage(path, comm, io, plan[1], stage + 1)
+            if refused:
+                not_written = refused
+                if rank == 0:
+                    print(f"\ncannot add the next stage's cases: {refused}", file=sys.stderr)
+                h5, campaign, flush = _open(path, comm, io)
+                break
+            h5, campaign, flush = _open(path, comm, io)
+            stage += 1
+        summary = None
+        if rank == 0:
+            counts = {name: 0 for name in STATUS_NAMES.values()}
+            failed = []
+            for row in campaign.table():
+                counts[row["status"]] = counts.get(row["status"], 0) + 1
+                if row["status"] == "failed":
+                    failed.append((row["case"], row["message"]))
+            summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start,
+                              tuple(outcomes), not_written)
     finally:
-        if lock is not None:
-            lock.release()
+        if h5 is not None:
+            try:
+                h5.close()
+            except HDF5_ERRORS:
+                pass                               # a refused write was reported already
+    if size > 1:
+        summary = comm.bcast(summary, root=0)
+    return summary
 
 
 def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed, stop_flag, display,
-               announce) -> tuple[list[CaseResult], bool]:
-    """Run every unfinished case of the file on every rank: (results, whether it was stopped) on rank 0."""
+               announce) -> tuple[list[CaseResult], bool, str]:
+    """Run every unfinished case of the file on every rank: (results, whether it was stopped, why the
+    file system refused a write or "") on rank 0."""
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
-    results, stopped = [], False
+    results, stopped, refused = [], False, ""
     if rank == 0:
         todo = work_list(campaign, study, retry_failed)
         statuses = campaign.statuses()
@@ -507,12 +560,12 @@ def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed
         relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
         master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display, relay)
         results = master.run()
-        stopped = master.stopping
+        stopped, refused = master.stopping, master.not_written
     else:
         worker_loop(comm, campaign, flush, stop_flag)
     if size > 1:
         wait(comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
-    return results, stopped
+    return results, stopped, refused
 
 
 def choose_io(io: str, size: int) -> str:
@@ -532,42 +585,138 @@ def choose_io(io: str, size: int) -> str:
     return io
 
 
-def _open(study: Study, path: Path, comm, mode: str, io: str):
-    """(h5 or None, campaign, flush) on this rank, the file created first if ``mode`` is "create".
+def _open_h5(path: Path, mode: str, comm, io: str):
+    if io == "mpio":
+        return open_file(path, mode, driver="mpio", comm=comm)
+    return open_file(path, mode)
 
-    serial: this process alone. mpio: every rank opens the file and creates
-    the structure collectively; then raw writes reach the file at once, in
-    program order, so ``flush`` has nothing to do (File.flush would be
-    collective). relay: rank 0 opens it and tells the others whether that
-    worked; they get a RemoteCampaign.
+
+def _collective_failure(comm, io: str, what: str, exc: BaseException, partial: Path | None) -> None:
+    """A rank failed inside a collective change of the file: the others may wait in HDF5 for ever, so
+    say why in one line and end the job (the file at its path is untouched: the change was a copy)."""
+    if partial is not None:
+        try:
+            partial.unlink()
+        except OSError:
+            pass
+    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    print(f"Error: {what}: {reason}; the file at its path is unchanged", file=sys.stderr, flush=True)
+    comm.Abort(2)
+
+
+def _create(study: Study, path: Path, comm, io: str) -> None:
+    """Lay out the whole file under ``<path>.partial`` (collectively under mpio), then rename it to ``path``.
+
+    Rank 0 first reserves the space on disk (atomic.new_partial), so that a full disk refuses
+    here, before HDF5 writes anything.
+    """
+    rank = 0 if comm is None else comm.Get_rank()
+    size = 1 if comm is None else comm.Get_size()
+    partial = partial_path(path)
+    failure = None
+    if rank == 0:
+        try:
+            new_partial(path, METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases),
+                        f"the campaign file ({len(study.cases)} cases, every sample and snapshot preallocated)")
+        except StorageError as exc:
+            failure = str(exc)
+    if size > 1:
+        failure = bcast(comm, failure)
+    if failure:
+        raise StorageError(failure)
+    if io != "relay" or rank == 0:
+        try:
+            h5 = _open_h5(partial, "r+", comm, io)
+            try:
+                CampaignFile.create(h5, study)
+            finally:
+                h5.close()                        # (collective under mpio) the structure is on disk
+        except (*HDF5_ERRORS, ConfigError) as exc:
+            if io == "mpio":
+                _collective_failure(comm, io, f"creating {path}", exc, partial if rank == 0 else None)
+            remove_partial(path)
+            failure = f"{path}: cannot create it ({str(exc).strip().splitlines()[0] if str(exc).strip() else exc}); " \
+                      "nothing was written"
+        if rank == 0 and failure is None:
+            try:
+                publish(partial, path)
+            except OSError as exc:
+                remove_partial(path)
+                failure = f"{path}: cannot rename {partial.name} to it ({exc.strerror})"
+    if comm is not None and comm.Get_size() > 1:
+        failure = bcast(comm, failure)
+    if failure:
+        raise StorageError(failure)
+
+
+def _add_stage(path: Path, comm, io: str, cases, stage: int) -> str:
+    """Add a search stage's cases to a copy of the file that then replaces it; "" or why it could not be."""
+    rank = 0 if comm is None else comm.Get_rank()
+    size = 1 if comm is None else comm.Get_size()
+    partial, refused = None, ""
+    if rank == 0:
+        try:
+            partial = copy_for_change(path, sum(storage_bytes(c.case) for c in cases),
+                                      f"adding stage {stage}'s {len(cases)} cases")
+        except StorageError as exc:
+            refused = str(exc)
+    if size > 1:
+        refused = bcast(comm, refused)
+    if refused:
+        return refused
+    partial = partial_path(path)
+    if io != "relay" or rank == 0:
+        try:
+            h5 = _open_h5(partial, "r+", comm, io)
+            try:
+                CampaignFile(h5).add_cases(cases)
+            finally:
+                h5.close()
+        except (*HDF5_ERRORS, ConfigError) as exc:
+            if io == "mpio":
+                _collective_failure(comm, io, f"adding stage {stage}'s cases to {path}", exc,
+                                    partial if rank == 0 else None)
+            remove_partial(path)
+            refused = f"{path}: cannot add stage {stage}'s cases ({exc}); the file is unchanged"
+        if rank == 0 and not refused:
+            try:
+                publish(partial, path)
+            except OSError as exc:
+                remove_partial(path)
+                refused = f"{path}: cannot rename {partial.name} to it ({exc.strerror}); the file is unchanged"
+    if size > 1:
+        refused = bcast(comm, refused)
+    return refused
+
+
+def _open(path: Path, comm, io: str):
+    """(h5 or None, campaign, flush) on this rank for the existing file at ``path``.
+
+    serial: this process alone. mpio: every rank opens the file; raw writes
+    reach the file at once, in program order, so ``flush`` has nothing to do
+    (File.flush would be collective). relay: rank 0 opens it and tells the
+    others whether that worked; they get a RemoteCampaign.
     """
     rank = 0 if comm is None else comm.Get_rank()
     if io == "relay" and rank > 0:
-        opened = comm.bcast(None, root=0)
+        opened = bcast(comm, None)
         if opened is not None:
             raise FileFormatError(opened)
         remote = RemoteCampaign(comm, TAG_REQUEST, TAG_REPLY, wait_until)
         return None, remote, remote.flush
     h5 = None
     try:
-        if io == "mpio":
-            h5 = open_file(path, "w" if mode == "create" else "r+", driver="mpio", comm=comm)
-        else:
-            h5 = open_file(path, "w" if mode == "create" else "r+")
-        if mode == "create":
-            campaign = CampaignFile.create(h5, study)
-            h5.flush()                 # (collective under mpio) the structure is on disk before any case runs
-        else:
-            campaign = CampaignFile(h5)
+        h5 = _open_h5(path, "r+", comm, io)
+        campaign = CampaignFile(h5)
     except ConfigError as exc:
         if h5 is not None:
             h5.close()
         if io == "relay":
-            comm.bcast(str(exc), root=0)
+            bcast(comm, str(exc))
         raise
     if io == "relay":
-        comm.bcast(None, root=0)
-    return h5, campaign, (h5.flush if io != "mpio" else _nothing)
+        bcast(comm, None)
+    return h5, campaign, (safe_flush(h5) if io != "mpio" else _nothing)
 
 
 def _nothing() -> None:

@@ -14,17 +14,30 @@
                checkpoint/slot0|slot1 with a validity marker written last
 
 The whole structure is created up front -- collectively when the file is
-opened with the ``mpio`` driver, every rank making the same calls -- and
-flushed, so that afterwards only raw data are written, each case by the one
-rank running it (independent I/O; attributes are never written again).
+opened with the ``mpio`` driver, every rank making the same calls -- under a
+temporary name that becomes the file's only once it is complete (atomic.py).
+Afterwards only raw data are written in place, each case by the one rank
+running it (independent I/O; attributes are never written again); a search
+stage's cases are added to a copy that replaces the file.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from . import __version__
-from .checkpoint import STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file
+from dataclasses import dataclass
+
+from . import __version__, faults
+from .atomic import partial_path
+from .checkpoint import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
+from .lock import writer
 from .study import Study
+
+#: the status shown for a case whose data cannot be read or are inconsistent
+DAMAGED = "damaged"
+
+
+class BeingCreated(FileFormatError):
+    """The campaign file does not exist yet: a running campaign is laying it out."""
 
 FORMAT = "hpcves-campaign"
 FORMAT_VERSION = 1
@@ -82,6 +95,7 @@ class CampaignFile:
             group = self._cases.create_group(c.case_id)
             CaseStore.create(group, c.case)
             group.attrs["case_id"] = c.case_id
+            faults.point("case-laid-out")
         index = self.h5["index"]
         start = index["case_id"].shape[0]
         stop = start + len(cases)
@@ -128,6 +142,10 @@ class CampaignFile:
         if len(h5["cases"]) != n and not (search and len(h5["cases"]) > n):   # a search's half-added stage
             raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
                                   "(creation was interrupted?)")
+        keys = [k for k in attr_text(h5.attrs.get("sweep_keys", "")).split(",") if k]
+        for key in ("case_id", "cost", *keys):
+            if key not in h5["index"] or h5["index"][key].shape[:1] < (n,):
+                raise FileFormatError(f"{where}: index/{key} is missing or shorter than the {n} cases")
         return cls(h5)
 
     def check_study(self, study: Study, where: str) -> None:
@@ -176,25 +194,85 @@ class CampaignFile:
     def statuses(self) -> dict[str, int]:
         return {case_id: int(self._cases[case_id]["status"][()]) for case_id in self.case_ids}
 
-    def table(self) -> list[dict]:
-        """One row per case: id, swept values, status, t, t_end, wall, steps/s, message."""
+    def damaged(self, study: Study) -> list[tuple[str, list[str]]]:
+        """(case id, problems) of every case whose data are missing, misshapen or inconsistent
+        (CaseStore.problems), checked against the study's own case; empty for a sound file."""
+        found = []
+        index = self.h5["index"]
+        n = int(self.h5.attrs["n_cases"])
+        short = [k for k in index if index[k].shape[0] < n]
+        if short:
+            return [("index", [f"index/{k} holds {index[k].shape[0]} rows for {n} cases" for k in short])]
+        expected = {c.case_id: c.case for c in study.cases}
+        for case_id in self.case_ids:
+            try:
+                store = self.store(case_id)
+            except (FileFormatError, *HDF5_ERRORS) as exc:
+                found.append((case_id, [str(exc).split(": ", 1)[-1]]))
+                continue
+            problems = store.problems(expected.get(case_id))
+            if problems:
+                found.append((case_id, problems))
+        return found
+
+    def table(self, check: bool = False) -> list[dict]:
+        """One row per case: id, swept values, status, t, t_end, wall, steps/s, message.
+
+        A case whose status or progress cannot be read, or holds an unknown status -- with ``check``:
+        whose data fail CaseStore.problems -- is shown with status "damaged" and what is wrong as its
+        message.
+        """
         rows = []
         keys = self.sweep_keys
-        swept = {k: self.h5["index"][k][:] for k in keys}
+        n = int(self.h5.attrs["n_cases"])
+        swept = {k: self.h5["index"][k][:n] for k in keys}
         for i, case_id in enumerate(self.case_ids):
-            g = self._cases[case_id]
-            t, t_end, wall, rate = g["progress"][:]
-            status = int(g["status"][()])
-            message = bytes(g["message"][()]).decode(errors="replace")
-            rows.append({"case": case_id, **{k: float(swept[k][i]) for k in keys},
-                         "status": STATUS_NAMES.get(status, str(status)), "t": float(t),
-                         "t_end": float(t_end), "wall": float(wall), "steps_per_second": float(rate),
-                         "message": message})
+            values = {k: float(swept[k][i]) if i < len(swept[k]) else float("nan") for k in keys}
+            try:
+                g = self._cases[case_id]
+                t, t_end, wall, rate = (float(v) for v in g["progress"][:])
+                status = int(g["status"][()])
+                message = bytes(g["message"][()]).decode(errors="replace")
+                name = STATUS_NAMES[status] if status in STATUS_NAMES else DAMAGED
+                if name == DAMAGED:
+                    message = f"status {status} is not a status"
+                elif check:
+                    problems = CaseStore.open(g, where=case_id).problems()
+                    if problems:
+                        name, message = DAMAGED, "; ".join(problems[:2])
+            except (FileFormatError, *HDF5_ERRORS) as exc:
+                t = t_end = wall = rate = float("nan")
+                name, message = DAMAGED, f"unreadable ({str(exc).strip().splitlines()[0] if str(exc) else exc})"
+            rows.append({"case": case_id, **values, "status": name, "t": t, "t_end": t_end, "wall": wall,
+                         "steps_per_second": rate, "message": message})
         return rows
 
 
-def read_table(path) -> tuple[str, list[dict]]:
-    """(study name, rows) of a campaign file, read without locking (a campaign may be writing it)."""
-    with open_file(path, "r", locking=False) as h5:
+@dataclass(frozen=True)
+class Table:
+    """What ``hpcves status`` shows of a campaign file: its name, one row per case, who writes it."""
+
+    name: str
+    rows: list
+    writer: str | None          # "pid ... on host, since ..." of the campaign writing it now, or None
+
+
+def read_table(path, check: bool = False) -> Table:
+    """The cases of a campaign file, read without locking (a campaign may be writing it).
+
+    A file that does not exist yet but is being made (``<file>.partial`` and a campaign holding the
+    lock) or whose making was cut short is refused with a message that says so.
+    """
+    import os
+
+    path = os.fspath(path)
+    if not os.path.exists(path) and os.path.exists(partial_path(path)):
+        holder = writer(path)
+        if holder is not None:
+            raise BeingCreated(f"{path}: being created by a campaign ({holder}); it appears once "
+                                  "every case is laid out")
+        raise FileFormatError(f"{path}: its creation was interrupted (only {partial_path(path).name} is left); "
+                              "hpcves campaign --resume starts it again")
+    with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
-        return campaign.name, campaign.table()
+        return Table(campaign.name, campaign.table(check), writer(path))

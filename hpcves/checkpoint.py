@@ -28,9 +28,13 @@ checkpoint intact and recognisably the newest valid one.
 """
 from __future__ import annotations
 
+import contextlib
+import functools
+
 import numpy as np
 
-from . import __version__
+from . import __version__, faults
+from .atomic import METADATA_BYTES_PER_CASE, StorageError
 from .config import case_from_toml, case_to_toml
 from .diagnostics import SERIES, SNAPSHOT_FIELDS
 from .params import Case, ConfigError
@@ -55,6 +59,50 @@ class FileFormatError(ConfigError):
     """An HDF5 file or group that is not (or no longer) a readable hpcves case."""
 
 
+#: what h5py raises when the file under it is damaged (unreadable metadata, objects of the wrong kind);
+#: ConfigError is a ValueError too: catch it first where it has to go through (see :func:`reading`)
+HDF5_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError)
+
+
+@contextlib.contextmanager
+def reading(where: str):
+    """Reading a file: what h5py raises from damaged metadata becomes one FileFormatError naming
+    ``where``; hpcves's own errors (ConfigError) pass unchanged."""
+    try:
+        yield
+    except ConfigError:
+        raise
+    except HDF5_ERRORS as exc:
+        raise FileFormatError(f"{where}: damaged file ({type(exc).__name__}: {_first_line(exc)})") from None
+
+
+def _writes(method):
+    """A CaseStore write: a refusal of the file system (full disk, quota, I/O error) becomes a StorageError."""
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except (OSError, RuntimeError) as exc:
+            raise StorageError(f"{self.group.file.filename}: cannot write {self.group.name} "
+                               f"({_first_line(exc)})") from exc
+    return wrapper
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def safe_flush(h5):
+    """h5py ``File.flush`` that raises StorageError when the file system refuses the write."""
+    def flush():
+        try:
+            h5.flush()
+        except (OSError, RuntimeError) as exc:
+            raise StorageError(f"{h5.filename}: cannot write ({_first_line(exc)})") from exc
+    return flush
+
+
 def open_file(path, mode: str, **kwargs):
     """h5py.File(path, mode, **kwargs) with one clear message for every way that can fail."""
     import errno
@@ -63,6 +111,14 @@ def open_file(path, mode: str, **kwargs):
     import h5py
 
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise FileFormatError(f"{path}: is a directory, not a file")
+    if os.path.islink(path) and not os.path.exists(path):
+        try:
+            os.stat(path)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                raise FileFormatError(f"{path}: a symbolic link that leads back to itself") from None
     if mode in ("r", "r+") and not os.path.exists(path):
         raise FileFormatError(f"{path}: no such file")
     if mode in ("w-", "x") and os.path.exists(path):
@@ -75,13 +131,38 @@ def open_file(path, mode: str, **kwargs):
             raise FileFormatError(f"{path}: not a readable HDF5 file (corrupt or truncated?)") from None
         if "unable to lock" in text.lower() or getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
             raise FileFormatError(f"{path}: in use by another process (HDF5 file lock)") from None
-        raise FileFormatError(f"{path}: cannot open as HDF5 ({text})") from None
+        if exc.errno:                      # the system's reason, without HDF5's page of detail
+            raise FileFormatError(f"{path}: cannot open as HDF5 ({os.strerror(exc.errno)})") from None
+        raise FileFormatError(f"{path}: cannot open as HDF5 ({_first_line(exc)})") from None
 
 
 def capacities(case: Case) -> tuple[int, int]:
     """Rows to preallocate for samples and snapshots (every step multiple, plus the end)."""
     n = case.n_steps
     return n // case.every(case.run.sample_interval) + 2, n // case.every(case.run.snapshot_interval) + 2
+
+
+def recorded(case: Case, step: int) -> tuple[int, int]:
+    """(samples, snapshots) a run has recorded *before* step ``step``: one at every multiple of its interval."""
+    def count(every):
+        return 0 if step <= 0 else (step - 1) // every + 1
+    return count(case.every(case.run.sample_interval)), count(case.every(case.run.snapshot_interval))
+
+
+def raw_bytes(case: Case) -> int:
+    """The bytes :meth:`CaseStore.create` allocates for a case's datasets (all of them, up front)."""
+    n_samples, n_snapshots = capacities(case)
+    N = case.numerics.N
+    series = (len(SERIES) + 1) * n_samples                   # centroid has two columns
+    snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots
+    checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
+    fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8
+    return 8 * (series + snapshots + checkpoints) + fixed
+
+
+def storage_bytes(case: Case) -> int:
+    """What one case takes in a file: its datasets plus their metadata (atomic.METADATA_BYTES_PER_CASE)."""
+    return raw_bytes(case) + METADATA_BYTES_PER_CASE
 
 
 def attr_text(value) -> str:
@@ -167,6 +248,78 @@ class CaseStore:
             raise FileFormatError(f"{where}: incomplete case, missing {', '.join(missing)}")
         return cls(group)
 
+    # ------------------------------------------------------------------ validation
+    def layout(self, case: Case) -> dict:
+        """Every dataset a case holds: relative name -> (shape, numpy kind)."""
+        n_samples, n_snapshots = capacities(case)
+        N = case.numerics.N
+        out = {"status": ((), "i"), "message": ((), "S"), "progress": ((4,), "f"),
+               "timeseries/length": ((), "i"), "snapshots/length": ((), "i"),
+               "snapshots/t": ((n_snapshots,), "f"), "snapshots/shift": ((n_snapshots,), "f")}
+        if "traceback" in self.group:                  # absent in files written before it existed
+            out["traceback"] = ((), "S")
+        for name in SERIES:
+            out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f")
+        for name in SNAPSHOT_FIELDS:
+            out[f"snapshots/{name}"] = ((n_snapshots, N), "f")
+        for slot in ("slot0", "slot1"):
+            out[f"checkpoint/{slot}/meta"] = ((4,), "i")
+            out[f"checkpoint/{slot}/scalars"] = ((_N_SCALARS,), "f")
+            for name in State.ARRAYS:
+                out[f"checkpoint/{slot}/{name}"] = ((N,), "f")
+        return out
+
+    def problems(self, expected: Case | None = None) -> list[str]:
+        """What is wrong with this case's data (empty if nothing): missing or misshapen datasets, a
+        status or counters out of range, checkpoints that contradict the series. Never raises.
+
+        ``expected``: the case the file should hold (its study's); a different config is a problem.
+        """
+        try:
+            case = self.case
+        except (FileFormatError, *HDF5_ERRORS) as exc:
+            return [f"its config attribute cannot be read ({_first_line(exc)})"]
+        if expected is not None and case.to_dict() != expected.to_dict():
+            return ["its config differs from its study's case"]
+        found = []
+        for name, (shape, kind) in self.layout(case).items():
+            try:
+                d = self.group[name]
+                if d.shape != shape or d.dtype.kind != kind:
+                    found.append(f"{name} has shape {d.shape} ({d.dtype}), expected {shape} ({kind})")
+            except HDF5_ERRORS as exc:
+                found.append(f"{name} is missing or unreadable ({_first_line(exc)})")
+        if found:
+            return found
+        try:
+            n_samples, n_snapshots = capacities(case)
+            attrs = self.group.attrs
+            if (int(attrs["sample_capacity"]), int(attrs["snapshot_capacity"]), int(attrs["N"])) != \
+                    (n_samples, n_snapshots, case.numerics.N):
+                found.append("its capacities or N attributes do not match its config")
+            status = self.status
+            if status not in STATUS_NAMES:
+                found.append(f"status {status} is not a status (0 to {max(STATUS_NAMES)})")
+            lengths = self.n_samples, self.n_snapshots
+            for what, n, cap in (("timeseries", lengths[0], n_samples), ("snapshots", lengths[1], n_snapshots)):
+                if not 0 <= n <= cap:
+                    found.append(f"{what}/length = {n} lies outside [0, {cap}] (the capacity)")
+            for slot, meta in self._slot_meta().items():
+                valid, step = int(meta[0]), int(meta[1])
+                if valid not in (0, 1):
+                    found.append(f"checkpoint/{slot}: validity marker {valid} is neither 0 nor 1")
+                elif valid and not 0 <= step <= case.n_steps:
+                    found.append(f"checkpoint/{slot}: step {step} outside [0, {case.n_steps}]")
+                elif valid and (int(meta[2]), int(meta[3])) != recorded(case, step):
+                    found.append(f"checkpoint/{slot}: says {int(meta[2])} samples, {int(meta[3])} snapshots "
+                                 f"before step {step}, where the run records {recorded(case, step)}")
+            if status == FINISHED and lengths != recorded(case, case.n_steps + 1):
+                found.append(f"finished, but holds {lengths[0]} samples and {lengths[1]} snapshots of "
+                             f"{recorded(case, case.n_steps + 1)}")
+        except HDF5_ERRORS as exc:
+            found.append(f"unreadable ({_first_line(exc)})")
+        return found
+
     # ------------------------------------------------------------------ metadata
     @property
     def case(self) -> Case:
@@ -189,6 +342,7 @@ class CaseStore:
             return ""
         return bytes(self.group["traceback"][()]).decode(errors="replace")
 
+    @_writes
     def set_status(self, status: int, message: str | None = None, traceback: str | None = None) -> None:
         """Status, and optionally the message and traceback (written before the status)."""
         if message is not None:
@@ -197,6 +351,7 @@ class CaseStore:
             self.group["traceback"][()] = np.bytes_(_clip(traceback, TRACEBACK_BYTES))
         self.group["status"][()] = np.int8(status)
 
+    @_writes
     def set_progress(self, t: float, t_end: float, wall: float, steps_per_second: float) -> None:
         self.group["progress"][:] = (t, t_end, wall, steps_per_second)
 
@@ -213,6 +368,7 @@ class CaseStore:
     def n_snapshots(self) -> int:
         return int(self._snap["length"][()])
 
+    @_writes
     def append_samples(self, rows: list[dict]) -> None:
         """Write rows at the end of the valid part of every series, then advance ``length``."""
         if not rows:
@@ -224,6 +380,7 @@ class CaseStore:
             self._ts[name][start:stop] = values
         self._ts["length"][()] = stop
 
+    @_writes
     def append_snapshot(self, snap: dict) -> None:
         i = self.n_snapshots
         for name in ("t", "shift") + SNAPSHOT_FIELDS:
@@ -239,6 +396,7 @@ class CaseStore:
         n = self.n_snapshots
         return {name: self._snap[name][:n] for name in ("t", "shift") + SNAPSHOT_FIELDS}
 
+    @_writes
     def truncate(self, n_samples: int, n_snapshots: int) -> None:
         """Forget samples and snapshots beyond the given counts (they will be rewritten)."""
         self._ts["length"][()] = n_samples
@@ -252,6 +410,7 @@ class CaseStore:
         valid = [(meta[1], slot) for slot, meta in self._slot_meta().items() if meta[0] == 1]
         return max(valid)[1] if valid else None
 
+    @_writes
     def write_checkpoint(self, state: State, flush) -> None:
         """Write ``state`` (and the current sample counts) to the older slot, safely.
 
@@ -262,12 +421,14 @@ class CaseStore:
         g = self._ckpt[slot]
         g["meta"][0] = 0
         flush()
+        faults.point("checkpoint")
         for name in State.ARRAYS:
             value = getattr(state, name)
             g[name][:] = np.nan if value is None else value
         g["scalars"][:] = _pack_scalars(state)
         g["meta"][1:] = (state.step, self.n_samples, self.n_snapshots)
         flush()
+        faults.point("checkpoint")
         g["meta"][0] = 1
         flush()
 

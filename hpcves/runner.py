@@ -14,7 +14,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import diagnostics
+from . import diagnostics, faults
 from .checkpoint import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
 from .flow import TensionSolveError
 from .timestepping import Solver, State
@@ -112,6 +112,8 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         store.set_progress(*_progress(s, now))
         store.set_status(status, message)
         flush()
+        if status == FINISHED:
+            faults.point("finished")
         return Outcome(status, message, solver.time(s), s.step - start_step, now - start_wall)
 
     try:

@@ -6,22 +6,20 @@ and compare every recorded number bitwise with an uninterrupted serial run.
 import os
 import shutil
 import signal
-import subprocess
-import sys
-import time
 
 import h5py
 import numpy as np
 import pytest
+from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, job_pids,
+                  running_cases, start_job, thaw, wait_until)
 
 from hpcves import campaign as campaign_module
-from hpcves.campaign import CampaignLock, run_campaign
+from hpcves.campaign import run_campaign
+from hpcves.lock import CampaignLock
 from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore
 from hpcves.params import ConfigError
 from hpcves.study import study_from_toml
 
-HPCVES = [sys.executable, "-m", "hpcves.cli"]
-MPIRUN = shutil.which("mpirun")
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
 #: numerics and recording of the tiny test cases (N = 32); ``{checkpoint}`` is filled in by the study
@@ -46,53 +44,16 @@ psi_bar = [0.3, 0.5]
 """
 
 
-def write_study(tmp_path, name="tiny", t_end=0.1, checkpoint=0.05, shear="[40, 80]", output=None):
+def write_study(tmp_path, name="tiny", t_end=0.1, checkpoint=0.05, shear="[40, 80]", output=None, sample=0.005):
     output = output or tmp_path / f"{name}.h5"
     path = tmp_path / f"{name}.toml"
-    path.write_text(STUDY.format(name=name, output=output, t_end=t_end, checkpoint=checkpoint, shear=shear))
+    text = STUDY.format(name=name, output=output, t_end=t_end, checkpoint=checkpoint, shear=shear)
+    path.write_text(text.replace("sample_interval = 0.005", f"sample_interval = {sample}"))
     return path, output
 
 
-def mpi_env():
-    env = dict(os.environ)
-    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_pml="ob1", OMPI_MCA_btl="self,vader",
-               OMPI_MCA_btl_vader_single_copy_mechanism="none")
-    return env
-
-
-def hpcves(*args, n=None, timeout=300):
-    prefix = [MPIRUN, "-n", str(n)] if n else []
-    return subprocess.run(prefix + HPCVES + [str(a) for a in args], capture_output=True, text=True,
-                          timeout=timeout, env=mpi_env())
-
-
-def results(path):
-    """Every recorded number of every case (valid rows only) and the statuses."""
-    out = {}
-    with h5py.File(path, "r", locking=False) as f:
-        for case_id, g in f["cases"].items():
-            n, m = int(g["timeseries/length"][()]), int(g["snapshots/length"][()])
-            data = {"status": np.array(g["status"][()])}
-            data.update({f"timeseries/{k}": v[:n] for k, v in g["timeseries"].items() if k != "length"})
-            data.update({f"snapshots/{k}": v[:m] for k, v in g["snapshots"].items() if k != "length"})
-            out[case_id] = data
-    return out
-
-
-def assert_same_results(a, b):
-    ra, rb = results(a), results(b)
-    assert ra.keys() == rb.keys()
-    for case_id in ra:
-        assert ra[case_id].keys() == rb[case_id].keys()
-        for key in ra[case_id]:
-            x, y = ra[case_id][key], rb[case_id][key]
-            assert x.shape == y.shape and np.array_equal(x, y, equal_nan=True), (case_id, key)
-
-
 def statuses(path):
-    with h5py.File(path, "r", locking=False) as f:
-        return {case_id: int(g["status"][()]) for case_id, g in f["cases"].items()}
+    return case_statuses(path)
 
 
 @pytest.fixture(scope="module")
@@ -224,51 +185,17 @@ def test_a_second_campaign_on_the_same_file_is_refused(tmp_path):
     finally:
         lock.release()
     assert result.returncode == 2, result.stderr
-    assert "a campaign is already running on this file" in result.stderr and f"pid {os.getpid()}" in result.stderr
+    assert "is writing this file" in result.stderr and f"pid {os.getpid()}" in result.stderr
     assert not output.exists()
 
 
 # ---------------------------------------------------------------------- real MPI jobs
-def job_pids(mpirun_pid):
-    """mpirun and every process it started (the ranks run in process groups of their own)."""
-    parents = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                pass
-    found, frontier = {mpirun_pid}, [mpirun_pid]
-    while frontier:
-        pid = frontier.pop()
-        for child, parent in parents.items():
-            if parent == pid and child not in found:
-                found.add(child)
-                frontier.append(child)
-    return found
-
-
-def start_job(n, *args):
-    return subprocess.Popen([MPIRUN, "-n", str(n)] + HPCVES + [str(a) for a in args], env=mpi_env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def wait_for_checkpoints(output, job, count=2, timeout=120):
-    """Until ``count`` cases are running with a valid checkpoint (so a kill lands mid-run)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+def wait_for_checkpoints(output, job, count=2):
+    """Until ``count`` cases are running with a valid checkpoint (so that a kill lands mid-run)."""
+    def ready():
         assert job.poll() is None, job.communicate()
-        try:
-            with h5py.File(output, "r", locking=False) as f:
-                running = [g for g in f["cases"].values() if int(g["status"][()]) == 1
-                           and any(g[f"checkpoint/{s}/meta"][0] == 1 for s in ("slot0", "slot1"))]
-                if len(running) >= count:
-                    return
-        except (OSError, KeyError):
-            pass                                      # the file is still being created
-        time.sleep(0.05)
-    raise AssertionError("the campaign never got going")
+        return len(running_cases(output, checkpointed=True)) >= count
+    wait_until(ready, f"{count} cases run with a checkpoint")
 
 
 ACCESS = {"mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}
@@ -322,16 +249,19 @@ def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n, 
 @needs_mpi
 @pytest.mark.parametrize("io", ["mpio", "relay"])
 def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path, io):
-    path, output = write_study(tmp_path, t_end=1.5, checkpoint=10.0)   # only the stop writes checkpoints
+    # only the stop writes checkpoints; a sample every step makes the first flush come after 512 steps
+    path, output = write_study(tmp_path, t_end=3.0, checkpoint=10.0, sample=1e-3)
+
+    def both_ranks_sampling():          # a state, not a time: each rank runs a case that has taken steps
+        assert job.poll() is None, job.communicate()
+        return len(running_cases(output, sampled=True)) == 2
     job = start_job(2, "campaign", path, "--io", io)
-    wait_for_checkpoints(output, job, count=0)
-    time.sleep(0.5)
-    started = time.monotonic()
-    for pid in job_pids(job.pid) - {job.pid}:          # what SLURM does: every task gets the signal
+    frozen = freeze_when(job, both_ranks_sampling, "both ranks run a case with samples written")
+    for pid in frozen:                                 # what SLURM does: every task gets the signal
         os.kill(pid, signal.SIGTERM)
-    out, err = job.communicate(timeout=60)
-    assert job.returncode == 0, err
-    assert time.monotonic() - started < 10.0
+    thaw(frozen)
+    out, err = job.communicate(timeout=HANG)
+    assert job.returncode == 0, err                    # (a stop slower than stop_timeout would abort: not 0)
     assert "stopping" in err and "continue with --resume" in err
     interrupted = [c for c, s in statuses(output).items() if s == INTERRUPTED]
     assert len(interrupted) == 2, statuses(output)

@@ -2,11 +2,12 @@
 import signal
 import subprocess
 import sys
-import time
 
 import h5py
 import numpy as np
 import pytest
+
+from jobs import wait_until
 
 from hpcves import runner
 from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore, open_file
@@ -153,16 +154,13 @@ def test_resume_after_sigkill_is_bitwise_identical(tmp_path):
     b = tmp_path / "b.h5"
     proc = subprocess.Popen(HPCVES + ["run", str(case), "--out", str(b), "--quiet"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    deadline = time.time() + 120
-    while time.time() < deadline:                      # kill once a few checkpoints exist
-        time.sleep(0.2)
-        try:                                           # the writer holds the HDF5 lock: peek without it
-            with h5py.File(b, "r", locking=False) as f:
-                steps = max(f["checkpoint/slot0/meta"][1], f["checkpoint/slot1/meta"][1])
-        except (OSError, KeyError, ValueError):
-            continue
-        if steps >= 1000:
-            break
+    def checkpointed():                 # the writer holds the HDF5 lock: peek without it
+        assert proc.poll() is None, "the run ended before it could be killed"
+        if not b.exists():                              # it appears complete (atomic.py)
+            return False
+        with h5py.File(b, "r", locking=False) as f:
+            return max(f["checkpoint/slot0/meta"][1], f["checkpoint/slot1/meta"][1]) >= 1000
+    wait_until(checkpointed, "a checkpoint of step 1000 exists")
     proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert proc.returncode == -signal.SIGKILL, "the run ended before it could be killed"
@@ -178,7 +176,14 @@ def test_sigterm_checkpoints_and_exits_cleanly(tmp_path):
     case = write(tmp_path, SHORT.format(t_end=50.0, checkpoint=10.0))
     proc = subprocess.Popen(HPCVES + ["run", str(case), "--out", str(b), "--quiet"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)
+
+    def stepping():                     # the handler is installed and steps were taken: samples are written
+        assert proc.poll() is None, proc.communicate()
+        if not b.exists():
+            return False
+        with h5py.File(b, "r", locking=False) as f:
+            return int(f["timeseries/length"][()]) > 0
+    wait_until(stepping, "the run has written samples")
     proc.send_signal(signal.SIGTERM)
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err

@@ -1,0 +1,48 @@
+"""Deterministic fault injection, for the tests that kill campaigns at exact moments (tests/faults.py).
+
+``HPCVES_FAULT=point[:n][@rank]`` makes the process kill itself with SIGKILL
+the n-th time (default: the first) it passes :func:`point` ``point``, on MPI
+rank ``rank`` only if one is given. The points are where a kill is most
+likely to hurt:
+
+* ``case-laid-out``: after each case is laid out, while a file is created or a search stage added;
+* ``publish``: a finished ``.partial`` is about to be renamed over the file (atomic.py);
+* ``checkpoint``: inside a checkpoint write, once after the slot is marked invalid and once
+  after its data are written, before it is marked valid again (checkpoint.py);
+* ``finished``: a case has just recorded that it finished (runner.py);
+* ``analysis-stored``: ``hpcves analyze`` has written its results into the copy, before the rename.
+
+Without the variable, which is the case outside those tests, :func:`point` returns at once.
+"""
+from __future__ import annotations
+
+import os
+import signal
+
+_SPEC = os.environ.get("HPCVES_FAULT", "")
+_passes: dict[str, int] = {}
+
+
+def _parse(spec: str) -> tuple[str, int, int | None]:
+    name, _, rank = spec.partition("@")
+    name, _, count = name.partition(":")
+    return name, int(count or 1), (int(rank) if rank else None)
+
+
+def _rank() -> int:
+    for variable in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK", "SLURM_PROCID"):
+        if variable in os.environ:
+            return int(os.environ[variable])
+    return 0
+
+
+def point(name: str) -> None:
+    """Kill this process here if ``HPCVES_FAULT`` asks for it (see the module's docstring)."""
+    if not _SPEC:
+        return
+    target, count, rank = _parse(_SPEC)
+    if name != target or (rank is not None and rank != _rank()):
+        return
+    _passes[name] = _passes.get(name, 0) + 1
+    if _passes[name] == count:
+        os.kill(os.getpid(), signal.SIGKILL)

@@ -1,0 +1,244 @@
+"""Real ``hpcves`` processes for the tests: start, find, wait for, kill, and compare what they wrote.
+
+Everything here waits for *states* (a file, a status in it, processes gone), never for a time:
+the machines are shared and slow down without warning. A timeout only guards against a hang.
+"""
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+
+HPCVES = [sys.executable, "-m", "hpcves.cli"]
+MPIRUN = shutil.which("mpirun")
+HANG = 300.0                    # seconds: only a hang takes this long
+
+
+def mpi_env(**extra):
+    env = dict(os.environ)
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_pml="ob1", OMPI_MCA_btl="self,vader",
+               OMPI_MCA_btl_vader_single_copy_mechanism="none")
+    env.update(extra)
+    return env
+
+
+def command(n, *args):
+    return ([MPIRUN, "-n", str(n)] if n else []) + HPCVES + [str(a) for a in args]
+
+
+def hpcves(*args, n=None, timeout=HANG, env=None):
+    return subprocess.run(command(n, *args), capture_output=True, text=True, timeout=timeout,
+                          env=env or mpi_env())
+
+
+def start_job(n, *args, env=None, own_group=False):
+    """The command running in the background; ``own_group``: in a process group of its own, led by it
+    (as a shell with job control starts it), so that ``kill -- -PGID`` reaches it and not the tests."""
+    return subprocess.Popen(command(n, *args), env=env or mpi_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, process_group=0 if own_group else None)
+
+
+def job_pids(root_pid):
+    """``root_pid`` and every process it started (mpirun's ranks run in process groups of their own)."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                pass
+    found, frontier = {root_pid}, [root_pid]
+    while frontier:
+        pid = frontier.pop()
+        for child, parent in parents.items():
+            if parent == pid and child not in found:
+                found.add(child)
+                frontier.append(child)
+    return found
+
+
+def alive(pid) -> bool:
+    """Whether ``pid`` is a process that has not ended (zombies count as ended)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def wait_until(condition, what, timeout=HANG, poll=0.02):
+    """Poll ``condition`` until it is true; fail after ``timeout`` (a hang), saying what never happened."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out waiting until {what}")
+        time.sleep(poll)
+
+
+def signal_job(job, signum, *, ranks_only=False):
+    """Send ``signum`` to the job's processes (all of them, or only those below mpirun); their pids."""
+    pids = job_pids(job.pid)
+    if ranks_only:
+        pids.discard(job.pid)
+    for pid in pids:
+        try:
+            os.kill(pid, signum)
+        except ProcessLookupError:
+            pass
+    return pids
+
+
+def freeze_when(job, condition, what, timeout=HANG):
+    """Wait until ``condition`` holds, then stop the job's ranks (SIGSTOP) with it still holding.
+
+    The check is repeated once the ranks are frozen, so the state cannot move on between the check
+    and whatever the test does next; if it moved on in the meantime, the ranks are let go again
+    and the wait goes on. Returns the frozen pids (``thaw`` them, or kill them).
+    """
+    import signal
+
+    deadline = time.monotonic() + timeout
+    while True:
+        wait_until(condition, what, timeout=max(deadline - time.monotonic(), 0.1))
+        pids = signal_job(job, signal.SIGSTOP, ranks_only=True)
+        wait_until(lambda: all(_state(p) in ("T", "t", "Z", None) for p in pids), "the ranks are stopped")
+        if condition():
+            return pids
+        thaw(pids)
+
+
+def thaw(pids):
+    import signal
+
+    for pid in pids:
+        try:
+            os.kill(pid, signal.SIGCONT)
+        except ProcessLookupError:
+            pass
+
+
+def _state(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return None
+
+
+def kill_job(job):
+    """SIGKILL every process of the job and wait until none is left."""
+    import signal
+
+    pids = signal_job(job, signal.SIGKILL)
+    job.communicate()
+    wait_until(lambda: not any(alive(p) for p in pids), "the killed job's processes are gone")
+
+
+def case_statuses(path):
+    """{case id: status} of a campaign file, read as a reader of a live file would (no lock)."""
+    with h5py.File(path, "r", locking=False) as f:
+        return {case_id: int(g["status"][()]) for case_id, g in f["cases"].items()}
+
+
+def running_cases(path, *, checkpointed=False, sampled=False):
+    """Cases with status 1 (running), if ``checkpointed`` with a valid checkpoint, if ``sampled`` with samples
+    written; [] while the file does not exist yet (it appears complete: hpcves/atomic.py)."""
+    if not os.path.exists(path):
+        return []
+    with h5py.File(path, "r", locking=False) as f:
+        out = []
+        for case_id, g in f["cases"].items():
+            if int(g["status"][()]) != 1:
+                continue
+            if checkpointed and not any(g[f"checkpoint/{s}/meta"][0] == 1 for s in ("slot0", "slot1")):
+                continue
+            if sampled and int(g["timeseries/length"][()]) == 0:
+                continue
+            out.append(case_id)
+        return out
+
+
+# ---------------------------------------------------------------------- what a campaign wrote
+DETERMINED = {"progress": slice(0, 2)}      # t and t_end; wall seconds and steps/s differ between any two runs
+
+
+def newest_checkpoint(g):
+    metas = {s: g[f"checkpoint/{s}/meta"][:] for s in ("slot0", "slot1")}
+    valid = [(m[1], s) for s, m in metas.items() if m[0] == 1]
+    if not valid:
+        return {}
+    slot = max(valid)[1]
+    return {f"checkpoint/{name}": g[f"checkpoint/{slot}/{name}"][()] for name in g[f"checkpoint/{slot}"]}
+
+
+def results(path):
+    """Every dataset and attribute of a campaign file that the computation determines.
+
+    Left out: the wall-clock part of ``progress``, which checkpoint slot holds what (a stop writes an
+    extra checkpoint; the newest valid checkpoint is compared instead), and the campaign file's text
+    (it names the output path).
+    """
+    out = {}
+    with h5py.File(path, "r", locking=False) as f:
+        out["/attrs"] = {k: v for k, v in f.attrs.items() if k not in ("hpcves_version", "campaign_toml")}
+        for name, d in f["index"].items():
+            out[f"/index/{name}"] = d[()]
+        for case_id, g in f["cases"].items():
+            data = {"attrs": dict(g.attrs)}
+
+            def visit(name, obj, data=data):
+                if isinstance(obj, h5py.Dataset) and not name.startswith("checkpoint/"):
+                    value = obj[()]
+                    data[name] = value[DETERMINED[name]] if name in DETERMINED else value
+            g.visititems(visit)
+            data.update(newest_checkpoint(g))
+            out[case_id] = data
+    return out
+
+
+def differences(a, b, attrs=True):
+    """[(where, what)] between the results of two files; empty if they agree bit for bit.
+
+    ``attrs=False`` leaves out the attributes (the parameters): for files of studies that differ only
+    in how they record, such as their checkpoint interval.
+    """
+    ra, rb = results(a), results(b)
+    if not attrs:
+        for r in (ra, rb):
+            r.pop("/attrs")
+            for key in r:
+                if not key.startswith("/"):
+                    r[key].pop("attrs")
+    found = []
+    if ra.keys() != rb.keys():
+        return [("cases", f"{sorted(ra.keys() ^ rb.keys())} in one file only")]
+    for key in ra:
+        x, y = ra[key], rb[key]
+        if key.startswith("/"):
+            if not _same(x, y):
+                found.append((key, "differs"))
+            continue
+        if x.keys() != y.keys():
+            found.append((key, f"datasets {sorted(x.keys() ^ y.keys())} in one file only"))
+            continue
+        found += [(f"{key}/{name}", "differs") for name in x if not _same(x[name], y[name])]
+    return found
+
+
+def _same(x, y) -> bool:
+    if isinstance(x, dict):
+        return x.keys() == y.keys() and all(_same(x[k], y[k]) for k in x)
+    x, y = np.asarray(x), np.asarray(y)
+    if x.dtype.kind in "fc":
+        return x.shape == y.shape and np.array_equal(x, y, equal_nan=True)
+    return x.shape == y.shape and np.array_equal(x, y)
+
+
+def assert_same_results(a, b, attrs=True):
+    found = differences(a, b, attrs)
+    assert not found, found[:10]
