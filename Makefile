@@ -1,7 +1,8 @@
 # Two commands do everything on a fresh Debian machine:
 #   make demo   -- set up (apt + .venv + parallel h5py, once), run a small MPI campaign (mpirun -n 2), analyze it
 #   make test   -- set up, then the test suite (what CI runs)
-# Further: make bench (BENCHMARKS.md, ~2 min), make validate (VALIDATION.md, ~2 min).
+# Further: make bench (BENCHMARKS.md, ~2 min), make validate (VALIDATION.md, ~2 min),
+#          make faults (FAULTS.md: 40 campaigns SIGKILLed at random moments, resumed, compared; ~10 min).
 
 PY      := .venv/bin/python
 HPCVES  := .venv/bin/hpcves
@@ -15,7 +16,7 @@ MPIRUN  ?= env OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
 GRID    ?= coarse
 NP      ?= 2
 
-.PHONY: setup test demo bench validate reproduce clean
+.PHONY: setup test demo bench validate faults reproduce clean
 
 setup:
 	@./scripts/bootstrap.sh
@@ -38,6 +39,11 @@ bench: setup
 validate: setup
 	$(PY) -m pytest -m slow -q
 	$(PY) analysis/validate.py --out VALIDATION.md
+
+# kill real mpirun jobs at random moments (creation included), resume, compare bitwise (KILLS=40)
+KILLS   ?= 40
+faults: setup
+	$(PY) tests/faults.py --kills $(KILLS) --out FAULTS.md
 
 # the published studies on coarse grids (~25 min on 2 cores; GRID=full for the full grids, NP ranks)
 reproduce: setup

@@ -19,6 +19,10 @@ from typing import Literal
 #: Perimeter of the 1/2 : 1/3 ellipse, the published reference shape.
 REFERENCE_LENGTH = 2.6442
 
+#: More time steps than this for one case is surely a mistake (at the fastest step measured,
+#: 0.25 ms at N = 32, it is three days of one core; the published runs took 10^6 to 10^7).
+MAX_STEPS = 10**9
+
 PSI_COORDINATES = ("arclength", "ellipse_parameter")
 
 
@@ -202,6 +206,11 @@ class Case:
                  f"run.sample_interval = {r.sample_interval} is shorter than numerics.dt = {self.numerics.dt}")
         _require(self.run.t_end >= self.numerics.dt,
                  f"run.t_end = {r.t_end} is shorter than numerics.dt = {self.numerics.dt}")
+        steps = r.t_end / self.numerics.dt
+        _require(steps <= MAX_STEPS,
+                 f"run.t_end / numerics.dt = {r.t_end:g} / {self.numerics.dt:g} = {steps:.3g} time steps for one "
+                 f"case: more than {MAX_STEPS:.0e} is surely a mistake ({steps * 2.5e-4 / 86400:.3g} days of one "
+                 "core at the fastest step, N = 32)")
 
     @property
     def n_steps(self) -> int:

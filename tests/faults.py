@@ -1,0 +1,296 @@
+"""Fault injection: kill real MPI campaigns at random moments, resume them, compare bit for bit.
+
+    python tests/faults.py --kills 40 --out FAULTS.md            # what `make faults` runs
+
+Each trial runs the study below under ``mpirun -n 2`` or ``-n 3``, with ``--io mpio`` or
+``--io relay``, and SIGKILLs the whole job at a random moment. The moment is drawn from a timeline
+measured first for that set-up, so that a quarter of the kills fall while the file is created,
+half while the cases run, and a quarter at the very end (the last cases finishing, the summary,
+the close). A quarter of the trials kill only mpirun's process group, which leaves the ranks
+running for a moment, and start the resume at once: the lock must refuse it until the ranks are
+gone. A third of the resumes are killed again. Every trial ends with a resume to completion and
+a comparison of every dataset and status with an uninterrupted run (jobs.differences).
+
+Where each kill landed is read off what it left behind: no file yet, only ``.partial`` (during
+creation), cases running, a checkpoint slot marked invalid with data in it (inside a checkpoint
+write), every case finished (at the very end).
+
+tests/test_faults.py runs a small deterministic subset (exact kill points via HPCVES_FAULT, and
+two random kills) as part of ``make test``.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import random
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from jobs import (alive, command, differences, job_pids, kill_job, mpi_env, start_job,  # noqa: E402
+                  wait_until)
+
+STUDY = """[campaign]
+name = "faults"
+output = "{output}"
+t_end = 0.06
+
+[numerics]
+N = 32
+dt = 1e-3
+
+[run]
+sample_interval = 0.005
+snapshot_interval = 0.02
+checkpoint_interval = 0.01
+checkpoint_wall = 0
+
+[sweep]
+shear_rate = {{ linspace = [10, 160, 20] }}
+psi_bar = [0.3, 0.4, 0.5]
+"""
+SETUPS = [(2, "mpio"), (3, "relay"), (3, "mpio"), (2, "relay")]
+AFTER = "after the job ended"          # a kill that came too late: the job had ended by itself
+
+
+def write_study(directory: Path) -> tuple[Path, Path]:
+    directory.mkdir(parents=True, exist_ok=True)
+    output = directory / "faults.h5"
+    path = directory / "faults.toml"
+    path.write_text(STUDY.format(output=output))
+    return path, output
+
+
+def reference(directory: Path) -> Path:
+    """The study run uninterrupted, serially in this process."""
+    from hpcves.campaign import run_campaign
+    from hpcves.study import study_from_toml
+
+    path, output = write_study(directory)
+    if not output.exists():
+        assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
+    return output
+
+
+def campaign_args(path, io, resume=False):
+    return ("campaign", path, "--quiet", "--io", io) + (("--resume",) if resume else ())
+
+
+# ---------------------------------------------------------------------- where a job is in its life
+@dataclass
+class Timeline:
+    """Seconds from the start of an uninterrupted job to each of its moments."""
+
+    partial: float          # <file>.partial appears: creation begins
+    file: float             # the file appears: creation done
+    done: float             # every case finished
+    exit: float             # the job has ended
+
+
+def measure(directory: Path, n: int, io: str) -> Timeline:
+    path, output = write_study(directory)
+    partial = output.with_name(output.name + ".partial")
+    seen = {}
+    start = time.monotonic()
+    job = start_job(n, *campaign_args(path, io))
+    while job.poll() is None:
+        now = time.monotonic() - start
+        if "partial" not in seen and partial.exists():
+            seen["partial"] = now
+        if "file" not in seen and output.exists():
+            seen["file"] = now
+        if "file" in seen and "done" not in seen and all_finished(output):
+            seen["done"] = now
+        time.sleep(0.003)
+    end = time.monotonic() - start
+    assert job.returncode == 0, job.communicate()
+    file = seen.get("file", end)
+    return Timeline(seen.get("partial", file), file, seen.get("done", end), end)
+
+
+def all_finished(output: Path) -> bool:
+    with h5py.File(output, "r", locking=False) as f:
+        return all(int(g["status"][()]) == 2 for g in f["cases"].values())
+
+
+def landed(output: Path) -> str:
+    """Where a kill landed, from what it left."""
+    partial = output.with_name(output.name + ".partial")
+    if not output.exists():
+        return "during creation" if partial.exists() else "before creation"
+    with h5py.File(output, "r", locking=False) as f:
+        statuses = [int(g["status"][()]) for g in f["cases"].values()]
+        torn = sum(1 for g in f["cases"].values() for s in ("slot0", "slot1")
+                   if g[f"checkpoint/{s}/meta"][0] == 0 and np.isfinite(g[f"checkpoint/{s}/scalars"][0]))
+    if all(s == 2 for s in statuses):
+        return "at the very end"
+    where = "while cases ran"
+    return where + (f" (inside {torn} checkpoint write{'s' * (torn > 1)})" if torn else "")
+
+
+# ---------------------------------------------------------------------- one trial
+@dataclass
+class Trial:
+    n: int
+    io: str
+    planned: str
+    mode: str                               # "job": every process; "group": mpirun's process group only
+    kills: list = field(default_factory=list)   # where each kill landed
+    refused: int = 0                        # resumes the lock refused (ranks still alive)
+    differences: list = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def identical(self) -> bool:
+        return not self.differences
+
+    @property
+    def landed(self) -> int:
+        """Kills that hit a live job."""
+        return sum(1 for k in self.kills if k != AFTER)
+
+
+def kill_group(job) -> set:
+    """SIGKILL mpirun's process group only (its ranks have groups of their own); the ranks' pids."""
+    ranks = job_pids(job.pid) - {job.pid}
+    os.killpg(job.pid, signal.SIGKILL)
+    job.communicate()
+    return ranks
+
+
+def run_to_completion(path, output, n, io, trial: Trial, lingering=frozenset()):
+    """Resume until the campaign is finished; a refusal by the lock waits for the old ranks."""
+    while True:
+        result = subprocess.run(command(n, *campaign_args(path, io, resume=True)), capture_output=True,
+                                text=True, env=mpi_env(), timeout=600)
+        if result.returncode == 0:
+            return
+        if result.returncode == 2 and ("still running" in result.stderr or "is writing this file" in result.stderr):
+            trial.refused += 1
+            wait_until(lambda: not any(alive(p) for p in lingering), "the old ranks are gone")
+            continue
+        raise AssertionError(f"resume failed ({result.returncode}): {result.stderr}")
+
+
+def trial(directory: Path, n: int, io: str, timeline: Timeline, rng: random.Random, ref: Path,
+          planned: str | None = None, mode: str | None = None, again: bool | None = None) -> Trial:
+    """Kill the job once at a moment drawn from ``timeline`` (``planned``: creation, running or end),
+    perhaps kill the resume too, resume to the end, compare with ``ref``."""
+    import shutil
+
+    shutil.rmtree(directory, ignore_errors=True)
+    path, output = write_study(directory)
+    planned = planned or rng.choices(["creation", "running", "end"], weights=[1, 2, 1])[0]
+    mode = mode or rng.choices(["job", "group"], weights=[3, 1])[0]
+    window = {"creation": (timeline.partial, timeline.file), "running": (timeline.file, timeline.done),
+              "end": (timeline.done - 0.1 * (timeline.done - timeline.file), timeline.exit)}[planned]
+    record = Trial(n, io, planned, mode)
+    started = time.monotonic()
+    job = start_job(n, *campaign_args(path, io), own_group=(mode == "group"))
+    _sleep_until(started + rng.uniform(*window), job)
+    lingering = set()
+    if mode == "group":
+        lingering = kill_group(job)
+    else:
+        kill_job(job)
+    record.kills.append(landed(output) if job.returncode != 0 else AFTER)
+    if mode == "group":                     # resume at once, while the ranks may still run
+        run_to_completion(path, output, n, io, record, lingering)
+    else:
+        if again if again is not None else rng.random() < 1 / 3:
+            resumed = time.monotonic()
+            job = start_job(n, *campaign_args(path, io, resume=True))
+            _sleep_until(resumed + rng.uniform(0.3, timeline.exit), job)
+            kill_job(job)
+            record.kills.append(landed(output) if job.returncode != 0 else AFTER)
+        run_to_completion(path, output, n, io, record)
+    record.differences = differences(output, ref)
+    record.seconds = time.monotonic() - started
+    return record
+
+
+def _sleep_until(moment: float, job) -> None:
+    while time.monotonic() < moment and job.poll() is None:
+        time.sleep(min(0.002, max(moment - time.monotonic(), 0.0)))
+
+
+# ---------------------------------------------------------------------- the whole experiment
+def experiment(work: Path, kills: int, seed: int, progress=print) -> tuple[list[Trial], dict]:
+    rng = random.Random(seed)
+    ref = reference(work / "reference")
+    timelines = {}
+    for n, io in SETUPS:
+        timelines[(n, io)] = measure(work / f"timeline-{n}-{io}", n, io)
+        progress(f"timeline -n {n} --io {io}: {timelines[(n, io)]}")
+    trials, landed = [], 0
+    while landed < kills:                   # a kill that came after the job had ended does not count
+        n, io = SETUPS[len(trials) % len(SETUPS)]
+        t = trial(work / "trial", n, io, timelines[(n, io)], rng, ref)
+        trials.append(t)
+        landed += t.landed
+        progress(f"{landed:3d}/{kills}  -n {n} {io:5}  {t.planned:8} {t.mode:5}  killed {' / '.join(t.kills)}"
+                 f"{f'; {t.refused} resume(s) refused' if t.refused else ''}  ->  "
+                 f"{'identical' if t.identical else 'DIFFERENT: ' + repr(t.differences[:3])}")
+    return trials, timelines
+
+
+def report(trials: list[Trial], timelines: dict, seed: int, wall: float) -> str:
+    identical = sum(t.identical for t in trials)
+    landings = {}
+    for t in trials:
+        for k in t.kills:
+            if k != AFTER:
+                key = k.split(" (")[0]
+                landings[key] = landings.get(key, 0) + 1
+    torn = sum(1 for t in trials for k in t.kills if "checkpoint write" in k)
+    late = sum(1 for t in trials for k in t.kills if k == AFTER)
+    lines = [
+        "# Fault injection (`make faults`)", "",
+        f"{datetime.date.today()}, {platform.node()} ({os.cpu_count()} cores), seed {seed}, {wall / 60:.1f} min. "
+        "Written by `tests/faults.py` (its docstring says how the kills are chosen).", "",
+        f"**{identical} of {len(trials)} trials resumed to results bitwise identical to an uninterrupted run**, "
+        f"after {sum(t.landed for t in trials)} SIGKILLs of live jobs "
+        f"({sum(1 for t in trials if t.landed)} trials with a kill; {late} kills came after the job had ended "
+        f"and do not count; {sum(t.refused for t in trials)} resumes were refused by the lock while the ranks of "
+        "a killed mpirun were still alive, and ran once they were gone).", "",
+        "Where the kills landed: " + ", ".join(f"{n} {k}" for k, n in sorted(landings.items(), key=lambda x: -x[1]))
+        + f"; {torn} of them inside a checkpoint write.", "",
+        "Timelines of uninterrupted jobs (seconds from mpirun's start):", "",
+        "| set-up | creation starts | file complete | all cases done | job ends |",
+        "| --- | ---: | ---: | ---: | ---: |"]
+    lines += [f"| -n {n} --io {io} | {tl.partial:.2f} | {tl.file:.2f} | {tl.done:.2f} | {tl.exit:.2f} |"
+              for (n, io), tl in timelines.items()]
+    lines += ["", "| # | set-up | aimed at | kill | landed | resumes refused | result |",
+              "| ---: | --- | --- | --- | --- | ---: | --- |"]
+    lines += [f"| {i + 1} | -n {t.n} --io {t.io} | {t.planned} | {t.mode} | {' / '.join(t.kills)} | {t.refused} | "
+              f"{'identical' if t.identical else 'DIFFERENT'} |" for i, t in enumerate(trials)]
+    return "\n".join(lines) + "\n"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--kills", type=int, default=40, help="SIGKILLs of live jobs to make (one or two a trial)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--work", type=Path, default=Path("out/faults"))
+    parser.add_argument("--out", type=Path, help="write the report (Markdown) here")
+    args = parser.parse_args()
+    started = time.monotonic()
+    trials, timelines = experiment(args.work, args.kills, args.seed)
+    text = report(trials, timelines, args.seed, time.monotonic() - started)
+    print(text)
+    if args.out:
+        args.out.write_text(text)
+    return 0 if all(t.identical for t in trials) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

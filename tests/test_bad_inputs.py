@@ -1,0 +1,333 @@
+"""Over a hundred malformed inputs and damaged files: each one line on stderr and exit status 2, never a
+traceback (issue 14). Case files for ``hpcves run``, study files for ``hpcves campaign``, damaged
+campaign files for ``status --check``, ``analyze`` and ``campaign --resume``, damaged run files for
+``run --resume`` and ``analyze``. In process (click's test runner), so the corpus takes seconds.
+"""
+import os
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from hpcves.campaign import run_campaign
+from hpcves.checkpoint import CaseStore
+from hpcves.cli import main
+from hpcves.config import case_from_toml
+from hpcves import runner
+from hpcves.study import study_from_toml
+
+BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nt_end = 0.02\nsample_interval = 0.005\nsnapshot_interval = 0.01\n"
+
+#: case files: (text, words the one line must hold)
+CASE_FILES = {
+    "unknown key": ("[physics]\nshear = 3\n", "unknown key in [physics]: shear"),
+    "unknown table": ("[physic]\nshear_rate = 3\n", "unknown table: [physic]"),
+    "a table that is a number": ("physics = 3\n", "[physics] must be a table"),
+    "nested table": ("[physics.more]\nx = 1\n", "unknown key in [physics]: more"),
+    "float for N": ("[numerics]\nN = 64.5\n", "numerics.N = 64.5: must be an integer"),
+    "bool for N": ("[numerics]\nN = true\n", "numerics.N = True: must be an integer"),
+    "string for a number": ('[run]\nt_end = "5"\n', "run.t_end = '5': must be a number"),
+    "array for a number": ("[physics]\npsi_bar = [0.3]\n", "physics.psi_bar = [0.3]: must be a number"),
+    "N odd": ("[numerics]\nN = 63\n", "numerics.N = 63: must be even"),
+    "N too small": ("[numerics]\nN = 8\n", "numerics.N = 8: too small"),
+    "N too large": ("[numerics]\nN = 8192\n", "numerics.N = 8192: more than 4096"),
+    "dt zero": ("[numerics]\ndt = 0.0\n", "numerics.dt = 0.0: must be > 0"),
+    "dt nan": ("[numerics]\ndt = nan\n", "numerics.dt = nan: must be a finite number"),
+    "t_end inf": ("[run]\nt_end = inf\n", "run.t_end = inf: must be a finite number"),
+    "t_end negative": ("[run]\nt_end = -1.0\n", "run.t_end = -1.0: must be > 0"),
+    "t_end below dt": ("[numerics]\ndt = 1e-2\n[run]\nt_end = 1e-3\n", "is shorter than numerics.dt"),
+    "sample interval zero": ("[run]\nsample_interval = 0.0\n", "run.sample_interval = 0.0: must be > 0"),
+    "sample interval below dt": ("[run]\nsample_interval = 1e-4\n", "is shorter than numerics.dt"),
+    "snapshot interval negative": ("[run]\nsnapshot_interval = -1.0\n", "run.snapshot_interval = -1.0"),
+    "checkpoint wall negative": ("[run]\ncheckpoint_wall = -1.0\n", "run.checkpoint_wall = -1.0: must be >= 0"),
+    "psi_min positive": ("[run]\npsi_min = 0.1\n", "need psi_min < 0 and psi_max > 1"),
+    "psi_max below 1": ("[run]\npsi_max = 0.9\n", "need psi_min < 0 and psi_max > 1"),
+    "area bound zero": ("[run]\nmax_area_error = 0.0\n", "run.max_area_error = 0.0: must be > 0"),
+    "B1 zero": ("[physics]\nB1 = 0.0\n", "physics.B1 = 0.0: bending stiffness must be > 0"),
+    "B2 negative": ("[physics]\nB2 = -1.0\n", "physics.B2 = -1.0"),
+    "epsilon zero": ("[physics]\nepsilon = 0.0\n", "physics.epsilon = 0.0: must be > 0"),
+    "mobility zero": ("[physics]\nmobility = 0.0\n", "physics.mobility = 0.0: must be > 0"),
+    "delta negative": ("[physics]\ndelta = -0.1\n", "physics.delta = -0.1: must be >= 0"),
+    "excess length huge": ("[physics]\nexcess_length = 25.0\n", "aspect ratio beyond 1:1000"),
+    "excess length negative": ("[physics]\nexcess_length = -0.05\n", "no ellipse"),
+    "length zero": ("[physics]\nlength = 0.0\n", "physics.length = 0.0: must be > 0"),
+    "a0 negative": ("[physics]\na0 = -1.0\n", "physics.a0 = -1.0"),
+    "shear rate negative": ("[physics]\nshear_rate = -5.0\n", "physics.shear_rate = -5.0: must be >= 0"),
+    "psi_bar above 1": ("[physics]\npsi_bar = 1.2\n", "physics.psi_bar = 1.2: must lie in [0, 1]"),
+    "initial psi out of range": ("[physics]\npsi_bar = 0.9\ndelta = 0.1\n", "the initial psi spans"),
+    "bending stabilization below 1": ("[numerics]\nbending_stabilization = 0.5\n", "must be >= 1"),
+    "phase stabilization below 1/2": ("[numerics]\nphase_stabilization = 0.1\n", "must be >= 0.5"),
+    "area correction not a bool": ("[numerics]\narea_correction = 1\n", "must be true or false"),
+    "bad choice": ('[physics]\npsi_init_coordinate = "polar"\n', "must be one of 'arclength'"),
+    "choice not a string": ("[physics]\npsi_init_coordinate = 3\n", "psi_init_coordinate = 3"),
+    "a billion seconds": ("[numerics]\ndt = 1e-3\n[run]\nt_end = 1e9\n", "1e+12 time steps"),
+    "a femtosecond step": ("[numerics]\ndt = 1e-15\n", "1e+15 time steps"),
+    "not TOML": ("[physics\nshear_rate = 1\n", "not valid TOML"),
+    "a key twice": ("[physics]\nshear_rate = 1.0\nshear_rate = 2.0\n", "not valid TOML"),
+    "not UTF-8": (b"[physics]\n# B\xe4r\nshear_rate = 1.0\n", "not UTF-8 text (byte 0xe4"),
+    "binary": (bytes(range(256)) * 4, "not UTF-8 text"),
+}
+
+STUDY_HEAD = '[campaign]\nname = "bad"\nt_end = 0.02\n' + BASE_RUN
+
+#: study files: (text, words); ``{head}`` is a sound [campaign] table with the tiny numerics
+STUDY_FILES = {
+    "unknown campaign key": ('[campaign]\nnmae = "x"\n', "unknown key in [campaign]: nmae"),
+    "campaign not a table": ("campaign = 3\n", "[campaign] must be a table"),
+    "empty name": ('[campaign]\nname = ""\n', "campaign.name = '': must be a non-empty string"),
+    "name a number": ("[campaign]\nname = 3\n", "campaign.name = 3"),
+    "empty output": ('[campaign]\noutput = ""\n', "campaign.output = '': must be a file path"),
+    "output a number": ("[campaign]\noutput = 5\n", "campaign.output = 5"),
+    "t_end and shear_times": ("[campaign]\nt_end = 1.0\nshear_times = 10\n", "give t_end or shear_times, not both"),
+    "shear_times zero": ("[campaign]\nshear_times = 0\n", "campaign.shear_times = 0.0: must be > 0"),
+    "t_end_min negative": ("[campaign]\nt_end_min = -1.0\n", "campaign.t_end_min = -1.0: must be >= 0"),
+    "campaign t_end zero": ("[campaign]\nt_end = 0.0\n", "campaign.t_end = 0.0: must be > 0"),
+    "samples per shear time zero": ("[campaign]\nsamples_per_shear_time = 0\n", "must be > 0"),
+    "stop timeout zero": ("[campaign]\nstop_timeout = 0.0\n", "campaign.stop_timeout = 0.0: must be > 0"),
+    "stop timeout a string": ('[campaign]\nstop_timeout = "x"\n', "campaign.stop_timeout = 'x'"),
+    "sweep over N": ("{head}[sweep]\nN = [32, 64]\n", "sweep over N: only shear_rate"),
+    "empty sweep list": ("{head}[sweep]\nshear_rate = []\n", "sweep.shear_rate: empty list"),
+    "sweep a string": ('{head}[sweep]\nshear_rate = "abc"\n', "sweep.shear_rate = 'abc'"),
+    "linspace of two": ("{head}[sweep]\nshear_rate = {{ linspace = [1, 2] }}\n", "must be [start, stop, num]"),
+    "linspace of none": ("{head}[sweep]\nshear_rate = {{ linspace = [1, 2, 0] }}\n", "num = 0 must lie in"),
+    "linspace of a float": ("{head}[sweep]\nshear_rate = {{ linspace = [1, 2, 2.5] }}\n", "must be an integer"),
+    "logspace from 0": ("{head}[sweep]\nshear_rate = {{ logspace = [0, 10, 3] }}\n", "start and stop must be > 0"),
+    "arange": ("{head}[sweep]\nshear_rate = {{ arange = [1, 10, 1] }}\n", "use a list, a number"),
+    "two spacings": ("{head}[sweep]\nshear_rate = {{ linspace = [1, 2, 3], logspace = [1, 2, 3] }}\n",
+                     "use a list, a number"),
+    "a value twice": ("{head}[sweep]\nshear_rate = [40, 40]\n", "sweep.shear_rate: 40 (2 times)"),
+    "logspace of one value": ("{head}[sweep]\nshear_rate = {{ logspace = [40, 40, 3] }}\n", "40 (3 times)"),
+    "a string in a list": ('{head}[sweep]\nshear_rate = [40, "a"]\n', "sweep.shear_rate[1] = 'a'"),
+    "bool in a sweep": ("{head}[sweep]\nshear_rate = true\n", "sweep.shear_rate = True"),
+    "a case out of range": ("{head}[sweep]\npsi_bar = [0.3, 1.5]\n", "case 0001 (psi_bar = 1.5): physics.psi_bar"),
+    "a negative shear rate": ("{head}[sweep]\nshear_rate = [-1, 10]\n", "case 0000 (shear_rate = -1)"),
+    "far too many cases": ("{head}[sweep]\nshear_rate = {{ linspace = [1, 2, 1000] }}\n"
+                           "psi_bar = {{ linspace = [0.3, 0.4, 1000] }}\n", "has 1000000 cases"),
+    "a huge linspace": ("{head}[sweep]\nshear_rate = {{ linspace = [1, 2, 1000000000] }}\n", "must lie in [1, 100000]"),
+    "base case wrong": ("[numerics]\nN = 7\n", "base case: numerics.N = 7"),
+    "zero shear without a floor": ("[campaign]\nshear_times = 10\n[sweep]\nshear_rate = [0, 10]\n",
+                                   "shear_rate = 0 has no shear time"),
+    "search low above high": ("{head}[search]\nlow = 100.0\nhigh = 10.0\n", "low < high"),
+    "search without high": ("{head}[search]\nlow = 10.0\n", "give high"),
+    "search unknown key": ("{head}[search]\nlow = 10.0\nhigh = 100.0\nspan = 3\n", "unknown key span"),
+    "search over the shear rate": ("{head}[search]\nlow = 10.0\nhigh = 100.0\n[sweep]\nshear_rate = [1, 2]\n",
+                                   "leave shear_rate out of [sweep]"),
+    "search a table that is not": ("search = 3\n{head}", "[search] must be a table"),
+    "analysis unknown key": ("{head}[analysis]\nmincycles = 3\n", "unknown key mincycles"),
+    "analysis a string": ('{head}[analysis]\nmin_cycles = "x"\n', "analysis.min_cycles = 'x'"),
+    "not TOML": ("[campaign\n", "not valid TOML"),
+    "not UTF-8": (b'[campaign]\nname = "b\xe4d"\n', "not UTF-8 text (byte 0xe4"),
+}
+
+
+def invoke(*args):
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=True)
+    assert result.exception is None or isinstance(result.exception, SystemExit), \
+        f"{type(result.exception).__name__}: {result.exception}"
+    return result
+
+
+def refused(result):
+    """One ``Error:`` line, the last on stderr (progress lines may come before it), and exit status 2."""
+    assert result.exit_code == 2, (result.exit_code, result.stdout, result.stderr)
+    assert "Traceback" not in result.stderr and "Traceback" not in result.stdout
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("Error: ")]
+    assert len(errors) == 1 and lines[-1] == errors[0], result.stderr
+    return errors[0]
+
+
+def write(path, content):
+    (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    return path
+
+
+@pytest.mark.parametrize("name", list(CASE_FILES))
+def test_a_bad_case_file(tmp_path, name):
+    content, words = CASE_FILES[name]
+    line = refused(invoke("run", write(tmp_path / "case.toml", content), "--out", tmp_path / "out.h5"))
+    assert words in line, line
+    assert os.listdir(tmp_path) == ["case.toml"]
+
+
+@pytest.mark.parametrize("name", list(STUDY_FILES))
+def test_a_bad_study_file(tmp_path, name):
+    content, words = STUDY_FILES[name]
+    if isinstance(content, str):
+        content = content.replace("{head}", STUDY_HEAD).replace("{{", "{").replace("}}", "}")
+    line = refused(invoke("campaign", write(tmp_path / "study.toml", content), "--out", tmp_path / "out.h5"))
+    assert words in line, line
+    assert os.listdir(tmp_path) == ["study.toml"]
+
+
+# ---------------------------------------------------------------------- damaged files
+@pytest.fixture(scope="module")
+def sound(tmp_path_factory):
+    """A finished four-case campaign (study file, file) and a finished single-run file."""
+    directory = tmp_path_factory.mktemp("sound")
+    study_file = directory / "study.toml"
+    study_file.write_text(STUDY_HEAD + "[sweep]\nshear_rate = [40, 80]\npsi_bar = [0.3, 0.5]\n")
+    campaign = directory / "campaign.h5"
+    assert run_campaign(study_from_toml(study_file.read_text()), campaign).exit_status == 0
+    single = directory / "single.h5"
+    with h5py.File(single, "w") as h5:
+        runner.run(CaseStore.create(h5, case_from_toml(BASE_RUN)), h5.flush)
+    return study_file, campaign, single
+
+
+def header_of(f, name):
+    return h5py.h5o.get_info(f[name].id).addr
+
+
+def flip(name, mask=0x40):
+    """Damage: flip a bit in the first byte of ``name``'s object header (HDF5 cannot open it any more)."""
+    def damage(path):
+        with h5py.File(path, "r") as f:
+            address = header_of(f, name)
+        with open(path, "r+b") as f:
+            f.seek(address)
+            byte = f.read(1)[0]
+            f.seek(address)
+            f.write(bytes([byte ^ mask]))
+    return damage
+
+
+def edit(change):
+    def damage(path):
+        with h5py.File(path, "r+") as f:
+            change(f)
+    return damage
+
+
+def replace_bytes(make):
+    def damage(path):
+        data = path.read_bytes()
+        path.unlink()
+        content = make(data)
+        if content is None:
+            path.mkdir()
+        else:
+            path.write_bytes(content)
+    return damage
+
+
+def recreate(name, **kwargs):
+    def change(f):
+        del f[name]
+        parent, _, leaf = name.rpartition("/")
+        f[parent].create_dataset(leaf, **kwargs)
+    return change
+
+
+def set_value(name, value):
+    def change(f):
+        f[name][...] = value
+    return change
+
+
+def symlink_loop(path):
+    path.unlink()
+    os.symlink(path.name, path)
+
+
+#: damaged campaign files: damage -> (words, commands that must refuse it)
+ALL = ("status", "analyze", "resume")
+CAMPAIGN_DAMAGE = {
+    "random bytes": (replace_bytes(lambda d: np.random.default_rng(1).bytes(4096)), "not a readable HDF5", ALL),
+    "zeros": (replace_bytes(lambda d: bytes(len(d))), "not a readable HDF5", ALL),
+    "empty": (replace_bytes(lambda d: b""), "not a readable HDF5", ALL),
+    "truncated to a tenth": (replace_bytes(lambda d: d[:len(d) // 10]), "", ALL),
+    "truncated to half": (replace_bytes(lambda d: d[:len(d) // 2]), "", ALL),
+    "truncated at the end": (replace_bytes(lambda d: d[:len(d) - 1000]), "", ALL),
+    "a directory": (replace_bytes(lambda d: None), "is a directory", ALL),
+    "a symlink loop": (symlink_loop, "", ALL),
+    "no format": (edit(lambda f: f.attrs.__delitem__("format")), "not an hpcves", ALL),
+    "another format version": (edit(lambda f: f.attrs.__setitem__("format_version", 99)), "format version 99", ALL),
+    "no index": (edit(lambda f: f.__delitem__("index")), "missing index", ALL),
+    "no cases": (edit(lambda f: f.__delitem__("cases")), "missing cases", ALL),
+    "case count wrong": (edit(lambda f: f.attrs.__setitem__("n_cases", 9)), "holds 4 cases, its header says 9", ALL),
+    "another study": (edit(lambda f: f.attrs.__setitem__("fingerprint", "0" * 64)), "belongs to", ("resume",)),
+    "a short index": (edit(recreate("index/shear_rate", data=np.array([40.0]))), "", ALL),
+    "unknown status": (edit(set_value("cases/0003/status", 77)), "status 77 is not a status", ALL),
+    "no status": (edit(lambda f: f.__delitem__("cases/0002/status")), "0002", ALL),
+    "no progress": (edit(lambda f: f.__delitem__("cases/0001/progress")), "0001", ALL),
+    "no theta": (edit(lambda f: f.__delitem__("cases/0001/timeseries/theta")), "timeseries/theta is missing", ALL),
+    "theta of the wrong size": (edit(recreate("cases/0001/timeseries/theta", data=np.zeros(3))), "shape (3,)", ALL),
+    "checkpoint of the wrong size": (edit(recreate("cases/0002/checkpoint/slot1/psi", data=np.zeros(33))),
+                                     "checkpoint/slot1/psi has shape (33,)", ALL),
+    "scalars of the wrong type": (edit(recreate("cases/0002/checkpoint/slot0/scalars", data=np.zeros(10, "i4"))),
+                                  "checkpoint/slot0/scalars has shape", ALL),
+    "samples beyond capacity": (edit(set_value("cases/0000/timeseries/length", 10_000)), "lies outside", ALL),
+    "negative snapshot count": (edit(set_value("cases/0000/snapshots/length", -1)), "lies outside", ALL),
+    "validity marker 5": (edit(set_value("cases/0001/checkpoint/slot0/meta", [5, 1, 1, 1])), "neither 0 nor 1", ALL),
+    "checkpoint beyond the end": (edit(set_value("cases/0001/checkpoint/slot0/meta", [1, 999, 1, 1])),
+                                  "step 999 outside", ALL),
+    "checkpoint against its series": (edit(set_value("cases/0001/checkpoint/slot0/meta", [1, 10, 7, 1])),
+                                      "before step 10", ALL),
+    "finished, half the samples": (edit(set_value("cases/0003/timeseries/length", 2)), "finished, but holds", ALL),
+    "config not TOML": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", "[numerics\n")),
+                        "config attribute cannot be read", ALL),
+    "config of another case": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", f["cases/0001"].attrs[
+        "config"])), "config differs from its study's case", ("resume",)),
+    "header of the index flipped": (flip("index/case_id"), "", ALL),
+    "header of a status flipped": (flip("cases/0001/status"), "0001", ALL),
+    "header of a series flipped": (flip("cases/0002/timeseries/theta"), "0002", ALL),
+    "header of a checkpoint flipped": (flip("cases/0003/checkpoint/slot1/meta"), "0003", ALL),
+    "header of a case group flipped": (flip("cases/0000"), "0000", ALL),
+}
+
+
+def damaged(sound, tmp_path, name):
+    study_file, campaign, _ = sound
+    copy = tmp_path / "damaged.h5"
+    copy.write_bytes(campaign.read_bytes())
+    CAMPAIGN_DAMAGE[name][0](copy)
+    return study_file, copy
+
+
+@pytest.mark.parametrize("name", list(CAMPAIGN_DAMAGE))
+def test_a_damaged_campaign_file(sound, tmp_path, name):
+    study_file, copy = damaged(sound, tmp_path, name)
+    _, words, commands = CAMPAIGN_DAMAGE[name]
+    calls = {"status": ("status", "--check", copy),
+             "analyze": ("analyze", copy, "--out", tmp_path / "a", "--no-case-figures", "--no-write-back"),
+             "resume": ("campaign", study_file, "--resume", "--out", copy, "--quiet")}
+    for command in commands:
+        line = refused(invoke(*calls[command]))
+        assert words in line, (command, line)
+
+
+#: damaged single-run files: damage -> words; refused by ``run --resume`` and ``analyze``
+CASE_DAMAGE = {
+    "random bytes": (replace_bytes(lambda d: np.random.default_rng(2).bytes(2048)), "not a readable HDF5"),
+    "truncated": (replace_bytes(lambda d: d[:len(d) // 3]), ""),
+    "a campaign file": (None, "not an hpcves case"),                  # (analyze reads it, as it should)
+    "no format": (edit(lambda f: f.attrs.__delitem__("format")), "not an hpcves"),
+    "version 1": (edit(lambda f: f.attrs.__setitem__("format_version", 1)), "case format version 1"),
+    "no timeseries": (edit(lambda f: f.__delitem__("timeseries")), "incomplete case, missing timeseries"),
+    "unknown status": (edit(set_value("status", 9)), "status 9 is not a status"),
+    "series of the wrong size": (edit(recreate("timeseries/E_bending", data=np.zeros(5))), "shape (5,)"),
+    "counter beyond capacity": (edit(set_value("snapshots/length", 999)), "lies outside"),
+    "checkpoint against its series": (edit(set_value("checkpoint/slot1/meta", [1, 10, 9, 9])), "before step 10"),
+    "config not TOML": (edit(lambda f: f.attrs.__setitem__("config", "x = ")), "config attribute cannot be read"),
+    "header of a series flipped": (flip("timeseries/theta"), "timeseries/theta"),
+}
+
+
+@pytest.mark.parametrize("name", list(CASE_DAMAGE))
+def test_a_damaged_run_file(sound, tmp_path, name):
+    _, campaign, single = sound
+    copy = tmp_path / "damaged.h5"
+    damage, words = CASE_DAMAGE[name]
+    copy.write_bytes((campaign if damage is None else single).read_bytes())
+    if damage is not None:
+        damage(copy)
+    calls = [("run", "--resume", copy), ("analyze", copy, "--out", tmp_path / "a", "--no-case-figures")]
+    for args in calls[:1] if damage is None else calls:
+        line = refused(invoke(*args))
+        assert words in line, (args, line)
+
+
+def test_the_corpus_holds_over_a_hundred_inputs():
+    assert len(CASE_FILES) + len(STUDY_FILES) + len(CAMPAIGN_DAMAGE) + len(CASE_DAMAGE) >= 100

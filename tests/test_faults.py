@@ -1,0 +1,610 @@
+"""Campaign files that survive every fault: kills at any moment (creation included), second writers
+through other names, full disks, damaged files, readers of a live file (issue 14).
+
+Every test waits for a state (a file, a status, a frozen job), never for a time. Full-disk tests
+mount a small tmpfs and are skipped, with the reason, where the machine does not allow that.
+"""
+import hashlib
+import os
+import signal
+import subprocess
+
+import h5py
+import numpy as np
+import pytest
+from jobs import (MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, kill_job, running_cases,
+                  start_job, thaw, wait_until)
+from test_campaign import TINY_RUN
+
+from hpcves import campaign as campaign_module
+from hpcves.campaign import run_campaign
+from hpcves.checkpoint import FINISHED, RUNNING
+from hpcves.study import study_from_toml
+
+needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
+
+STUDY = """
+[campaign]
+name = "faults"
+output = "{output}"
+t_end = {t_end}
+""" + TINY_RUN + """[sweep]
+shear_rate = {shear}
+psi_bar = {psi}
+"""
+
+
+def write_study(directory, t_end=0.1, checkpoint=0.02, shear="[40, 80]", psi="[0.3, 0.5]", output=None,
+                name="faults"):
+    directory.mkdir(parents=True, exist_ok=True)
+    output = output or directory / f"{name}.h5"
+    path = directory / f"{name}.toml"
+    path.write_text(STUDY.format(output=output, t_end=t_end, checkpoint=checkpoint, shear=shear, psi=psi))
+    return path, output
+
+
+def reference_of(path, directory):
+    """The same study run uninterrupted, serially in this process, into ``directory``."""
+    text = path.read_text()
+    study = study_from_toml(text)
+    output = directory / "reference.h5"
+    assert run_campaign(study, output).exit_status == 0
+    return output
+
+
+def one_line(result):
+    """The single line a refusal prints on stderr (and no traceback)."""
+    assert "Traceback" not in result.stderr, result.stderr
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("Error: "), result.stderr
+    return lines[0]
+
+
+def error_line(result):
+    """The one ``Error:`` line a command ends with (progress lines may come before it), no traceback."""
+    assert "Traceback" not in result.stderr, result.stderr
+    lines = [line for line in result.stderr.strip().splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith("Error: ")]
+    assert len(errors) == 1 and lines[-1] == errors[0], result.stderr
+    return errors[0]
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+MANY = "{ linspace = [10, 400, 40] }"          # 40 x 3 = 120 cases: creating them takes a while
+
+
+# ---------------------------------------------------------------------- 1. a kill while the file is created
+@needs_mpi
+@pytest.mark.parametrize("io", ["mpio", "relay"])
+def test_a_kill_while_the_file_is_created_leaves_nothing_that_blocks_a_resume(tmp_path, io):
+    path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
+    partial = output.with_name(output.name + ".partial")
+    job = start_job(2, "campaign", path, "--quiet", "--io", io)
+    wait_until(lambda: partial.exists() or output.exists(), "the file's creation has begun")
+    kill_job(job)
+    status = hpcves("status", output)
+    assert "corrupt" not in status.stderr and "Traceback" not in status.stderr, status.stderr
+    if not output.exists():                    # the kill landed before the file was complete
+        assert "creation was interrupted" in one_line(status)
+    result = hpcves("campaign", path, "--resume", "--quiet", "--io", io, n=2)
+    assert result.returncode == 0, result.stderr
+    assert not partial.exists()
+    assert_same_results(output, reference_of(path, tmp_path))
+
+
+@needs_mpi
+def test_a_kill_at_an_exact_moment_of_creation_then_resume(tmp_path):
+    """The 40th case laid out, on rank 1 (collective creation under mpio): deterministic."""
+    path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
+    from jobs import mpi_env
+
+    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="case-laid-out:40@1"))
+    assert killed.returncode != 0
+    assert not output.exists() and output.with_name(output.name + ".partial").exists()
+    assert "creation was interrupted" in one_line(hpcves("status", output))
+    result = hpcves("campaign", path, "--resume", "--quiet", n=2)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(output, reference_of(path, tmp_path))
+
+
+@needs_mpi
+def test_status_says_a_file_is_being_created(tmp_path):
+    path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
+    partial = output.with_name(output.name + ".partial")
+    job = start_job(2, "campaign", path, "--quiet")
+    frozen = freeze_when(job, lambda: partial.exists() and not output.exists(), "the file is being created")
+    try:
+        status = hpcves("status", output)
+    finally:
+        thaw(frozen)
+    assert status.returncode == 0, status.stderr
+    assert "being created by a campaign (pid" in status.stdout
+    job.communicate()
+    assert job.returncode == 0
+
+
+# ---------------------------------------------------------------------- 2. one writer, whatever the path
+@needs_mpi
+def test_a_second_campaign_is_refused_through_every_other_name_of_the_file(tmp_path):
+    a, b = tmp_path / "A", tmp_path / "B"
+    path, output = write_study(a, t_end=3.0, checkpoint=0.1)
+    job = start_job(2, "campaign", path, "--quiet")
+    frozen = freeze_when(job, lambda: len(running_cases(output)) == 2, "two cases run")
+    try:
+        b.mkdir()
+        (b / "alias.h5").symlink_to(output)
+        os.link(output, b / "hard.h5")
+        for other in (b / "alias.h5", a / ".." / "A" / output.name, b / "hard.h5"):
+            result = hpcves("campaign", path, "--resume", "--out", other)
+            line = one_line(result)
+            assert result.returncode == 2
+            assert ("is writing this file" in line) or ("hard links" in line and other.name == "hard.h5"), line
+        os.unlink(b / "hard.h5")
+    finally:
+        kill_job(job) if frozen else None
+    assert set(case_statuses(output).values()) <= {RUNNING, FINISHED, 0}
+    result = hpcves("campaign", path, "--resume", "--quiet", "--out", b / "alias.h5")   # now it may
+    assert result.returncode == 0, result.stderr
+    assert (b / "alias.h5").is_symlink()                                  # the file was changed, not the link
+    assert_same_results(output, reference_of(path, tmp_path))
+
+
+# ---------------------------------------------------------------------- 10. ranks that outlive mpirun
+@needs_mpi
+def test_a_rank_that_outlives_rank_0_still_holds_the_lock(tmp_path):
+    """``kill -9 -PGID`` of mpirun does not reach the ranks (each has a process group of its own), which
+    then run on for about a second. The same state, made deterministic: mpirun and rank 1 frozen,
+    rank 0 killed. A resume is refused while rank 1 lives, and works once it is gone."""
+    from jobs import alive, job_pids
+
+    path, output = write_study(tmp_path / "job", t_end=3.0, checkpoint=0.1)
+    job = start_job(2, "campaign", path, "--quiet", "--io", "mpio")
+    ranks = freeze_when(job, lambda: len(running_cases(output, checkpointed=True)) == 2, "two cases checkpoint")
+    os.kill(job.pid, signal.SIGSTOP)                       # mpirun must not notice rank 0's death yet
+    by_rank = {}
+    for pid in ranks:
+        with open(f"/proc/{pid}/environ", "rb") as f:
+            env = dict(item.split(b"=", 1) for item in f.read().split(b"\0") if b"=" in item)
+        by_rank[int(env[b"OMPI_COMM_WORLD_RANK"])] = pid
+    os.kill(by_rank[0], signal.SIGKILL)
+    wait_until(lambda: not alive(by_rank[0]), "rank 0 is gone")
+    try:
+        result = hpcves("campaign", path, "--resume", "--quiet")
+        line = one_line(result)
+        assert result.returncode == 2 and "rank 1 of the campaign started by pid" in line, line
+        assert "still running" in line
+    finally:
+        pids = job_pids(job.pid) | {job.pid}
+        for pid in pids:
+            os.kill(pid, signal.SIGKILL)
+        job.communicate()
+        wait_until(lambda: not any(alive(p) for p in pids), "the job is gone")
+    result = hpcves("campaign", path, "--resume", "--quiet", n=2)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(output, reference_of(path, tmp_path))
+
+
+# ---------------------------------------------------------------------- 3. full disks
+@pytest.fixture
+def small_disk(tmp_path):
+    """``disk(megabytes)``: a directory on a tmpfs of that size (unmounted afterwards); skips where
+    this machine does not allow mounting one (it needs root or CAP_SYS_ADMIN)."""
+    mounted = []
+
+    def disk(megabytes):
+        where = tmp_path / f"disk{len(mounted)}"
+        where.mkdir()
+        done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={int(megabytes * 1024)}k", "tmpfs", str(where)],
+                              capture_output=True, text=True)
+        if done.returncode != 0:
+            pytest.skip(f"cannot mount a small tmpfs here ({done.stderr.strip() or done.returncode})")
+        mounted.append(where)
+        return where
+
+    yield disk
+    for where in mounted:
+        subprocess.run(["umount", "-l", str(where)], capture_output=True)
+
+
+def fill(directory, leave_bytes):
+    """Fill the file system of ``directory`` up to ``leave_bytes`` free: the filler file's path."""
+    import shutil
+
+    filler = directory / "filler"
+    with open(filler, "wb") as f:
+        free = shutil.disk_usage(directory).free - leave_bytes
+        while free > 0:
+            chunk = min(free, 1 << 20)
+            f.write(b"\0" * chunk)
+            free -= chunk
+    return filler
+
+
+def test_a_campaign_the_disk_has_no_room_for_is_refused_before_any_work(tmp_path, small_disk):
+    disk = small_disk(2)
+    path, output = write_study(tmp_path / "job", t_end=10.0, output=disk / "out.h5")      # about 3 MB
+    result = hpcves("campaign", path)
+    line = one_line(result)
+    assert result.returncode == 2 and "needs" in line and "free" in line, line
+    assert os.listdir(disk) == ["out.h5.lock"]            # no file, no .partial
+
+
+def test_a_disk_that_fills_up_during_creation_leaves_no_file(tmp_path, small_disk, monkeypatch):
+    """Another process fills the disk after the space was checked: creation fails cleanly."""
+    disk = small_disk(2)
+    path, output = write_study(tmp_path / "job", t_end=10.0, output=disk / "out.h5")
+    from hpcves import atomic
+
+    for module in (campaign_module, atomic):           # the checks pass; then the disk is full
+        monkeypatch.setattr(module, "require_space", lambda *args: None)
+    with pytest.raises(campaign_module.StorageError, match="cannot create it .*nothing was written"):
+        run_campaign(study_from_toml(path.read_text()), output)
+    assert sorted(os.listdir(disk)) == ["out.h5.lock"]
+
+
+def test_analyze_on_a_full_disk_leaves_the_file_as_it_was(tmp_path, small_disk):
+    path, output = write_study(tmp_path / "job", t_end=0.1)
+    assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
+    disk = small_disk(8)
+    on_disk = disk / "camp.h5"
+    on_disk.write_bytes(output.read_bytes())
+    before = digest(on_disk)
+    filler = fill(disk, 8 * 1024)
+    # tables and figures elsewhere: they are written, the results are not stored in the file
+    result = hpcves("analyze", on_disk, "--out", tmp_path / "tables", "--no-case-figures")
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
+    assert "results not written into the file" in result.stderr and "free" in result.stderr
+    assert digest(on_disk) == before and not (disk / "camp.h5.partial").exists()
+    # tables and figures on the full disk: one line, the file untouched
+    result = hpcves("analyze", on_disk, "--no-case-figures")
+    line = error_line(result)
+    assert result.returncode == 2 and "No space left on device" in line and "camp.h5 is unchanged" in line, line
+    assert digest(on_disk) == before
+    # space freed: the results go in
+    filler.unlink()
+    result = hpcves("analyze", on_disk, "--out", tmp_path / "tables", "--no-case-figures")
+    assert result.returncode == 0 and "results stored in" in result.stdout, result.stderr
+    with h5py.File(on_disk, "r") as f:
+        assert len(f["analysis/regime"]) == 4
+
+
+def test_a_write_refused_while_cases_run_stops_the_campaign_and_loses_nothing(tmp_path, monkeypatch):
+    """A full disk of a copy-on-write file system (btrfs, ZFS) can refuse even writes into place.
+    The case is not failed: the campaign stops, every case keeps its last valid checkpoint."""
+    import errno
+
+    path, output = write_study(tmp_path / "job", t_end=0.1, checkpoint=0.02)
+    study = study_from_toml(path.read_text())
+    real = h5py.Dataset.__setitem__
+    writes = []
+
+    def refuse_one(self, key, value):       # h5py's write, as a full disk makes it fail
+        if "/checkpoint/" in self.name:
+            writes.append(self.name)
+            if len(writes) == 45:            # the 5th checkpoint, its slot marked invalid, half its data in
+                raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, key, value)
+
+    monkeypatch.setattr(h5py.Dataset, "__setitem__", refuse_one)
+    summary = run_campaign(study, output)
+    assert summary.exit_status == 2 and "No space left on device" in summary.not_written
+    assert summary.failed == () and summary.counts["failed"] == 0
+    assert summary.counts["running"] == 1                # the case whose write failed: as after a kill
+    monkeypatch.setattr(h5py.Dataset, "__setitem__", real)
+    again = run_campaign(study, output, resume=True)
+    assert again.exit_status == 0
+    assert_same_results(output, reference_of(path, tmp_path))
+
+
+# ---------------------------------------------------------------------- 4. absurd sizes, before any work
+@pytest.mark.parametrize("numerics, run, words", [
+    ("dt = 1e-3", "t_end = 1e9", ["1e+12 time steps", "surely a mistake"]),
+    ("dt = 1e-15", "t_end = 1.0", ["1e+15 time steps", "surely a mistake"]),
+])
+def test_absurd_run_lengths_are_refused_with_the_numbers(tmp_path, numerics, run, words):
+    case = tmp_path / "case.toml"
+    case.write_text(f"[numerics]\nN = 32\n{numerics}\n[run]\n{run}\n")
+    result = hpcves("run", case, "--out", tmp_path / "out.h5")
+    line = one_line(result)
+    assert result.returncode == 2 and all(w in line for w in words), line
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_a_study_no_disk_can_hold_is_refused_with_the_numbers(tmp_path):
+    """10^8 steps a case (not absurd by itself), a sample every step: 18 GB a case, 18 TB for 1000."""
+    path, output = write_study(tmp_path / "job", t_end=1e5, shear="{ linspace = [10, 400, 500] }",
+                               psi="[0.3, 0.5]")
+    path.write_text(path.read_text().replace("sample_interval = 0.005", "sample_interval = 1e-3"))
+    result = hpcves("campaign", path)
+    line = one_line(result)
+    assert result.returncode == 2 and "needs 1" in line and " TB, but only " in line, line
+    assert not output.exists()
+
+
+# ---------------------------------------------------------------------- 5. one line, never a traceback
+def test_outputs_that_cannot_be_files_get_one_line(tmp_path):
+    path, output = write_study(tmp_path / "job", t_end=0.01)
+    case = tmp_path / "case.toml"
+    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 0.01\n")
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "adir").mkdir()
+    for args, words in (
+            (["campaign", path, "--out", tmp_path / "afile" / "x.h5"], "is not a directory"),
+            (["campaign", path, "--out", tmp_path / "adir", "--overwrite"], "is a directory"),
+            (["campaign", path, "--out", tmp_path / "adir", "--resume"], "is a directory"),
+            (["run", case, "--out", tmp_path / "afile" / "x.h5"], "is not a directory"),
+            (["run", case, "--out", tmp_path / "adir", "--overwrite"], "is a directory"),
+            (["run", "--resume", tmp_path / "adir"], "is a directory"),
+            (["status", tmp_path / "adir"], "is a directory"),
+            (["analyze", tmp_path / "adir"], "is a directory")):
+        result = hpcves(*args)
+        line = one_line(result)
+        assert result.returncode == 2 and words in line, (args, line)
+
+
+def test_a_read_only_directory_gets_one_line(tmp_path, small_disk):
+    disk = small_disk(4)
+    subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
+    path, output = write_study(tmp_path / "job", t_end=0.01, output=disk / "x.h5")
+    case = tmp_path / "case.toml"
+    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 0.01\n")
+    for args in (["campaign", path], ["run", case, "--out", disk / "y.h5"]):
+        result = hpcves(*args)
+        line = one_line(result)
+        assert result.returncode == 2 and "Read-only file system" in line, (args, line)
+
+
+def test_a_toml_file_that_is_not_utf8_gets_one_line(tmp_path):
+    path, _ = write_study(tmp_path / "job", t_end=0.01)
+    path.write_bytes(path.read_bytes().replace(b'name = "faults"', b'name = "f\xe4ults"'))
+    for args in (["campaign", path], ["run", path, "--out", tmp_path / "o.h5"]):
+        result = hpcves(*args)
+        line = one_line(result)
+        assert result.returncode == 2 and "not UTF-8" in line and "0xe4" in line, line
+
+
+def flip_header(path, dataset):
+    """Flip the version byte of ``dataset``'s object header: HDF5 can no longer open that object."""
+    with h5py.File(path, "r") as f:
+        address = h5py.h5o.get_info(f[dataset].id).addr
+    with open(path, "r+b") as f:
+        f.seek(address)
+        byte = f.read(1)
+        f.seek(address)
+        f.write(bytes([byte[0] ^ 0x40]))
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A small finished campaign (4 cases), the study file and the file."""
+    directory = tmp_path_factory.mktemp("finished")
+    path, output = write_study(directory, t_end=0.05, checkpoint=0.02)
+    assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
+    return path, output
+
+
+def damaged_copy(finished, tmp_path, name="damaged.h5"):
+    path, output = finished
+    copy = tmp_path / name
+    copy.write_bytes(output.read_bytes())
+    return path, copy
+
+
+def test_a_bit_flipped_campaign_file_gets_one_line_everywhere(finished, tmp_path):
+    path, copy = damaged_copy(finished, tmp_path)
+    flip_header(copy, "cases/0002/timeseries/theta")
+    assert hpcves("status", copy).returncode == 0          # status reads the status and progress only ...
+    status = hpcves("status", "--check", copy)            # ... unless asked to check everything
+    assert status.returncode == 2 and "0002" in one_line(status) and "damaged" in one_line(status)
+    assert "0003" in status.stdout                     # the other cases are still shown
+    flip_header(copy, "cases/0001/progress")
+    status = hpcves("status", copy)
+    assert status.returncode == 2 and "0001" in one_line(status), status.stderr
+    analysed = hpcves("analyze", copy, "--out", tmp_path / "a", "--no-case-figures")
+    assert analysed.returncode == 2 and "0002" in error_line(analysed), analysed.stderr
+    assert (tmp_path / "a" / "regimes.csv").exists()   # the others are analysed
+    resumed = hpcves("campaign", path, "--resume", "--out", copy)
+    assert resumed.returncode == 2 and "case 0002" in one_line(resumed), resumed.stderr
+
+
+# ---------------------------------------------------------------------- 7. what --resume refuses
+def damage_missing_series(f):
+    del f["cases/0001/timeseries/theta"]
+
+
+def damage_checkpoint_shape(f):
+    del f["cases/0002/checkpoint/slot0/theta"]
+    f["cases/0002/checkpoint/slot0"].create_dataset("theta", data=np.zeros(33))
+
+
+def damage_status(f):
+    f["cases/0003/status"][()] = 77
+
+
+def damage_length(f):
+    f["cases/0000/timeseries/length"][()] = 10_000
+
+
+@pytest.mark.parametrize("damage, case, words", [
+    (damage_missing_series, "0001", "timeseries/theta is missing"),
+    (damage_checkpoint_shape, "0002", "checkpoint/slot0/theta has shape (33,)"),
+    (damage_status, "0003", "status 77 is not a status"),
+    (damage_length, "0000", "timeseries/length = 10000 lies outside"),
+])
+def test_resume_refuses_a_damaged_case_naming_it(finished, tmp_path, damage, case, words):
+    path, copy = damaged_copy(finished, tmp_path)
+    with h5py.File(copy, "r+") as f:
+        damage(f)
+    before = digest(copy)
+    result = hpcves("campaign", path, "--resume", "--out", copy)
+    line = one_line(result)
+    assert result.returncode == 2 and f"case {case}: {words}" in line, line
+    assert digest(copy) == before
+
+
+def test_run_resume_refuses_a_damaged_case_file(tmp_path):
+    case = tmp_path / "case.toml"
+    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 0.02\ncheckpoint_interval = 0.01\n")
+    out = tmp_path / "one.h5"
+    assert hpcves("run", case, "--out", out, "--quiet").returncode == 0
+    with h5py.File(out, "r+") as f:
+        f["status"][()] = 1
+        f["timeseries/length"][()] = 10_000
+    result = hpcves("run", "--resume", out)
+    assert result.returncode == 2 and "timeseries/length = 10000" in one_line(result)
+
+
+# ---------------------------------------------------------------------- 8. inputs that must be refused
+@pytest.mark.parametrize("sweep, words", [
+    ("shear_rate = [40, 40]\npsi_bar = 0.3", "sweep.shear_rate: 40 (2 times)"),
+    ("shear_rate = [40, 40.0000000000001]\npsi_bar = 0.3", "sweep.shear_rate: 40 (2 times)"),
+    ("shear_rate = { logspace = [40, 40, 3] }\npsi_bar = 0.3", "40 (3 times)"),
+    ("shear_rate = 40\npsi_bar = { linspace = [0.3, 0.5, 1000000000] }", "num = 1000000000 must lie in"),
+])
+def test_sweeps_that_repeat_a_value_or_are_absurd_are_refused(sweep, words):
+    from hpcves.params import ConfigError
+
+    text = STUDY.split("[sweep]")[0].format(output="x.h5", t_end=0.1, checkpoint=0.02) + "[sweep]\n" + sweep
+    with pytest.raises(ConfigError, match=words.replace("(", r"\(").replace(")", r"\)")):
+        study_from_toml(text)
+
+
+def test_the_case_limit_is_checked_before_any_case_is_built(monkeypatch):
+    from hpcves import study as study_module
+    from hpcves.params import ConfigError
+
+    def never(*args, **kwargs):
+        raise AssertionError("a case was built")
+
+    monkeypatch.setattr(study_module.Study, "make_case", never)
+    text = (STUDY.split("[sweep]")[0].format(output="x.h5", t_end=0.1, checkpoint=0.02)
+            + "[sweep]\nshear_rate = { linspace = [1, 400, 1000] }\npsi_bar = { linspace = [0.25, 0.75, 1000] }\n")
+    with pytest.raises(ConfigError, match="has 1000000 cases; more than 100000"):
+        study_from_toml(text)
+
+
+# ---------------------------------------------------------------------- 6. analysis results that went stale
+def test_analyze_does_not_store_results_of_a_file_that_changed_meanwhile(tmp_path, monkeypatch):
+    from hpcves import analysis
+
+    path, output = write_study(tmp_path / "job", t_end=0.1, checkpoint=0.02)
+    study = study_from_toml(path.read_text())
+    from hpcves import runner
+
+    real_run = runner.run
+
+    def stop_early(store, flush, **kwargs):              # every case interrupted after 30 steps
+        return real_run(store, flush, **{**kwargs, "max_steps": 30})
+
+    monkeypatch.setattr(campaign_module.runner, "run", stop_early)
+    run_campaign(study, output)
+    monkeypatch.setattr(campaign_module.runner, "run", real_run)
+    real_classify = analysis.analyse_source
+
+    def classify_while_a_resume_finishes_it(source, *args, **kwargs):
+        rows = real_classify(source, *args, **kwargs)
+        assert run_campaign(study, output, resume=True).exit_status == 0
+        return rows
+
+    monkeypatch.setattr(analysis, "analyse_source", classify_while_a_resume_finishes_it)
+    report = analysis.analyze(output, tmp_path / "a", case_figures=False)
+    assert not report.wrote_back
+    assert "changed while it was analysed" in report.note and "now finished" in report.note
+    with h5py.File(output, "r") as f:
+        assert "analysis" not in f
+    monkeypatch.setattr(analysis, "analyse_source", real_classify)
+    again = analysis.analyze(output, tmp_path / "a", case_figures=False)
+    assert again.wrote_back and {r["status"] for r in again.rows} == {"finished"}
+
+
+# ---------------------------------------------------------------------- the fault-injection subset
+@pytest.fixture(scope="module")
+def harness_reference(tmp_path_factory):
+    import faults as harness
+
+    return harness.reference(tmp_path_factory.mktemp("harness"))
+
+
+@needs_mpi
+@pytest.mark.parametrize("fault, n, io", [
+    ("publish", 3, "relay"),                 # the file complete under .partial, killed before the rename
+    ("case-laid-out:30@0", 2, "relay"),      # rank 0 laying the file out alone
+    ("checkpoint:7@1", 3, "mpio"),           # rank 1 inside a checkpoint write (two points in each)
+    ("checkpoint:12@0", 3, "relay"),         # rank 0 applying another rank's checkpoint
+    ("finished:3@0", 2, "mpio"),             # rank 0 just after a case recorded that it finished
+    ("finished:2@2", 3, "relay"),            # a worker just after its case finished
+])
+def test_a_kill_at_an_exact_moment_resumes_bitwise(tmp_path, harness_reference, fault, n, io):
+    import faults as harness
+    from jobs import mpi_env
+
+    path, output = harness.write_study(tmp_path / "job")
+    killed = hpcves(*harness.campaign_args(path, io), n=n, env=mpi_env(HPCVES_FAULT=fault))
+    assert killed.returncode != 0, "the fault point was never reached"
+    result = hpcves(*harness.campaign_args(path, io, resume=True), n=n)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(output, harness_reference)
+
+
+def test_a_serial_campaign_killed_inside_a_checkpoint_resumes_bitwise(tmp_path, harness_reference):
+    import faults as harness
+    from jobs import mpi_env
+
+    path, output = harness.write_study(tmp_path / "job")
+    killed = hpcves("campaign", path, "--quiet", env=mpi_env(HPCVES_FAULT="checkpoint:25"))
+    assert killed.returncode == -signal.SIGKILL
+    assert hpcves("campaign", path, "--quiet", "--resume").returncode == 0
+    assert_same_results(output, harness_reference)
+
+
+def test_a_run_killed_inside_a_checkpoint_resumes_bitwise(tmp_path):
+    from jobs import mpi_env
+
+    case = tmp_path / "case.toml"
+    case.write_text("[physics]\nshear_rate = 80.0\n[numerics]\nN = 32\n[run]\nt_end = 0.2\n"
+                    "sample_interval = 0.005\nsnapshot_interval = 0.05\ncheckpoint_interval = 0.02\n")
+    assert hpcves("run", case, "--out", tmp_path / "a.h5", "--quiet").returncode == 0
+    killed = hpcves("run", case, "--out", tmp_path / "b.h5", "--quiet", env=mpi_env(HPCVES_FAULT="checkpoint:9"))
+    assert killed.returncode == -signal.SIGKILL
+    with h5py.File(tmp_path / "b.h5", "r") as f:                  # killed between invalidating and validating
+        assert sorted(int(f[f"checkpoint/{s}/meta"][0]) for s in ("slot0", "slot1")) == [0, 1]
+    assert hpcves("run", "--resume", tmp_path / "b.h5", "--quiet").returncode == 0
+    with h5py.File(tmp_path / "a.h5", "r") as a, h5py.File(tmp_path / "b.h5", "r") as b:
+        for group in ("timeseries", "snapshots"):
+            for name in a[group]:
+                assert np.array_equal(a[group][name][()], b[group][name][()], equal_nan=True), (group, name)
+
+
+def test_analyze_killed_before_storing_its_results_leaves_the_file_as_it_was(tmp_path, finished):
+    from jobs import mpi_env
+
+    _, output = finished
+    copy = tmp_path / "copy.h5"
+    copy.write_bytes(output.read_bytes())
+    before = digest(copy)
+    killed = hpcves("analyze", copy, "--out", tmp_path / "a", "--no-case-figures",
+                    env=mpi_env(HPCVES_FAULT="analysis-stored"))
+    assert killed.returncode == -signal.SIGKILL
+    assert digest(copy) == before and (tmp_path / "copy.h5.partial").exists()
+    result = hpcves("analyze", copy, "--out", tmp_path / "a", "--no-case-figures")
+    assert result.returncode == 0 and "results stored" in result.stdout, result.stderr
+    assert not (tmp_path / "copy.h5.partial").exists()
+
+
+@needs_mpi
+def test_two_random_kills_of_the_fault_injection_harness(tmp_path, harness_reference):
+    """What `make faults` does 40 times: here once during creation, once at the end (mpirun's group
+    only: the resume starts at once and must wait for the ranks), at random moments of those phases."""
+    import random
+
+    import faults as harness
+
+    timeline = harness.measure(tmp_path / "timeline", 2, "mpio")
+    rng = random.Random(7)
+    for planned, mode in (("creation", "job"), ("end", "group")):
+        trial = harness.trial(tmp_path / "trial", 2, "mpio", timeline, rng, harness_reference, planned=planned,
+                              mode=mode, again=False)
+        assert trial.identical, trial.differences[:5]
