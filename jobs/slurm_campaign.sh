@@ -24,8 +24,11 @@ status=0
 srun --kill-on-bad-exit=0 "$HPCVES" campaign "$STUDY" --resume || status=$?
 # 0: finished or stopped by the signal; 1: some case failed (see hpcves status); else: trouble
 OUT=$(.venv/bin/python -c "from hpcves.study import load_study; print(load_study('$STUDY').output)")
-"$HPCVES" status "$OUT" | tail -n 1
-if "$HPCVES" status "$OUT" | tail -n 1 | grep -qE "pending|running|interrupted"; then
+# the walltime may fall before the file is complete: it is created under $OUT.partial, so then
+# status says "creation was interrupted" (or "no such file"), and the next job starts it again
+summary=$("$HPCVES" status "$OUT" 2>&1 | tail -n 1 || true)
+echo "$summary"
+if echo "$summary" | grep -qE "pending|running|interrupted|no such file"; then
     if [ "$status" -le 1 ]; then
         echo "not finished: resubmitting"
         sbatch --export=ALL,STUDY="$STUDY" "$0"
