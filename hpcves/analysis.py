@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, faults
-from .atomic import StorageError, copy_for_change, publish, remove_partial
+from .atomic import StorageError, copy_for_change, publish, remove_partial, size_text
 from .campaign_file import DAMAGED, CampaignFile
 from .campaign_file import FORMAT as CAMPAIGN_FORMAT
 from .checkpoint import FAILED, FINISHED, HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, \
@@ -154,7 +154,7 @@ def analyse_source(source: Source, settings: AnalysisSettings | None = None, pro
 
 
 # ---------------------------------------------------------------------- results back into the file
-def write_back(source: Source, rows: list[dict], settings: AnalysisSettings) -> str:
+def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, progress=None) -> str:
     """Store ``rows`` as the file's ``analysis/`` group; "" if done, else why not (nothing is changed then).
 
     Safe by construction (atomic.py): the group is written into a copy of the file, which then
@@ -174,6 +174,8 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings) -> 
         changed = _changes(source, None if isinstance(guard, CampaignLock) else guard)
         if changed:
             return f"the file changed while it was analysed ({changed}); analyse it again"
+        if progress is not None:
+            progress(f"storing the results in a copy of the file ({size_text(path.stat().st_size)})")
         partial = copy_for_change(path, 200 * len(rows) * len(COLUMNS) + 65536, "storing the analysis")
         try:
             with open_file(partial, "r+") as h5:
@@ -423,7 +425,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
         where = exc.filename or out
         raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
                            f"{source.path} is unchanged") from None
-    note = write_back(source, rows, settings) if write_to_file else ""
+    note = write_back(source, rows, settings, progress) if write_to_file else ""
     wrote_back = write_to_file and not note
     return Report(source, tuple(rows), tuple(written), wrote_back,
                   f"results not written into the file: {note}" if note else "", tuple(searches))

@@ -162,7 +162,10 @@ class Trial:
 def kill_group(job) -> set:
     """SIGKILL mpirun's process group only (its ranks have groups of their own); the ranks' pids."""
     ranks = job_pids(job.pid) - {job.pid}
-    os.killpg(job.pid, signal.SIGKILL)
+    try:
+        os.killpg(job.pid, signal.SIGKILL)
+    except ProcessLookupError:              # it had just ended by itself
+        pass
     job.communicate()
     return ranks
 

@@ -8,6 +8,7 @@ import hashlib
 import os
 import signal
 import subprocess
+import time
 
 import h5py
 import numpy as np
@@ -605,6 +606,38 @@ def test_two_random_kills_of_the_fault_injection_harness(tmp_path, harness_refer
     timeline = harness.measure(tmp_path / "timeline", 2, "mpio")
     rng = random.Random(7)
     for planned, mode in (("creation", "job"), ("end", "group")):
-        trial = harness.trial(tmp_path / "trial", 2, "mpio", timeline, rng, harness_reference, planned=planned,
-                              mode=mode, again=False)
-        assert trial.identical, trial.differences[:5]
+        for _ in range(20):            # until the kill hits a live job (the job may end before it comes)
+            trial = harness.trial(tmp_path / "trial", 2, "mpio", timeline, rng, harness_reference,
+                                  planned=planned, mode=mode, again=False)
+            assert trial.identical, trial.differences[:5]
+            if trial.landed:
+                break
+        assert trial.landed, f"no kill aimed at {planned} found the job alive"
+
+
+# ---------------------------------------------------------------------- 9. readers of a live file
+@needs_mpi
+def test_readers_of_a_live_file_always_find_it_whole(tmp_path):
+    """Read every dataset of every case again and again while a search campaign runs its stages
+    (each one replaces the file with a copy holding the new cases): never an error, and the reads
+    span several stages."""
+    from test_search_campaign import write_search
+
+    from hpcves.campaign_file import read_table
+
+    path, output = write_search(tmp_path, checkpoint=0.05)
+    job = start_job(2, "campaign", path, "--quiet")
+    seen, reads = set(), 0
+    while job.poll() is None:
+        if not output.exists():
+            time.sleep(0.01)
+            continue
+        table = read_table(output, check=True)                  # what hpcves status --check does
+        assert all(row["status"] != "damaged" for row in table.rows), table.rows
+        with h5py.File(output, "r", locking=False) as f:        # and every byte a reader could want
+            seen.add(int(f.attrs["n_cases"]))
+            f.visititems(lambda name, obj: obj[()] if isinstance(obj, h5py.Dataset) else None)
+        reads += 1
+    out, err = job.communicate()
+    assert job.returncode == 0, err
+    assert len(seen) >= 3 and reads >= 10, (seen, reads)        # stages of 4, then more cases each
