@@ -229,6 +229,12 @@ def create_case_file(path, case, overwrite: bool):
     check_output_path(path)
     if path.exists() and not overwrite:
         raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
+    if path.exists():                       # replaced only if no run writes it (HDF5's own lock)
+        try:
+            open_file(path, "r+").close()
+        except FileFormatError as exc:
+            if "in use" in str(exc):
+                raise
     partial = new_partial(path, storage_bytes(case) + METADATA_BYTES_PER_FILE,
                           "the run's file (every sample and snapshot preallocated)")
     try:

@@ -153,6 +153,24 @@ def test_a_second_campaign_is_refused_through_every_other_name_of_the_file(tmp_p
     assert_same_results(output, reference_of(path, tmp_path))
 
 
+def test_run_overwrite_refuses_a_file_another_run_is_writing(tmp_path):
+    import sys
+
+    case = tmp_path / "case.toml"
+    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 100.0\ncheckpoint_interval = 1.0\n")
+    out = tmp_path / "x.h5"
+    job = subprocess.Popen([sys.executable, "-m", "hpcves.cli", "run", str(case), "--out", str(out), "--quiet"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        wait_until(lambda: out.exists(), "the first run's file exists")
+        result = hpcves("run", case, "--out", out, "--overwrite")
+        assert result.returncode == 2 and "in use by another process" in one_line(result)
+        assert job.poll() is None
+    finally:
+        job.kill()
+        job.wait()
+
+
 # ---------------------------------------------------------------------- 10. ranks that outlive mpirun
 @needs_mpi
 def test_a_rank_that_outlives_rank_0_still_holds_the_lock(tmp_path):
@@ -641,3 +659,33 @@ def test_readers_of_a_live_file_always_find_it_whole(tmp_path):
     out, err = job.communicate()
     assert job.returncode == 0, err
     assert len(seen) >= 3 and reads >= 10, (seen, reads)        # stages of 4, then more cases each
+
+
+def test_a_search_stage_the_disk_has_no_room_for_stops_the_campaign_and_loses_nothing(tmp_path, monkeypatch):
+    """The second stage's copy is refused (a full disk): exit status 2, the file as the first stage
+    left it, and once there is room the resume reaches the uninterrupted search's file bit for bit."""
+    from test_search_campaign import write_search
+
+    path, output = write_search(tmp_path)
+    study = study_from_toml(path.read_text())
+    real_copy = campaign_module.copy_for_change
+    copies = []
+
+    def refuse_the_second(path, extra, what):
+        copies.append(what)
+        if len(copies) == 2:
+            raise campaign_module.StorageError(f"{path}: {what} needs 1 MB, but only 8 kB is free there")
+        return real_copy(path, extra, what)
+
+    monkeypatch.setattr(campaign_module, "copy_for_change", refuse_the_second)
+    summary = run_campaign(study, output)
+    assert summary.exit_status == 2 and "adding stage 2's" in summary.not_written
+    with h5py.File(output, "r") as f:
+        assert f.attrs["n_cases"] == len(f["cases"]) == 4 and not os.path.exists(f"{output}.partial")
+    assert set(case_statuses(output).values()) == {FINISHED}
+    monkeypatch.setattr(campaign_module, "copy_for_change", real_copy)
+    assert run_campaign(study, output, resume=True).exit_status == 0
+    reference = tmp_path / "reference" / "search.h5"
+    reference.parent.mkdir()
+    assert run_campaign(study, reference).exit_status == 0
+    assert_same_results(output, reference)
