@@ -660,6 +660,42 @@ def test_readers_of_a_live_file_always_find_it_whole(tmp_path):
     assert job.returncode == 0, err
     assert len(seen) >= 3 and reads >= 10, (seen, reads)        # stages of 4, then more cases each
 
+def outside_raw_data(path):
+    """The bytes of an HDF5 file that are not raw data of a dataset: its metadata, as a reader parses it."""
+    ranges = []
+    with h5py.File(path, "r") as f:
+        def visit(name, obj):
+            if isinstance(obj, h5py.Dataset) and obj.id.get_offset() is not None:
+                ranges.append((obj.id.get_offset(), obj.id.get_offset() + obj.id.get_storage_size()))
+        f.visititems(visit)
+    data = bytearray(path.read_bytes())
+    for start, stop in ranges:
+        data[start:stop] = bytes(stop - start)
+    return bytes(data)
+
+
+@needs_mpi
+def test_running_cases_change_no_byte_of_the_metadata(tmp_path):
+    """Why a reader of a live file always finds it whole: after creation, the cases (here under mpio,
+    killed inside a checkpoint write) write raw data into preallocated space and nothing else."""
+    import shutil
+
+    from jobs import mpi_env
+
+    path, output = write_study(tmp_path / "job", t_end=0.1, checkpoint=0.01)
+    partial = output.with_name(output.name + ".partial")
+    made = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="publish"))
+    assert made.returncode != 0 and partial.exists() and not output.exists()     # complete, not renamed
+    created = tmp_path / "created.h5"
+    shutil.copy(partial, created)
+    os.replace(partial, output)
+    ran = hpcves("campaign", path, "--resume", "--quiet", n=2, env=mpi_env(HPCVES_FAULT="checkpoint:9@1"))
+    assert ran.returncode != 0
+    assert RUNNING in case_statuses(output).values()                  # rank 1's case, killed mid-checkpoint
+    assert outside_raw_data(output) == outside_raw_data(created)
+    assert output.read_bytes() != created.read_bytes()                            # the cases did write
+
+
 
 def test_a_search_stage_the_disk_has_no_room_for_stops_the_campaign_and_loses_nothing(tmp_path, monkeypatch):
     """The second stage's copy is refused (a full disk): exit status 2, the file as the first stage
