@@ -55,27 +55,30 @@ checkpoint_interval = 0.01
 checkpoint_wall = 0
 
 [sweep]
-shear_rate = {{ linspace = [10, 160, 20] }}
+shear_rate = {{ linspace = [10, 160, {points}] }}
 psi_bar = [0.3, 0.4, 0.5]
 """
 SETUPS = [(2, "mpio"), (3, "relay"), (3, "mpio"), (2, "relay")]
 AFTER = "after the job ended"          # a kill that came too late: the job had ended by itself
 
 
-def write_study(directory: Path) -> tuple[Path, Path]:
+POINTS = 20                            # shear rates: 3 x 20 = 60 cases, whose creation takes a while
+
+
+def write_study(directory: Path, points: int = POINTS) -> tuple[Path, Path]:
     directory.mkdir(parents=True, exist_ok=True)
     output = directory / "faults.h5"
     path = directory / "faults.toml"
-    path.write_text(STUDY.format(output=output))
+    path.write_text(STUDY.format(output=output, points=points))
     return path, output
 
 
-def reference(directory: Path) -> Path:
+def reference(directory: Path, points: int = POINTS) -> Path:
     """The study run uninterrupted, serially in this process."""
     from hpcves.campaign import run_campaign
     from hpcves.study import study_from_toml
 
-    path, output = write_study(directory)
+    path, output = write_study(directory, points)
     if not output.exists():
         assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
     return output
@@ -96,8 +99,8 @@ class Timeline:
     exit: float             # the job has ended
 
 
-def measure(directory: Path, n: int, io: str) -> Timeline:
-    path, output = write_study(directory)
+def measure(directory: Path, n: int, io: str, points: int = POINTS) -> Timeline:
+    path, output = write_study(directory, points)
     partial = output.with_name(output.name + ".partial")
     seen = {}
     start = time.monotonic()
@@ -185,13 +188,14 @@ def run_to_completion(path, output, n, io, trial: Trial, lingering=frozenset()):
 
 
 def trial(directory: Path, n: int, io: str, timeline: Timeline, rng: random.Random, ref: Path,
-          planned: str | None = None, mode: str | None = None, again: bool | None = None) -> Trial:
+          planned: str | None = None, mode: str | None = None, again: bool | None = None,
+          points: int = POINTS) -> Trial:
     """Kill the job once at a moment drawn from ``timeline`` (``planned``: creation, running or end),
     perhaps kill the resume too, resume to the end, compare with ``ref``."""
     import shutil
 
     shutil.rmtree(directory, ignore_errors=True)
-    path, output = write_study(directory)
+    path, output = write_study(directory, points)
     planned = planned or rng.choices(["creation", "running", "end"], weights=[1, 2, 1])[0]
     mode = mode or rng.choices(["job", "group"], weights=[3, 1])[0]
     window = {"creation": (timeline.partial, timeline.file), "running": (timeline.file, timeline.done),

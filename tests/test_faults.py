@@ -540,17 +540,20 @@ def test_analyze_does_not_store_results_of_a_file_that_changed_meanwhile(tmp_pat
 
 
 # ---------------------------------------------------------------------- the fault-injection subset
+SMALL = 8                                  # the harness study with 3 x 8 cases: enough for every kill point
+
+
 @pytest.fixture(scope="module")
 def harness_reference(tmp_path_factory):
     import faults as harness
 
-    return harness.reference(tmp_path_factory.mktemp("harness"))
+    return harness.reference(tmp_path_factory.mktemp("harness"), SMALL)
 
 
 @needs_mpi
 @pytest.mark.parametrize("fault, n, io", [
     ("publish", 3, "relay"),                 # the file complete under .partial, killed before the rename
-    ("case-laid-out:30@0", 2, "relay"),      # rank 0 laying the file out alone
+    ("case-laid-out:20@0", 2, "relay"),      # rank 0 laying the file out alone
     ("checkpoint:7@1", 3, "mpio"),           # rank 1 inside a checkpoint write (two points in each)
     ("checkpoint:12@0", 3, "relay"),         # rank 0 applying another rank's checkpoint
     ("finished:3@0", 2, "mpio"),             # rank 0 just after a case recorded that it finished
@@ -560,7 +563,7 @@ def test_a_kill_at_an_exact_moment_resumes_bitwise(tmp_path, harness_reference, 
     import faults as harness
     from jobs import mpi_env
 
-    path, output = harness.write_study(tmp_path / "job")
+    path, output = harness.write_study(tmp_path / "job", SMALL)
     killed = hpcves(*harness.campaign_args(path, io), n=n, env=mpi_env(HPCVES_FAULT=fault))
     assert killed.returncode != 0, "the fault point was never reached"
     result = hpcves(*harness.campaign_args(path, io, resume=True), n=n)
@@ -572,7 +575,7 @@ def test_a_serial_campaign_killed_inside_a_checkpoint_resumes_bitwise(tmp_path, 
     import faults as harness
     from jobs import mpi_env
 
-    path, output = harness.write_study(tmp_path / "job")
+    path, output = harness.write_study(tmp_path / "job", SMALL)
     killed = hpcves("campaign", path, "--quiet", env=mpi_env(HPCVES_FAULT="checkpoint:25"))
     assert killed.returncode == -signal.SIGKILL
     assert hpcves("campaign", path, "--quiet", "--resume").returncode == 0
@@ -621,12 +624,12 @@ def test_two_random_kills_of_the_fault_injection_harness(tmp_path, harness_refer
 
     import faults as harness
 
-    timeline = harness.measure(tmp_path / "timeline", 2, "mpio")
+    timeline = harness.measure(tmp_path / "timeline", 2, "mpio", SMALL)
     rng = random.Random(7)
     for planned, mode in (("creation", "job"), ("end", "group")):
         for _ in range(20):            # until the kill hits a live job (the job may end before it comes)
             trial = harness.trial(tmp_path / "trial", 2, "mpio", timeline, rng, harness_reference,
-                                  planned=planned, mode=mode, again=False)
+                                  planned=planned, mode=mode, again=False, points=SMALL)
             assert trial.identical, trial.differences[:5]
             if trial.landed:
                 break
