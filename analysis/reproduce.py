@@ -126,7 +126,9 @@ def numerics_line(toml: str) -> str:
            else f"t_end = {base.run.t_end:g}")
     sampling = (f"samples every min({base.run.sample_interval:g}, 1/({rule.samples_per_shear_time:g} S))"
                 if rule.samples_per_shear_time is not None else f"samples every {base.run.sample_interval:g}")
-    return f"N = {base.numerics.N}, dt = {base.numerics.dt:g}, {end}, {sampling}"
+    num = base.numerics
+    step = f"adaptive step, rtol = {num.rtol:g}" if num.adaptive else f"dt = {num.dt:g}"
+    return f"N = {num.N}, {step}, {end}, {sampling}"
 
 
 def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict, walls: dict, np_: int) -> None:

@@ -171,7 +171,7 @@ def convergence(lines):
     prep = solver(256, 1e-4)
     start = prep.initial_state()
     for _ in range(500):
-        start, _ = prep.step(start)
+        start, _, _ = prep.step(start)
 
     def evolve(N, dt, T=0.05):
         sp = Spectral(256, 2.6442)
@@ -180,7 +180,7 @@ def convergence(lines):
         x = State(step=0, theta=sp.interpolate(start.theta, a), psi=sp.interpolate(start.psi, a),
                   center=start.center, shift=start.shift)
         for _ in range(round(T / dt)):
-            x, _ = s.step(x)
+            x, _, _ = s.step(x)
         return s.shape(x).z, x.psi
 
     z_ref, p_ref = evolve(256, 2.5e-4)

@@ -27,6 +27,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from report import replace_section
+
 STUDY = """
 [campaign]
 name = "bench"
@@ -166,10 +168,7 @@ def main(argv=None):
               f"{'met' if worst <= 0.01 else 'not met'}).", ""]
     section = "\n".join(lines)
 
-    out = Path(args.out)
-    text = out.read_text() if out.exists() else "# Benchmarks\n\n"
-    text = re.sub(r"\n## Campaigns\n.*?(?=\n## |\Z)", "", text, flags=re.S).rstrip("\n")
-    out.write_text(text + "\n\n" + section)
+    replace_section(args.out, "Campaigns", section)
     print(section)
 
 

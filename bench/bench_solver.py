@@ -71,13 +71,13 @@ def step_timings():
             solver = make(N, **physics)
             state = solver.initial_state()
             for _ in range(40):                      # past the start-up steps
-                state, _ = solver.step(state)
+                state, _, _ = solver.step(state)
             holder = [state]
 
             def block(steps=50):
                 s = holder[0]
                 for _ in range(steps):
-                    s, _ = solver.step(s)
+                    s, _, _ = solver.step(s)
                 holder[0] = s
 
             med, lo, hi = median_time(block, repeats=7)
@@ -132,7 +132,7 @@ def section_timings(N=128):
     solver = make(N, psi_bar=0.3, shear_rate=80.0)
     state = solver.initial_state()
     for _ in range(40):
-        state, _ = solver.step(state)
+        state, _, _ = solver.step(state)
     sp, flow, phys = solver.sp, solver.flow, solver.case.physics
     shape = solver.shape(state)
     psi_nodes = state.psi
@@ -191,7 +191,7 @@ def theta_period(dt, N=128, T=1.0, t_start=0.3):
                 shape = solver.shape(state)
                 t.append(n * dt)
                 theta.append(geometry.moments(shape.z, shape.normal, solver.sp.length).inclination)
-            state, _ = solver.step(state)
+            state, _, _ = solver.step(state)
     except ArithmeticError as exc:
         return None, np.nan, f"failed: {exc}"
     t, theta = np.array(t), np.array(theta)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 
 import numpy as np
 
@@ -38,10 +39,12 @@ from .atomic import METADATA_BYTES_PER_CASE, StorageError
 from .config import case_from_toml, case_to_toml
 from .diagnostics import SERIES, SNAPSHOT_FIELDS
 from .params import Case, ConfigError
+from .schedule import clock
 from .timestepping import State
 
 FORMAT = "hpcves-case"
-FORMAT_VERSION = 2                  # 2: checkpointed psi is held at the nodes (1: material labels)
+FORMAT_VERSION = 3                  # 3: checkpoints hold t, the step controller and level n-2
+READS_VERSIONS = (2, 3)             # 2: fixed-step checkpoints (t = step dt); 1 held psi at material labels
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
@@ -49,9 +52,16 @@ PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED = range(5)
 STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
                 INTERRUPTED: "interrupted"}
 
-# scalars of a State, stored as one float64 vector (complex values as two entries)
-_SCALAR_LAYOUT = (("center", 2), ("shift", 1), ("area_correction", 1), ("prev_center", 2),
-                  ("prev_shift", 1), ("prev_rate_center", 2), ("prev_rate_shift", 1))
+# scalars of a State, stored as one float64 vector (complex values as two entries), and the
+# arrays, per format version (version 2 files are fixed-step runs: see CaseStore.read_checkpoint)
+_SCALAR_LAYOUTS = {
+    2: (("center", 2), ("shift", 1), ("area_correction", 1), ("prev_center", 2),
+        ("prev_shift", 1), ("prev_rate_center", 2), ("prev_rate_shift", 1)),
+}
+_SCALAR_LAYOUTS[3] = _SCALAR_LAYOUTS[2] + (("t", 1), ("dt_prev", 1), ("dt_prev2", 1), ("error", 1), ("dt_next", 1))
+_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS}
+assert _ARRAYS[2] == ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
+_SCALAR_LAYOUT = _SCALAR_LAYOUTS[FORMAT_VERSION]
 _N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
 
 
@@ -137,16 +147,13 @@ def open_file(path, mode: str, **kwargs):
 
 
 def capacities(case: Case) -> tuple[int, int]:
-    """Rows to preallocate for samples and snapshots (every step multiple, plus the end)."""
-    n = case.n_steps
-    return n // case.every(case.run.sample_interval) + 2, n // case.every(case.run.snapshot_interval) + 2
+    """Rows to preallocate for samples and snapshots (schedule.py: every cadence time, plus one)."""
+    return clock(case).capacities()
 
 
-def recorded(case: Case, step: int) -> tuple[int, int]:
-    """(samples, snapshots) a run has recorded *before* step ``step``: one at every multiple of its interval."""
-    def count(every):
-        return 0 if step <= 0 else (step - 1) // every + 1
-    return count(case.every(case.run.sample_interval)), count(case.every(case.run.snapshot_interval))
+def recorded(case: Case, step: int, t: float) -> tuple[int, int]:
+    """(samples, snapshots) a run has recorded *before* the state after ``step`` steps, at time ``t``."""
+    return clock(case).recorded(step, t)
 
 
 def raw_bytes(case: Case) -> int:
@@ -189,6 +196,9 @@ class CaseStore:
 
     def __init__(self, group):
         self.group = group
+        self.version = int(group.attrs.get("format_version", FORMAT_VERSION))
+        self._arrays = _ARRAYS.get(self.version, State.ARRAYS)
+        self._scalars = _SCALAR_LAYOUTS.get(self.version, _SCALAR_LAYOUT)
         self._ts = group["timeseries"]
         self._snap = group["snapshots"]
         self._ckpt = group["checkpoint"]
@@ -240,8 +250,9 @@ class CaseStore:
         if attr_text(group.attrs.get("format", "")) != FORMAT:
             raise FileFormatError(f"{where}: not an hpcves case (no format = {FORMAT!r} attribute)")
         version = int(group.attrs.get("format_version", -1))
-        if version != FORMAT_VERSION:
-            raise FileFormatError(f"{where}: case format version {version}, this hpcves reads {FORMAT_VERSION}")
+        if version not in READS_VERSIONS:
+            raise FileFormatError(f"{where}: case format version {version}, this hpcves reads "
+                                  + " and ".join(map(str, READS_VERSIONS)))
         missing = [k for k in ("timeseries", "snapshots", "checkpoint", "status", "message", "progress")
                    if k not in group]
         if missing:
@@ -264,8 +275,8 @@ class CaseStore:
             out[f"snapshots/{name}"] = ((n_snapshots, N), "f")
         for slot in ("slot0", "slot1"):
             out[f"checkpoint/{slot}/meta"] = ((4,), "i")
-            out[f"checkpoint/{slot}/scalars"] = ((_N_SCALARS,), "f")
-            for name in State.ARRAYS:
+            out[f"checkpoint/{slot}/scalars"] = ((sum(n for _, n in self._scalars),), "f")
+            for name in self._arrays:
                 out[f"checkpoint/{slot}/{name}"] = ((N,), "f")
         return out
 
@@ -304,18 +315,29 @@ class CaseStore:
             for what, n, cap in (("timeseries", lengths[0], n_samples), ("snapshots", lengths[1], n_snapshots)):
                 if not 0 <= n <= cap:
                     found.append(f"{what}/length = {n} lies outside [0, {cap}] (the capacity)")
+            schedule = clock(case)
             for slot, meta in self._slot_meta().items():
                 valid, step = int(meta[0]), int(meta[1])
+                t = self._checkpoint_time(slot, step, case) if valid == 1 else math.nan
+                if valid == 1 and not np.array_equal(self._ckpt[slot]["meta"][:], meta):
+                    continue          # a live run is rewriting this slot (it is the older one): not damage
+                fixed = not schedule.adaptive
                 if valid not in (0, 1):
                     found.append(f"checkpoint/{slot}: validity marker {valid} is neither 0 nor 1")
-                elif valid and not 0 <= step <= case.n_steps:
+                elif valid and fixed and not 0 <= step <= case.n_steps:
                     found.append(f"checkpoint/{slot}: step {step} outside [0, {case.n_steps}]")
-                elif valid and (int(meta[2]), int(meta[3])) != recorded(case, step):
+                elif valid and not fixed and not (step >= 0 and 0 <= t <= case.run.t_end * (1 + 1e-9)):
+                    found.append(f"checkpoint/{slot}: step {step} at t = {t:g}, outside [0, {case.run.t_end:g}]")
+                elif valid and (int(meta[2]), int(meta[3])) != schedule.recorded(step, t):
                     found.append(f"checkpoint/{slot}: says {int(meta[2])} samples, {int(meta[3])} snapshots "
-                                 f"before step {step}, where the run records {recorded(case, step)}")
-            if status == FINISHED and lengths != recorded(case, case.n_steps + 1):
+                                 f"before step {step} (t = {t:.6g}), where the run records "
+                                 f"{schedule.recorded(step, t)}")
+                elif valid and fixed and t != step * case.numerics.dt:
+                    found.append(f"checkpoint/{slot}: step {step} at t = {t:g}, not step * dt = "
+                                 f"{step * case.numerics.dt:g}")
+            if status == FINISHED and lengths != schedule.finished_counts():
                 found.append(f"finished, but holds {lengths[0]} samples and {lengths[1]} snapshots of "
-                             f"{recorded(case, case.n_steps + 1)}")
+                             f"{schedule.finished_counts()}")
         except HDF5_ERRORS as exc:
             found.append(f"unreadable ({_first_line(exc)})")
         return found
@@ -410,6 +432,13 @@ class CaseStore:
         valid = [(meta[1], slot) for slot, meta in self._slot_meta().items() if meta[0] == 1]
         return max(valid)[1] if valid else None
 
+    def _checkpoint_time(self, slot: str, step: int, case: Case) -> float:
+        """The time of a slot's state (version 2 files did not store it: step * dt)."""
+        if self.version == 2:
+            return step * case.numerics.dt
+        names = [name for name, width in self._scalars for _ in range(width)]
+        return float(self._ckpt[slot]["scalars"][names.index("t")])
+
     @_writes
     def write_checkpoint(self, state: State, flush) -> None:
         """Write ``state`` (and the current sample counts) to the older slot, safely.
@@ -422,10 +451,10 @@ class CaseStore:
         g["meta"][0] = 0
         flush()
         faults.point("checkpoint")
-        for name in State.ARRAYS:
+        for name in self._arrays:
             value = getattr(state, name)
             g[name][:] = np.nan if value is None else value
-        g["scalars"][:] = _pack_scalars(state)
+        g["scalars"][:] = _pack_scalars(state, self._scalars)
         g["meta"][1:] = (state.step, self.n_samples, self.n_snapshots)
         flush()
         faults.point("checkpoint")
@@ -439,12 +468,15 @@ class CaseStore:
             return None
         g = self._ckpt[slot]
         meta = g["meta"][:]
-        arrays = {name: g[name][:] for name in State.ARRAYS}
-        scalars = _unpack_scalars(g["scalars"][:])
+        arrays = {name: g[name][:] for name in self._arrays}
+        scalars = _unpack_scalars(g["scalars"][:], self._scalars)
         step = int(meta[1])
-        has_history = step > 0
-        kwargs = {name: (value if has_history or not name.startswith("prev") else None)
-                  for name, value in {**arrays, **scalars}.items()}
+        if self.version == 2:                 # a fixed-step run: its time and steps are implied
+            dt = self.case.numerics.dt
+            scalars.update(t=step * dt, dt_prev=dt if step >= 1 else math.nan, dt_prev2=dt if step >= 2 else math.nan)
+        def kept(name):                       # levels n-1 exist from step 1 on, n-2 from step 2 on
+            return not name.startswith("prev") or step >= (2 if name.startswith("prev2") else 1)
+        kwargs = {name: (value if kept(name) else None) for name, value in {**arrays, **scalars}.items()}
         state = State(step=step, **kwargs)
         for name in ("theta", "psi"):
             if not np.all(np.isfinite(getattr(state, name))):
@@ -462,9 +494,9 @@ def _clip(text: str, size: int) -> bytes:
     return data[:half] + marker + data[len(data) - half:]
 
 
-def _pack_scalars(state: State) -> np.ndarray:
+def _pack_scalars(state: State, layout=_SCALAR_LAYOUT) -> np.ndarray:
     out = []
-    for name, width in _SCALAR_LAYOUT:
+    for name, width in layout:
         value = getattr(state, name)
         if value is None:
             out.extend([np.nan] * width)
@@ -475,9 +507,9 @@ def _pack_scalars(state: State) -> np.ndarray:
     return np.array(out)
 
 
-def _unpack_scalars(values: np.ndarray) -> dict:
+def _unpack_scalars(values: np.ndarray, layout=_SCALAR_LAYOUT) -> dict:
     out, i = {}, 0
-    for name, width in _SCALAR_LAYOUT:
+    for name, width in layout:
         if width == 2:
             out[name] = complex(values[i], values[i + 1])
         else:

@@ -187,7 +187,8 @@ def run_command(case_file, out, resume, overwrite, quiet):
         h5 = create_case_file(path, case, overwrite)
         store = CaseStore.open(h5, where=path)
     case = store.case
-    click.echo(f"{path}: N = {case.numerics.N}, dt = {case.numerics.dt:g}, t_end = {case.run.t_end:g}, "
+    step = f"rtol = {case.numerics.rtol:g}" if case.numerics.adaptive else f"dt = {case.numerics.dt:g}"
+    click.echo(f"{path}: N = {case.numerics.N}, {step}, t_end = {case.run.t_end:g}, "
                f"S = {case.physics.shear_rate:g}, psi_bar = {case.physics.psi_bar:g}, "
                f"excess length = {case.physics.excess_length:g}" + ("  (resuming)" if resume else ""),
                err=True)

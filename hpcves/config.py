@@ -10,7 +10,7 @@ A case file has up to three tables, each optional, each key optional
 
     [numerics]
     N = 128
-    dt = 5e-4
+    rtol = 1e-3         # adaptive step under error control; or dt = 5e-4 for a fixed one
 
     [run]
     t_end = 5.0
@@ -45,6 +45,9 @@ def check_type(where: str, value, kind):
         if not isinstance(value, bool):
             raise ConfigError(f"{where} = {value!r}: must be true or false")
         return value
+    arguments = typing.get_args(kind)
+    if type(None) in arguments and len(arguments) == 2:       # "float | None": TOML has no null, a value is given
+        return check_type(where, value, next(a for a in arguments if a is not type(None)))
     if typing.get_origin(kind) is typing.Literal:
         choices = typing.get_args(kind)
         if value not in choices:
@@ -77,6 +80,9 @@ def group_from_dict(name: str, values: dict, base=None):
         raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [{name}]: "
                           + ", ".join(unknown) + f" (known: {', '.join(fields)})")
     kwargs = {key: check_type(f"{name}.{key}", value, types[key]) for key, value in values.items()}
+    if name == "numerics" and "rtol" in kwargs and "dt" in kwargs:
+        raise ConfigError(f"[numerics] sets both dt = {kwargs['dt']:g} (a fixed step) and rtol = {kwargs['rtol']:g} "
+                          "(an adaptive one): keep one; dt_max bounds the adaptive step")
     base = base if base is not None else cls()
     return dataclasses.replace(base, **kwargs)
 
@@ -130,6 +136,10 @@ def case_to_toml(case: Case) -> str:
     for name, values in case.to_dict().items():
         lines.append(f"[{name}]")
         for key, value in values.items():
+            if value is None:                       # TOML has no null: an unset option is left out
+                continue
+            if name == "numerics" and key == "dt" and case.numerics.adaptive:
+                continue                            # not used, and refused beside rtol
             lines.append(f"{key} = {_toml_value(value)}")
         lines.append("")
     return "\n".join(lines)

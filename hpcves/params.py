@@ -108,7 +108,10 @@ class Numerics:
     """Discretisation.
 
     ``N`` material points, equispaced in arclength (even, >= 16). ``dt`` the time
-    step. ``bending_stabilization`` multiplies max(B1, B2) in the implicit part
+    step of a fixed-step run. ``rtol`` (with ``atol``) makes the step adaptive
+    instead: variable-step SBDF2 under error control (stepcontrol.py), steps
+    up to ``dt_max``, the first one ``dt_initial``; ``dt`` is then not used.
+    ``bending_stabilization`` multiplies max(B1, B2) in the implicit part
     c |k|^3 / 4 of the tangent-angle equation (>= 1 keeps SBDF2 stable for every
     local B). ``phase_stabilization`` is the constant s of the linear
     stabilisation (a0/eps) s psi of the double-well term (>= max g'' = 1/2).
@@ -120,6 +123,10 @@ class Numerics:
 
     N: int = 128
     dt: float = 1e-3
+    rtol: float | None = None
+    atol: float = 0.0
+    dt_max: float = 0.05
+    dt_initial: float = 1e-6
     bending_stabilization: float = 1.0
     phase_stabilization: float = 1.0
     area_correction: bool = True
@@ -133,12 +140,30 @@ class Numerics:
                  "(the Stokeslet matrix is dense)")
         _finite(self)
         _require(self.dt > 0, f"numerics.dt = {self.dt}: must be > 0")
+        if self.rtol is not None:
+            _require(isinstance(self.rtol, float) and math.isfinite(self.rtol),
+                     f"numerics.rtol = {self.rtol!r}: must be a number")
+            _require(1e-10 <= self.rtol <= 0.1, f"numerics.rtol = {self.rtol:g}: must lie in [1e-10, 0.1]")
+        _require(self.atol >= 0, f"numerics.atol = {self.atol}: must be >= 0")
+        _require(self.dt_max > 0, f"numerics.dt_max = {self.dt_max}: must be > 0")
+        _require(0 < self.dt_initial <= self.dt_max,
+                 f"numerics.dt_initial = {self.dt_initial}: must lie in (0, numerics.dt_max = {self.dt_max}]")
         _require(self.bending_stabilization >= 1.0,
                  f"numerics.bending_stabilization = {self.bending_stabilization}: must be >= 1 "
                  "(smaller values make the time stepping unstable)")
         _require(self.phase_stabilization >= 0.5,
                  f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
                  "(max g'' on [0, 1])")
+
+    @property
+    def adaptive(self) -> bool:
+        """True when the step is chosen by error control (``rtol`` set)."""
+        return self.rtol is not None
+
+    @property
+    def fixed_dt(self) -> float:
+        """The fixed step, 0 in adaptive runs (no step is fixed)."""
+        return 0.0 if self.adaptive else self.dt
 
 
 @dataclass(frozen=True)
@@ -202,6 +227,8 @@ class Case:
                 f"spans [{p.psi_bar - amplitude:.3g}, {p.psi_bar + amplitude:.3g}], outside the "
                 f"allowed range [{r.psi_min}, {r.psi_max}] (run.psi_min, run.psi_max)",
             )
+        if self.numerics.adaptive:
+            return
         _require(self.run.sample_interval >= self.numerics.dt,
                  f"run.sample_interval = {r.sample_interval} is shorter than numerics.dt = {self.numerics.dt}")
         _require(self.run.t_end >= self.numerics.dt,
@@ -214,8 +241,21 @@ class Case:
 
     @property
     def n_steps(self) -> int:
-        """Number of time steps to reach t_end (t_end rounded to a whole step)."""
+        """Number of time steps to reach t_end (t_end rounded to a whole step); fixed-step runs only."""
+        _require(not self.numerics.adaptive, "an adaptive run has no fixed number of steps")
         return max(1, round(self.run.t_end / self.numerics.dt))
+
+    @property
+    def estimated_steps(self) -> float:
+        """Steps the run will take: n_steps, or for an adaptive run a rough guess for ordering work.
+
+        Steps never cross sample times and the accurate step shrinks about as
+        1 / S (docs/numerics.md), so the guess is t_end / min(sample_interval, 0.05 / S).
+        """
+        if not self.numerics.adaptive:
+            return float(self.n_steps)
+        S = max(self.physics.shear_rate, 1.0)
+        return self.run.t_end / min(self.run.sample_interval, self.numerics.dt_max, 0.05 / S)
 
     def every(self, interval: float) -> int:
         """An interval in simulated time as a whole number of steps (>= 1)."""
@@ -224,9 +264,20 @@ class Case:
     def to_dict(self) -> dict:
         return {"physics": asdict(self.physics), "numerics": asdict(self.numerics), "run": asdict(self.run)}
 
+    def significant(self) -> dict:
+        """:meth:`to_dict` without the numerics that this run does not use: the adaptive options
+        of a fixed-step run, dt of an adaptive one (what a study's fingerprint covers, so that
+        files written before the adaptive options existed keep theirs)."""
+        out = self.to_dict()
+        unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
+        for key in unused:
+            del out["numerics"][key]
+        return out
+
     def flat(self) -> dict:
-        """``{"physics.shear_rate": 10.0, ...}``: one key per parameter (HDF5 attributes)."""
-        return {f"{group}.{key}": value for group, values in self.to_dict().items()
+        """``{"physics.shear_rate": 10.0, ...}``: one key per parameter (HDF5 attributes; an unset
+        option such as rtol of a fixed-step run is NaN)."""
+        return {f"{group}.{key}": (math.nan if value is None else value) for group, values in self.to_dict().items()
                 for key, value in values.items()}
 
 

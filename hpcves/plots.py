@@ -246,7 +246,15 @@ def case_title(attrs) -> str:
     get = attrs.get
     return (f"S = {get('physics.shear_rate'):g}, $\\bar\\psi$ = {get('physics.psi_bar'):g}, "
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
-            f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, dt = {get('numerics.dt'):g}")
+            f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, " + step_label(attrs))
+
+
+def step_label(attrs) -> str:
+    """"dt = 0.0005" for a fixed step, "rtol = 0.001" for an adaptive one (case attributes)."""
+    rtol = attrs.get("numerics.rtol")
+    if rtol is not None and not (isinstance(rtol, float) and np.isnan(rtol)):
+        return f"rtol = {float(rtol):g}"
+    return f"dt = {attrs.get('numerics.dt'):g}"
 
 
 def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):

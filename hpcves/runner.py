@@ -1,10 +1,11 @@
 """Drive one case: step, sample, snapshot, checkpoint, stop cleanly.
 
-Everything here is deterministic in the step index -- samples at multiples of
-the sampling interval, snapshots likewise, checkpoints at multiples of the
-checkpoint interval (plus extra ones on a wall-clock timer and on request,
-which read the state but never change it) -- so a run resumed from any
-checkpoint reproduces the uninterrupted one bit for bit.
+Everything here is deterministic in the state -- samples, snapshots and
+checkpoints when the clock (schedule.py: whole steps for a fixed dt, simulated
+time for an adaptive one) says so, plus extra checkpoints on a wall-clock timer
+and on request, which read the state but never change it; the step controller's
+memory is part of the state -- so a run resumed from any checkpoint reproduces
+the uninterrupted one bit for bit.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import diagnostics, faults
+from . import diagnostics, faults, schedule
 from .checkpoint import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
 from .flow import TensionSolveError
 from .timestepping import Solver, State
@@ -73,16 +74,13 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         state = solver.initial_state()
         store.truncate(0, 0)
 
-    n_steps = case.n_steps
-    sample_every = case.every(case.run.sample_interval)
-    snapshot_every = case.every(case.run.snapshot_interval)
-    checkpoint_every = case.every(case.run.checkpoint_interval)
+    clock = schedule.clock(case)
     wall_interval = case.run.checkpoint_wall
 
     store.set_status(RUNNING, "", "")
     flush()
     start_wall = last_checkpoint_wall = last_flush_wall = last_tick = time.perf_counter()
-    start_step = state.step
+    start_step, start_fraction = state.step, clock.fraction(state)
     rows: list[dict] = []
     theta_now = np.nan
     last_correction = 0.0          # relative area correction made by the last step
@@ -120,28 +118,29 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         while True:
             n = state.step
             rates = solver.rates(state)
-            row = diagnostics.sample(solver, state, rates) if n % sample_every == 0 else None
+            row = diagnostics.sample(solver, state, rates) if clock.sample_due(state) else None
             verdict = diagnostics.health(solver, state, row, last_correction)
             if not verdict.ok:
                 if row is not None:
                     rows.append(row)
                 raise Diverged(verdict.reason)
             # State n is sound. A checkpoint of it counts only what was recorded
-            # *before* step n, so a resumed run records step n again, once.
+            # *before* it, so a resumed run records state n again, once.
             now = time.perf_counter()
+            done = clock.done(state)
             stop = stop_requested() or (max_steps is not None and n - start_step >= max_steps)
-            if n > start_step and (stop or n % checkpoint_every == 0 or n >= n_steps
+            if n > start_step and (stop or done or clock.checkpoint_due(state)
                                    or (wall_interval > 0 and now - last_checkpoint_wall >= wall_interval)):
                 checkpoint(state)
-            if stop and n < n_steps:
+            if stop and not done:
                 return finish(INTERRUPTED, f"stopped at t = {solver.time(state):.6g}; resume to continue",
                               state)
             if row is not None:
                 rows.append(row)
                 theta_now = row["theta"]
-            if n % snapshot_every == 0:
+            if clock.snapshot_due(state):
                 store.append_snapshot(diagnostics.snapshot(solver, state, rates))
-            if n >= n_steps:
+            if done:
                 write_rows()
                 return finish(FINISHED, "", state)
             if len(rows) >= SAMPLE_BUFFER_ROWS or now - last_flush_wall >= SAMPLE_FLUSH_SECONDS:
@@ -150,10 +149,12 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
             if progress is not None and now - last_tick >= 0.5:
                 last_tick = now
                 rate = (n - start_step) / (now - start_wall) if now > start_wall else 0.0
-                eta = (n_steps - n) / rate if rate > 0 else float("inf")
+                done_fraction = clock.fraction(state)
+                pace = (done_fraction - start_fraction) / (now - start_wall) if now > start_wall else 0.0
+                eta = (1.0 - done_fraction) / pace if pace > 0 else float("inf")
                 progress(Tick(solver.time(state), case.run.t_end, rate, eta, theta_now))
             before = state.area_correction
-            state, _ = solver.step(state, rates)
+            state, _ = clock.take_step(solver, state, rates)
             last_correction = state.area_correction - before
     except (Diverged, TensionSolveError, ArithmeticError, FloatingPointError) as exc:
         write_rows()

@@ -77,7 +77,7 @@ class StudyCase:
     @property
     def cost(self) -> float:
         """Relative cost: steps x N^2 (the dense Stokeslet work of a step)."""
-        return float(self.case.n_steps) * self.case.numerics.N ** 2
+        return self.case.estimated_steps * self.case.numerics.N ** 2
 
     def label(self) -> str:
         return ", ".join(f"{k} = {v:g}" for k, v in self.swept.items())
@@ -115,11 +115,11 @@ class Study:
         """
         if self.search is None:
             payload = {"name": self.name,
-                       "cases": [[c.case_id, c.case.to_dict()] for c in self.cases]}
+                       "cases": [[c.case_id, c.case.significant()] for c in self.cases]}
         else:
             times = dataclasses.asdict(self.times)
             samples = times.pop("samples_per_shear_time")
-            payload = {"name": self.name, "mode": "search", "base": self.base.to_dict(),
+            payload = {"name": self.name, "mode": "search", "base": self.base.significant(),
                        "end_time": times, "searches": list(self.searches),
                        "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
             if samples is not None:        # absent from files written before the rule existed
@@ -148,7 +148,7 @@ class Study:
             S, run = physics.shear_rate, self.base.run
             run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
                                       sample_interval=self.times.sample_interval(S, run.sample_interval,
-                                                                                 self.base.numerics.dt))
+                                                                                 self.base.numerics.fixed_dt))
             case = Case(physics=physics, numerics=self.base.numerics, run=run)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None

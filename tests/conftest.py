@@ -13,7 +13,7 @@ def make_solver(N=64, dt=1e-3, **physics):
 
 def advance(solver, state, steps):
     for _ in range(steps):
-        state, _ = solver.step(state)
+        state, _, _ = solver.step(state)
     return state
 
 

@@ -242,3 +242,42 @@ def _same(x, y) -> bool:
 def assert_same_results(a, b, attrs=True):
     found = differences(a, b, attrs)
     assert not found, found[:10]
+
+
+def run_in_process(case, path, max_steps=None):
+    """Run ``case`` into a new case file at ``path`` with hpcves.runner (no subprocess); the outcome."""
+    from hpcves import runner
+    from hpcves.checkpoint import CaseStore, open_file
+
+    with open_file(path, "w-") as f:
+        return runner.run(CaseStore.create(f, case), f.flush, max_steps=max_steps)
+
+
+def resume_in_process(path, stops=(None,), before=None):
+    """Resume the case file at ``path`` once per entry of ``stops`` (max_steps of that call, None: to
+    the end); ``before(store)`` is called on each opened store first (a check). The last outcome."""
+    from hpcves import runner
+    from hpcves.checkpoint import CaseStore, open_file
+
+    outcome = None
+    for max_steps in stops:
+        with open_file(path, "r+") as f:
+            store = CaseStore.open(f)
+            if before is not None:
+                before(store)
+            outcome = runner.run(store, f.flush, resume=True, max_steps=max_steps)
+    return outcome
+
+
+def same_case_files(a, b, checkpoints=False):
+    """Every time series and snapshot of two case files is equal bit for bit (NaN = NaN); with
+    ``checkpoints``, the newest checkpoints too."""
+    with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
+        for group in ("timeseries", "snapshots"):
+            for name in fa[group]:
+                assert np.array_equal(fa[group][name][()], fb[group][name][()], equal_nan=True), (group, name)
+        if checkpoints:
+            newest = [max(("slot0", "slot1"), key=lambda s: f[f"checkpoint/{s}/meta"][1]) for f in (fa, fb)]
+            for name in fa[f"checkpoint/{newest[0]}"]:
+                assert np.array_equal(fa[f"checkpoint/{newest[0]}/{name}"][()],
+                                      fb[f"checkpoint/{newest[1]}/{name}"][()], equal_nan=True), name

@@ -7,10 +7,10 @@ import h5py
 import numpy as np
 import pytest
 
-from jobs import wait_until
+from jobs import resume_in_process, run_in_process, same_case_files, wait_until
 
 from hpcves import runner
-from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore, open_file
+from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore
 from hpcves.config import case_from_toml
 
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
@@ -129,22 +129,14 @@ def test_run_writes_the_documented_layout(tmp_path):
         assert {"slot0", "slot1"} <= set(f["checkpoint"])
 
 
-def compare_files(a, b):
-    with h5py.File(a, "r") as fa, h5py.File(b, "r") as fb:
-        for group in ("timeseries", "snapshots"):
-            for name in fa[group]:
-                assert np.array_equal(fa[group][name][()], fb[group][name][()], equal_nan=True), (group, name)
+compare_files = same_case_files
 
 
 def test_resume_is_bitwise_identical_in_process(tmp_path):
     case = case_from_toml(SHORT.format(t_end=0.3, checkpoint=0.04))
-    with open_file(tmp_path / "a.h5", "w-") as f:
-        assert runner.run(CaseStore.create(f, case), f.flush).status == FINISHED
-    with open_file(tmp_path / "b.h5", "w-") as f:
-        assert runner.run(CaseStore.create(f, case), f.flush, max_steps=97).status == INTERRUPTED
-    for max_steps in (55, None):
-        with open_file(tmp_path / "b.h5", "r+") as f:
-            runner.run(CaseStore.open(f), f.flush, resume=True, max_steps=max_steps)
+    assert run_in_process(case, tmp_path / "a.h5").status == FINISHED
+    assert run_in_process(case, tmp_path / "b.h5", max_steps=97).status == INTERRUPTED
+    assert resume_in_process(tmp_path / "b.h5", stops=(55, None)).status == FINISHED
     compare_files(tmp_path / "a.h5", tmp_path / "b.h5")
 
 
@@ -230,3 +222,31 @@ def test_the_start_up_of_a_deflated_vesicle_is_not_taken_for_divergence():
         store = CaseStore.create(h5, case_from_toml(strict))
         out = runner.run(store, h5.flush)
         assert out.status == FAILED and "max_area_correction" in out.message
+
+
+def downgrade_to_format_2(path):
+    """Rewrite a case file as the format before adaptive steps wrote it: checkpoints without the
+    time, the step controller and level n-2 (the layout of hpcves before format 3)."""
+    from hpcves.checkpoint import _SCALAR_LAYOUTS
+    width = sum(n for _, n in _SCALAR_LAYOUTS[2])
+    with h5py.File(path, "r+") as f:
+        f.attrs["format_version"] = 2
+        for slot in ("slot0", "slot1"):
+            g = f[f"checkpoint/{slot}"]
+            for name in ("prev2_theta", "prev2_psi"):
+                del g[name]
+            scalars = g["scalars"][:width]
+            del g["scalars"]
+            g.create_dataset("scalars", data=scalars)
+
+
+def test_a_file_of_the_previous_format_is_read_and_resumes_bitwise(tmp_path):
+    case = case_from_toml(SHORT.format(t_end=0.3, checkpoint=0.04))
+    assert run_in_process(case, tmp_path / "a.h5").status == FINISHED
+    assert run_in_process(case, tmp_path / "b.h5", max_steps=97).status == INTERRUPTED
+    downgrade_to_format_2(tmp_path / "b.h5")
+
+    def as_format_2(store):
+        assert store.version == 2 and store.problems() == []
+    assert resume_in_process(tmp_path / "b.h5", before=as_format_2).status == FINISHED
+    compare_files(tmp_path / "a.h5", tmp_path / "b.h5")

@@ -301,9 +301,9 @@ def test_a_write_refused_while_cases_run_stops_the_campaign_and_loses_nothing(tm
     writes = []
 
     def refuse_one(self, key, value):       # h5py's write, as a full disk makes it fail
-        if "/checkpoint/" in self.name:
+        if "/checkpoint/" in self.name and self.name.endswith("/psi"):
             writes.append(self.name)
-            if len(writes) == 45:            # the 5th checkpoint, its slot marked invalid, half its data in
+            if len(writes) == 5:             # the 5th checkpoint, its slot marked invalid, theta already in
                 raise OSError(errno.ENOSPC, "No space left on device")
         return real(self, key, value)
 

@@ -25,7 +25,7 @@ def test_homogeneous_vesicle_has_no_phase_dynamics():
     solver = make_solver(psi_bar=0.0, shear_rate=10.0)
     state = solver.initial_state()
     for _ in range(3):
-        state, _ = solver.step(state)
+        state, _, _ = solver.step(state)
     assert np.all(state.psi == 0.0)
 
 

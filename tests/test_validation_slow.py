@@ -19,9 +19,9 @@ def theta_series(solver, t_end, every):
             t.append(row["t"])
             theta.append(row["theta"])
             lab.append(row["V_psi"] + row["V_L"])
-            state, _ = solver.step(state, rates)
+            state, _, _ = solver.step(state, rates)
         else:
-            state, _ = solver.step(state)
+            state, _, _ = solver.step(state)
     return np.array(t), np.array(theta), np.array(lab)
 
 
@@ -42,7 +42,7 @@ def test_homogeneous_angle_is_the_same_at_S350():
         solver = make_solver(N=64, dt=dt, shear_rate=S, psi_bar=0.0)
         state = solver.initial_state()
         for _ in range(round(t_end / dt)):
-            state, _ = solver.step(state)
+            state, _, _ = solver.step(state)
         shape = solver.shape(state)
         return geometry.moments(shape.z, shape.normal, solver.sp.length).inclination
     assert settled(350.0, 1e-4, 0.3) == pytest.approx(settled(2.0, 1e-3, 8.0), abs=0.01)

@@ -1,0 +1,145 @@
+"""When a run samples, snapshots, checkpoints and ends: pure functions of a case and a state.
+
+Two clocks, one interface:
+
+* :class:`FixedClock` -- a fixed step dt; everything happens at multiples of
+  round(interval / dt) steps (the run ends at n_steps = round(t_end / dt)).
+* :class:`AdaptiveClock` -- the step chosen by error control (stepcontrol.py);
+  samples, snapshots and checkpoints at multiples j * interval of simulated
+  time, and the end at t_end. Steps are cut so that they land on these times
+  exactly (stepcontrol.fit_to): every sample is a state of the scheme, nothing
+  is interpolated. Times of two cadences that agree to 1e-9 of an interval
+  (0.1 and 10 * 0.01) are one event.
+
+Both count what a run has recorded *before* a state, so a checkpoint of that
+state says how many samples and snapshots a resumed run keeps.
+"""
+from __future__ import annotations
+
+import math
+
+from .params import Case
+from .stepcontrol import StepControl, advance
+
+#: two event times closer than this fraction of an interval are the same event
+COINCIDENT = 1e-9
+
+
+class FixedClock:
+    """Cadences in whole steps of numerics.dt."""
+
+    adaptive = False
+
+    def __init__(self, case: Case):
+        self.case = case
+        self.n_steps = case.n_steps
+        self.sample_every = case.every(case.run.sample_interval)
+        self.snapshot_every = case.every(case.run.snapshot_interval)
+        self.checkpoint_every = case.every(case.run.checkpoint_interval)
+
+    def capacities(self) -> tuple[int, int]:
+        """Rows to preallocate for samples and snapshots (every multiple, plus the end)."""
+        n = self.n_steps
+        return n // self.sample_every + 2, n // self.snapshot_every + 2
+
+    def recorded(self, step: int, t: float) -> tuple[int, int]:
+        """(samples, snapshots) recorded before step ``step``."""
+        def count(every):
+            return 0 if step <= 0 else (step - 1) // every + 1
+        return count(self.sample_every), count(self.snapshot_every)
+
+    def finished_counts(self) -> tuple[int, int]:
+        return self.recorded(self.n_steps + 1, math.inf)
+
+    def sample_due(self, state) -> bool:
+        return state.step % self.sample_every == 0
+
+    def snapshot_due(self, state) -> bool:
+        return state.step % self.snapshot_every == 0
+
+    def checkpoint_due(self, state) -> bool:
+        return state.step % self.checkpoint_every == 0
+
+    def done(self, state) -> bool:
+        return state.step >= self.n_steps
+
+    def fraction(self, state) -> float:
+        return state.step / self.n_steps
+
+    def take_step(self, solver, state, rates):
+        """(new state, rejected steps)."""
+        return solver.step(state, rates)[0], 0
+
+
+class AdaptiveClock:
+    """Cadences in simulated time; steps by error control, cut to land on every event."""
+
+    adaptive = True
+
+    def __init__(self, case: Case):
+        self.case = case
+        run, num = case.run, case.numerics
+        self.t_end = run.t_end
+        self.intervals = (run.sample_interval, run.snapshot_interval, run.checkpoint_interval)
+        self.control = StepControl(rtol=num.rtol, atol=num.atol, dt_max=num.dt_max, initial_dt=num.dt_initial)
+
+    # -------------------------------------------------------------- the time grid
+    def _on_grid(self, t: float, interval: float) -> bool:
+        j = round(t / interval)
+        return abs(t - j * interval) <= COINCIDENT * interval and j * interval <= self.t_end * (1 + COINCIDENT)
+
+    def _count_before(self, t: float, interval: float) -> int:
+        """Grid times j * interval (up to t_end) before t: ceil(t / interval), coincident times excluded."""
+        return min(self._total(interval), max(0, math.ceil(t / interval - COINCIDENT)))
+
+    def _total(self, interval: float) -> int:
+        return math.floor(self.t_end / interval + COINCIDENT) + 1
+
+    def _next(self, t: float, interval: float) -> float:
+        """The first multiple of ``interval`` after t (and not coincident with it)."""
+        j = math.floor(t / interval + COINCIDENT) + 1
+        return j * interval
+
+    def capacities(self) -> tuple[int, int]:
+        sample, snapshot, _ = self.intervals
+        return self._total(sample) + 1, self._total(snapshot) + 1
+
+    def recorded(self, step: int, t: float) -> tuple[int, int]:
+        """(samples, snapshots) recorded before time t."""
+        sample, snapshot, _ = self.intervals
+        if step <= 0:
+            return 0, 0
+        return self._count_before(t, sample), self._count_before(t, snapshot)
+
+    def finished_counts(self) -> tuple[int, int]:
+        sample, snapshot, _ = self.intervals
+        return self._total(sample), self._total(snapshot)
+
+    # -------------------------------------------------------------- cadences
+    def sample_due(self, state) -> bool:
+        return self._on_grid(state.t, self.intervals[0])
+
+    def snapshot_due(self, state) -> bool:
+        return self._on_grid(state.t, self.intervals[1])
+
+    def checkpoint_due(self, state) -> bool:
+        return self._on_grid(state.t, self.intervals[2])
+
+    def done(self, state) -> bool:
+        return state.t >= self.t_end * (1 - COINCIDENT)
+
+    def fraction(self, state) -> float:
+        return state.t / self.t_end
+
+    def next_event(self, t: float) -> float:
+        return min(min(self._next(t, interval) for interval in self.intervals), self.t_end)
+
+    def take_step(self, solver, state, rates):
+        """(new state, rejected steps): one accepted step, landing on the next event if it reaches it."""
+        k = self.control.initial_dt if math.isnan(state.dt_next) else state.dt_next
+        taken = advance(solver, state, rates, k, self.control, self.next_event(state.t))
+        return taken.state, taken.rejections
+
+
+def clock(case: Case) -> FixedClock | AdaptiveClock:
+    return AdaptiveClock(case) if case.numerics.adaptive else FixedClock(case)

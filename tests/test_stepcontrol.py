@@ -1,0 +1,247 @@
+"""Variable-step SBDF2, its error estimate and the step controller (stepcontrol.py, schedule.py)."""
+import dataclasses
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from hpcves import runner, schedule, stepcontrol
+from hpcves.checkpoint import FINISHED, INTERRUPTED, CaseStore, open_file
+from hpcves.config import case_from_toml
+from hpcves.params import Case, ConfigError, Numerics, Physics, RunControl
+from hpcves.timestepping import Coefficients, Estimate, Solver, quadratic_weights
+
+from conftest import make_solver
+from jobs import resume_in_process, run_in_process, same_case_files
+from test_cli import SHORT
+
+
+# ---------------------------------------------------------------- the coefficients
+def test_the_coefficients_at_ratio_one_are_fixed_step_sbdf2():
+    c = Coefficients.for_ratio(1.0)
+    assert (c.implicit, c.current, c.previous, c.w) == (1.5, 2.0, 0.5, 1.0)
+
+
+def test_a_variable_step_of_the_fixed_length_is_the_fixed_step_bit_for_bit():
+    solver = make_solver(N=64, dt=5e-4, shear_rate=80.0, psi_bar=0.3)
+    fixed = variable = solver.initial_state()
+    for _ in range(20):
+        fixed, _, _ = solver.step(fixed)
+        variable, _, _ = solver.step(variable, None, 5e-4)
+    for name in ("theta", "psi", "prev_rate_theta", "prev_rate_psi"):
+        assert np.array_equal(getattr(fixed, name), getattr(variable, name)), name
+    assert (fixed.center, fixed.shift) == (variable.center, variable.shift)
+
+
+def test_the_quadratic_predictor_is_exact_on_quadratics():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        k, k1, k2 = rng.uniform(0.2, 2.0, 3)
+        l0, l1, l2 = quadratic_weights(k, k1, k2)
+        f = np.poly1d(rng.normal(size=3))
+        assert l0 * f(0) + l1 * f(-k1) + l2 * f(-k1 - k2) == pytest.approx(f(k), rel=1e-10, abs=1e-10)
+    assert quadratic_weights(1.0, 1.0, 1.0) == (3.0, -3.0, 1.0)
+
+
+# ---------------------------------------------------------------- a linear problem with a known solution
+LAM, MU, OMEGA = 50.0, 3.0, 7.0
+# y' = F(t, y) = -(LAM + MU) y + cos(OMEGA t), split as the Solver splits the bending term:
+# LAM y added implicitly and subtracted explicitly (G = F + LAM y)
+
+
+def exact(t):
+    a = LAM + MU                     # y(0) = 1
+    particular = (a * np.cos(OMEGA * t) + OMEGA * np.sin(OMEGA * t)) / (a * a + OMEGA**2)
+    return particular + (1.0 - a / (a * a + OMEGA**2)) * np.exp(-a * t)
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearState:
+    t: float
+    y: float
+    prev_y: float = math.nan
+    prev2_y: float = math.nan
+    prev_rate: float = math.nan
+    dt_prev: float = math.nan
+    dt_prev2: float = math.nan
+    error: float = math.nan
+    dt_next: float = math.nan
+    step: int = 0
+
+
+class LinearSolver:
+    """The scalar problem stepped exactly as the Solver steps a vesicle: same Coefficients, same estimates."""
+
+    def rate(self, t, y):
+        return -(LAM + MU) * y + math.cos(OMEGA * t)
+
+    def step(self, s, rates, k):
+        F = self.rate(s.t, s.y)
+        if s.step == 0:                               # the exact first step: the test is about what follows
+            y, diff, order = exact(s.t + k), 0.0, 2
+        else:
+            c = Coefficients.for_ratio(k / s.dt_prev)
+            y = (c.explicit(s.y, s.prev_y, F, s.prev_rate, k) + LAM * c.extrapolate(s.y, s.prev_y)) \
+                / (c.implicit / k + LAM)
+            if s.step >= 2:
+                l0, l1, l2 = quadratic_weights(k, s.dt_prev, s.dt_prev2)
+                diff, order = y - (l0 * s.y + l1 * s.prev_y + l2 * s.prev2_y), 3
+            else:
+                diff, order = y - c.extrapolate(s.y, s.prev_y), 2
+        new = LinearState(t=s.t + k, y=y, prev_y=s.y, prev2_y=s.prev_y, prev_rate=F, dt_prev=k,
+                          dt_prev2=s.dt_prev, step=s.step + 1)
+        return new, None, Estimate(np.array([diff]), None, 1.0, 0.0, order)
+
+
+def integrate(steps):
+    solver, s = LinearSolver(), LinearState(t=0.0, y=1.0)
+    for k in steps:
+        s, _, _ = solver.step(s, None, k)
+    return s
+
+
+def test_variable_steps_are_second_order_on_a_linear_problem():
+    rng = np.random.default_rng(7)
+    pattern = rng.uniform(0.6, 1.2, 100)            # consecutive ratios anywhere in [0.5, 2]
+    errors = []
+    for refine in (1, 2, 4, 8):
+        steps = np.tile(pattern, refine)              # the same irregular pattern, `refine` times finer
+        steps *= 1.0 / steps.sum()                    # integrate to t = 1
+        s = integrate(steps)
+        errors.append(abs(s.y - exact(s.t)))
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 1.8) and np.all(orders < 2.3), (errors, orders)
+
+
+def run_controlled(rtol, t_end=1.0):
+    control = stepcontrol.StepControl(rtol=rtol, initial_dt=1e-4)
+    solver, s, k, steps = LinearSolver(), LinearState(t=0.0, y=1.0), 1e-4, 0
+    while s.t < t_end * (1 - 1e-12):
+        taken = stepcontrol.advance(solver, s, None, k, control, t_end)
+        s, k, steps = taken.state, taken.state.dt_next, steps + 1
+        assert taken.error <= 1.0
+    return s, steps
+
+
+def test_the_controller_meets_its_tolerance_and_the_error_is_proportional_to_it():
+    errors, counts = [], []
+    for rtol in (1e-3, 1e-4, 1e-5, 1e-6):
+        s, steps = run_controlled(rtol)
+        assert s.t == 1.0                             # landed on the end exactly
+        errors.append(abs(s.y - exact(1.0)))
+        counts.append(steps)
+    per_decade = np.array(errors[:-1]) / np.array(errors[1:])
+    assert np.all(per_decade > 5) and np.all(per_decade < 20), errors     # ~ rtol^1
+    assert all(e < 10 * r for e, r in zip(errors, (1e-3, 1e-4, 1e-5, 1e-6))), errors
+    assert counts == sorted(counts)
+
+
+def test_a_rejected_step_is_retried_smaller_and_the_next_does_not_grow():
+    control = stepcontrol.StepControl(rtol=1e-6)
+    solver, s = LinearSolver(), LinearState(t=0.0, y=1.0)
+    for k in (1e-3, 1e-3, 1e-3):
+        s, _, _ = solver.step(s, None, k)
+    taken = stepcontrol.advance(solver, s, None, 0.2, control, 1.0)   # far too long a step
+    assert taken.rejections >= 1
+    assert taken.state.dt_prev < 0.2 and taken.state.dt_next <= taken.state.dt_prev
+    assert taken.error <= 1.0
+
+
+def test_the_step_ratio_stays_inside_zero_stability():
+    with pytest.raises(ValueError, match="zero-stable"):
+        stepcontrol.StepControl(rtol=1e-3, max_factor=2.5)
+    assert stepcontrol.next_step(1.0, 1e-12, 1e-12, stepcontrol.StepControl(rtol=1e-3)) == 2.0
+
+
+def test_fit_to_lands_on_events_without_tiny_steps():
+    assert stepcontrol.fit_to(0.0, 1.0, 0.5) == (0.5, True)
+    assert stepcontrol.fit_to(0.0, 1.0, 1.05) == (1.05, True)        # stretched by < 10 %
+    assert stepcontrol.fit_to(0.0, 1.0, 1.5) == (0.75, False)        # two equal steps, not 1 + 0.5
+    assert stepcontrol.fit_to(0.0, 1.0, 3.5) == (1.0, False)
+
+
+def test_an_impossible_tolerance_stops_with_a_step_size_error():
+    control = stepcontrol.StepControl(rtol=1e-10, dt_min=1e-3)
+    solver, s = LinearSolver(), LinearState(t=0.0, y=1.0)
+    for k in (1e-2, 1e-2, 1e-2):
+        s, _, _ = solver.step(s, None, k)
+    with pytest.raises(stepcontrol.StepSizeError, match="step size fell"):
+        stepcontrol.advance(solver, s, None, 1e-2, control, 1.0)
+
+
+# ---------------------------------------------------------------- on a vesicle
+def adaptive_state(rtol, t_end, N=64, **physics):
+    case = Case(Physics(**physics), Numerics(N=N, rtol=rtol),
+                RunControl(t_end=t_end, sample_interval=t_end, snapshot_interval=t_end, checkpoint_interval=t_end))
+    solver, clock = Solver(case), schedule.clock(case)
+    state, steps = solver.initial_state(), 0
+    while not clock.done(state):
+        state, _ = clock.take_step(solver, state, solver.rates(state))
+        steps += 1
+    return state, steps
+
+
+def test_on_a_vesicle_the_error_against_a_fine_fixed_step_run_is_proportional_to_rtol():
+    solver = make_solver(N=64, dt=2e-5, shear_rate=40.0, psi_bar=0.0)
+    fine = solver.initial_state()
+    for _ in range(5000):                              # to t = 0.1
+        fine, _, _ = solver.step(fine)
+    errors, counts = [], []
+    for rtol in (1e-2, 1e-3, 1e-4):
+        state, steps = adaptive_state(rtol, 0.1, shear_rate=40.0, psi_bar=0.0)
+        assert state.t == 0.1
+        errors.append(float(np.abs(state.theta - fine.theta).max()))
+        counts.append(steps)
+    per_decade = np.array(errors[:-1]) / np.array(errors[1:])
+    assert np.all(per_decade > 4) and np.all(per_decade < 25), errors
+    assert counts[-1] < 5000 / 4, counts           # and it took far fewer steps than the fine run
+
+
+def test_the_spinodal_start_is_taken_in_small_steps_that_then_grow():
+    case = Case(Physics(shear_rate=80.0, psi_bar=0.3), Numerics(N=64, rtol=1e-2),
+                RunControl(t_end=0.05, sample_interval=0.05, snapshot_interval=0.05, checkpoint_interval=0.05))
+    solver, clock = Solver(case), schedule.clock(case)
+    state, steps = solver.initial_state(), []
+    while not clock.done(state):
+        state, _ = clock.take_step(solver, state, solver.rates(state))
+        steps.append((state.t, state.dt_prev))
+    early = [k for t, k in steps if t < 1e-3]
+    late = [k for t, k in steps if t > 0.03]
+    assert max(early) < 1e-4 and min(late) > 10 * max(early), (early[:5], late[:5])
+
+
+# ---------------------------------------------------------------- in a run: samples on time, resume bitwise
+ADAPTIVE = SHORT.replace("dt = 1e-3", "rtol = 1e-2")       # the short run of test_cli, adaptive
+
+
+def test_an_adaptive_run_samples_on_the_requested_times_and_its_file_validates(tmp_path):
+    case = case_from_toml(ADAPTIVE.format(t_end=0.2, checkpoint=0.07))
+    with open_file(tmp_path / "a.h5", "w-") as f:
+        store = CaseStore.create(f, case)
+        assert runner.run(store, f.flush).status == FINISHED
+        assert store.problems() == []
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        n = int(f["timeseries/length"][()])
+        assert n == 41
+        assert np.array_equal(f["timeseries/t"][:n], np.arange(n) * 0.005)      # exactly j * interval
+        snapshots = f["snapshots/t"][:int(f["snapshots/length"][()])]      # on sample times that coincide
+        assert np.allclose(snapshots, np.arange(5) * 0.05, rtol=0, atol=1e-15) and snapshots.size == 5
+
+
+def test_an_adaptive_run_resumed_from_any_checkpoint_is_bitwise_identical(tmp_path):
+    case = case_from_toml(ADAPTIVE.format(t_end=0.3, checkpoint=0.04))
+    assert run_in_process(case, tmp_path / "a.h5").status == FINISHED
+    assert run_in_process(case, tmp_path / "b.h5", max_steps=97).status == INTERRUPTED
+
+    def sound(store):
+        assert store.problems() == []
+    assert resume_in_process(tmp_path / "b.h5", stops=(55, 3, None), before=sound).status == FINISHED
+    same_case_files(tmp_path / "a.h5", tmp_path / "b.h5", checkpoints=True)
+
+
+def test_dt_and_rtol_together_are_refused():
+    with pytest.raises(ConfigError, match="both dt"):
+        case_from_toml("[numerics]\ndt = 1e-3\nrtol = 1e-3\n")
+    with pytest.raises(ConfigError, match="rtol"):
+        case_from_toml("[numerics]\nrtol = 0.5\n")
