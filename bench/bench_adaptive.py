@@ -93,7 +93,8 @@ def main(argv=None):
              "Delta = 0.194, N = 128, 640 shear times (t_end = 8, 4, 2 for S = 80, 160, 320), theta sampled "
              "every 1/(5 S) (an adaptive step never crosses a sample time); period of theta from its "
              "mid-line crossings after t_end / 4, relative error against the fixed step dt = 3.125e-5. "
-             "Seconds are wall time of one run alone on one core.", "", header, rule]
+             "Seconds: wall time of each run, one at a time on one core (a shared machine: compare within "
+             "the table).", "", header, rule]
     totals = {"fixed": [0, 0.0]} | {rtol: [0, 0.0] for rtol in args.rtol}
     worst = {rtol: 0.0 for rtol in args.rtol}
     for psi_bar, S, ref, fixed, adaptive in rows:
