@@ -140,6 +140,12 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
         found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
+    elif case.message.startswith("decided "):             # stopped by run.until_decided (decision.py)
+        regime = case.message.split()[1]
+        note = (f"stopped when decided at t = {case.t:.4g} (cap {case.t_end:.4g})" if regime == found.regime else
+                f"the run decided {regime} at t = {case.t:.4g} and stopped, but these thresholds find "
+                f"{found.regime}: rerun to the cap without run.until_decided")
+        found = replace(found, reason=f"{note}; {found.reason}")
     return {**base, **found.row()}
 
 

@@ -57,6 +57,7 @@ from .checkpoint import (FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, PENDING, ST
                          attr_text, open_file, reading, safe_flush, storage_bytes)
 from .lock import CampaignLock, LockError, real_path
 from .params import ConfigError
+from .regimes import AnalysisSettings
 from .relay import Relay, RemoteCampaign
 from .search_campaign import SearchDriver, cases_from_file
 from .study import Study
@@ -204,7 +205,8 @@ def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[
 
 
 def run_one(campaign: CampaignFile, case_id: str, resume: bool, flush: Callable[[], None], rank: int,
-            stop_requested: Callable[[], bool], progress: Callable[[float], None]) -> CaseResult:
+            stop_requested: Callable[[], bool], progress: Callable[[float], None],
+            analysis: AnalysisSettings) -> CaseResult:
     """Run one case to its end (or to a stop request); an exception is recorded, never raised."""
     store = campaign.store(case_id)
     t0 = time.perf_counter()
@@ -213,7 +215,8 @@ def run_one(campaign: CampaignFile, case_id: str, resume: bool, flush: Callable[
         progress(t.t / t.t_end)
 
     try:
-        out = runner.run(store, flush, resume=resume, progress=tick, stop_requested=stop_requested)
+        out = runner.run(store, flush, resume=resume, progress=tick, stop_requested=stop_requested,
+                         analysis=analysis)
         return CaseResult(case_id, out.status, out.message, out.t, out.steps, out.wall, rank)
     except StorageError as exc:                  # the file, not the case: nothing more is written
         return CaseResult(case_id, NOT_WRITTEN, str(exc), float("nan"), 0, time.perf_counter() - t0, rank)
@@ -357,7 +360,7 @@ class Master:
                 def progress(fraction, case_id=case_id):
                     self.fraction[case_id] = fraction
 
-                result = run_one(self.campaign, case_id, resume, self.flush, 0, poll, progress)
+                result = run_one(self.campaign, case_id, resume, self.flush, 0, poll, progress, self.study.analysis)
                 del self.busy[0]
                 self.record(result)
                 backoff.reset()
@@ -371,7 +374,7 @@ class Master:
 
 
 # ---------------------------------------------------------------------- other ranks
-def worker_loop(comm, campaign: CampaignFile, flush, stop_flag) -> None:
+def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: AnalysisSettings) -> None:
     """Ask rank 0 for cases and run them until told there are no more."""
     rank = comm.Get_rank()
     comm.send(("ready",), dest=0, tag=TAG_REQUEST)
@@ -394,7 +397,7 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag) -> None:
                     last[0] = now
                     comm.send(("progress", case_id, fraction), dest=0, tag=TAG_REQUEST)
 
-            result = run_one(campaign, case_id, resume, flush, rank, stop_requested, progress)
+            result = run_one(campaign, case_id, resume, flush, rank, stop_requested, progress, analysis)
             comm.send(("done", result), dest=0, tag=TAG_REQUEST)
             backoff.reset()
         else:
@@ -562,7 +565,7 @@ def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed
         results = master.run()
         stopped, refused = master.stopping, master.not_written
     else:
-        worker_loop(comm, campaign, flush, stop_flag)
+        worker_loop(comm, campaign, flush, stop_flag, study.analysis)
     if size > 1:
         wait(comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
     return results, stopped, refused

@@ -12,6 +12,9 @@ A case lives in an HDF5 group -- the file's root for ``hpcves run``, one
                    files written before it existed; readers treat that as empty)
     progress       float64 [t, t_end, wall_seconds, steps_per_second], wall summed
                    over every call that advanced the case
+    decision       float64 [regime code, t, step]: what stopped a run with
+                   run.until_decided (decision.py; code 0: not decided) -- absent in
+                   files written before it existed
     timeseries/    one preallocated dataset per series (NaN-filled), ``length``
                    counts the valid rows; centroid has shape (n, 2)
     snapshots/     t, shift and one (n, N) dataset per field; ``length`` counts
@@ -37,6 +40,7 @@ import numpy as np
 from . import __version__, faults
 from .atomic import METADATA_BYTES_PER_CASE, StorageError
 from .config import case_from_toml, case_to_toml
+from .decision import REGIMES_BY_CODE
 from .diagnostics import SERIES, SNAPSHOT_FIELDS
 from .params import Case, ConfigError
 from .schedule import clock
@@ -49,6 +53,7 @@ MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
 PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED = range(5)
+NOT_DECIDED = (0.0, math.nan, -1.0)
 STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
                 INTERRUPTED: "interrupted"}
 
@@ -163,7 +168,7 @@ def raw_bytes(case: Case) -> int:
     series = (len(SERIES) + 1) * n_samples                   # centroid has two columns
     snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots
     checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
-    fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8
+    fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8 + 3 * 8
     return 8 * (series + snapshots + checkpoints) + fixed
 
 
@@ -222,6 +227,7 @@ class CaseStore:
         group.create_dataset("status", data=np.int8(PENDING))
         group.create_dataset("message", data=np.bytes_(b""), dtype=f"S{MESSAGE_BYTES}")
         group.create_dataset("traceback", data=np.bytes_(b""), dtype=f"S{TRACEBACK_BYTES}")
+        group.create_dataset("decision", data=np.array(NOT_DECIDED))
         group.create_dataset("progress", data=np.array([0.0, case.run.t_end, 0.0, 0.0]))
         ts = group.create_group("timeseries")
         ts.create_dataset("length", data=np.int64(0))
@@ -269,6 +275,8 @@ class CaseStore:
                "snapshots/t": ((n_snapshots,), "f"), "snapshots/shift": ((n_snapshots,), "f")}
         if "traceback" in self.group:                  # absent in files written before it existed
             out["traceback"] = ((), "S")
+        if "decision" in self.group:                   # likewise
+            out["decision"] = ((3,), "f")
         for name in SERIES:
             out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f")
         for name in SNAPSHOT_FIELDS:
@@ -335,9 +343,17 @@ class CaseStore:
                 elif valid and fixed and t != step * case.numerics.dt:
                     found.append(f"checkpoint/{slot}: step {step} at t = {t:g}, not step * dt = "
                                  f"{step * case.numerics.dt:g}")
-            if status == FINISHED and lengths != schedule.finished_counts():
-                found.append(f"finished, but holds {lengths[0]} samples and {lengths[1]} snapshots of "
-                             f"{schedule.finished_counts()}")
+            code, t_decided, step_decided = self.decision
+            if code not in (0, *REGIMES_BY_CODE):
+                found.append(f"decision code {code} is not a regime (0 to {max(REGIMES_BY_CODE)})")
+            elif code and status != FINISHED:
+                found.append(f"decided ({REGIMES_BY_CODE[code]}) but {STATUS_NAMES.get(status, status)}")
+            elif status == FINISHED:
+                expected = (schedule.recorded_through(step_decided, t_decided) if code
+                            else schedule.finished_counts())
+                if lengths != expected:
+                    found.append(f"finished, but holds {lengths[0]} samples and {lengths[1]} snapshots of "
+                                 f"{expected}" + (f" (decided at t = {t_decided:.6g})" if code else ""))
         except HDF5_ERRORS as exc:
             found.append(f"unreadable ({_first_line(exc)})")
         return found
@@ -372,6 +388,19 @@ class CaseStore:
         if traceback is not None and "traceback" in self.group:
             self.group["traceback"][()] = np.bytes_(_clip(traceback, TRACEBACK_BYTES))
         self.group["status"][()] = np.int8(status)
+
+    @property
+    def decision(self) -> tuple[int, float, int]:
+        """(regime code, t, step) of the decision that stopped the run (code 0: none; decision.py)."""
+        if "decision" not in self.group:
+            return 0, math.nan, -1
+        code, t, step = self.group["decision"][:]
+        return (int(code) if np.isfinite(code) else -1), float(t), (int(step) if np.isfinite(step) else -1)
+
+    @_writes
+    def set_decision(self, code: int, t: float, step: int) -> None:
+        if "decision" in self.group:
+            self.group["decision"][:] = (code, t, step)
 
     @_writes
     def set_progress(self, t: float, t_end: float, wall: float, steps_per_second: float) -> None:

@@ -215,6 +215,8 @@ def run_command(case_file, out, resume, overwrite, quiet):
         sys.exit(1)
     if outcome.status != FINISHED:
         summary += f"; resume with: hpcves run --resume {path}"
+    elif outcome.message.startswith("decided"):
+        summary += f"\n{outcome.message}"
     click.echo(summary)
 
 

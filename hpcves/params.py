@@ -173,6 +173,11 @@ class RunControl:
     Intervals are in simulated time and are rounded to whole steps.
     ``checkpoint_wall`` additionally writes a checkpoint whenever that many
     wall-clock seconds have passed since the last one (0 disables it).
+    With ``until_decided`` the run stops as soon as the classifier of ``hpcves
+    analyze`` decides it (decision.py): tank-treading steady for
+    ``decided_shear_times`` shear times, phase-treading or tumbling over
+    ``decided_periods`` settled periods, asked every ``decision_samples``
+    samples; ``t_end`` is then a cap.
     A run stops as diverged when the relative area or length error exceeds
     ``max_area_error`` / ``max_length_error``, when one step needs the area
     projection to undo a relative change above ``max_area_correction``, when
@@ -193,10 +198,18 @@ class RunControl:
     max_area_correction: float = 0.05
     psi_min: float = -0.25
     psi_max: float = 1.1
+    until_decided: bool = False
+    decided_shear_times: float = 100.0
+    decided_periods: float = 10.0
+    decision_samples: int = 100
 
     def __post_init__(self) -> None:
         _finite(self)
         _require(self.t_end > 0, f"run.t_end = {self.t_end}: must be > 0")
+        _require(self.decided_shear_times > 0, f"run.decided_shear_times = {self.decided_shear_times}: must be > 0")
+        _require(self.decided_periods >= 1, f"run.decided_periods = {self.decided_periods}: must be >= 1")
+        _require(isinstance(self.decision_samples, int) and self.decision_samples >= 1,
+                 f"run.decision_samples = {self.decision_samples!r}: must be an integer >= 1")
         for name in ("sample_interval", "snapshot_interval", "checkpoint_interval"):
             value = getattr(self, name)
             _require(value > 0, f"run.{name} = {value}: must be > 0")
@@ -265,13 +278,16 @@ class Case:
         return {"physics": asdict(self.physics), "numerics": asdict(self.numerics), "run": asdict(self.run)}
 
     def significant(self) -> dict:
-        """:meth:`to_dict` without the numerics that this run does not use: the adaptive options
-        of a fixed-step run, dt of an adaptive one (what a study's fingerprint covers, so that
-        files written before the adaptive options existed keep theirs)."""
+        """:meth:`to_dict` without the options that this run does not use: the adaptive options
+        of a fixed-step run, dt of an adaptive one, the decision rules of a run to t_end (what a
+        study's fingerprint covers, so that files written before these options existed keep theirs)."""
         out = self.to_dict()
         unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
         for key in unused:
             del out["numerics"][key]
+        if not self.run.until_decided:
+            for key in ("until_decided", "decided_shear_times", "decided_periods", "decision_samples"):
+                del out["run"][key]
         return out
 
     def flat(self) -> dict:

@@ -13,7 +13,8 @@ were made, and its "done" after all of them. The file therefore always holds
 a prefix of each case's writes -- exactly what the checkpoint protocol
 (invalidate the slot, write it, validate it) needs to survive a kill at any
 moment, as it does under ``mpio``. Reads are a round trip; a run makes a few
-when it starts (its case, progress and newest checkpoint) and none after.
+when it starts (its case, progress, newest checkpoint and, for a run until decided, its
+series so far) and none after.
 """
 from __future__ import annotations
 
@@ -23,8 +24,8 @@ from .campaign_file import CampaignFile
 
 #: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
 WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshot", "truncate",
-                    "write_checkpoint"})
-READS = frozenset({"case", "status", "progress", "read_checkpoint", "newest_checkpoint_slot"})
+                    "write_checkpoint", "set_decision"})
+READS = frozenset({"case", "status", "progress", "read_checkpoint", "newest_checkpoint_slot", "timeseries"})
 
 
 class Relay:
@@ -100,6 +101,9 @@ class RemoteCaseStore:
     def newest_checkpoint_slot(self):
         return self._read("newest_checkpoint_slot")
 
+    def timeseries(self):
+        return self._read("timeseries")
+
     # writes
     def set_status(self, status, message=None, traceback=None):
         self._write("set_status", status, message, traceback)
@@ -116,6 +120,9 @@ class RemoteCaseStore:
 
     def truncate(self, n_samples, n_snapshots):
         self._write("truncate", n_samples, n_snapshots)
+
+    def set_decision(self, code, t, step):
+        self._write("set_decision", code, t, step)
 
     def write_checkpoint(self, state, flush):
         """Rank 0 writes it with its own flushes between the phases; ``flush`` is not needed here."""

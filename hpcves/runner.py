@@ -15,9 +15,11 @@ from typing import Callable
 
 import numpy as np
 
-from . import diagnostics, faults, schedule
+from . import decision, diagnostics, faults, schedule
+from . import checkpoint as checkpoint_module
 from .checkpoint import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
 from .flow import TensionSolveError
+from .regimes import AnalysisSettings
 from .timestepping import Solver, State
 
 #: write buffered samples at least this often (seconds), so that a running case can be watched
@@ -52,8 +54,9 @@ class Diverged(RuntimeError):
 def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         progress: Callable[[Tick], None] | None = None,
         stop_requested: Callable[[], bool] = lambda: False,
-        max_steps: int | None = None) -> Outcome:
-    """Run (or continue) the case in ``store`` to its end time.
+        max_steps: int | None = None, analysis: AnalysisSettings = AnalysisSettings()) -> Outcome:
+    """Run (or continue) the case in ``store`` to its end time (or, with run.until_decided, until
+    decided by the classification with the thresholds ``analysis``: decision.py).
 
     ``flush`` makes the file durable (h5py File.flush). ``stop_requested`` is
     polled every step; when it returns True the current state is checkpointed
@@ -73,6 +76,11 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     if state is None:
         state = solver.initial_state()
         store.truncate(0, 0)
+    deciding = case.run.until_decided
+    if deciding:          # what the decisions read: every sample so far (the same numbers after a resume)
+        recorded = store.timeseries()
+        history = {name: list(recorded[name]) for name in decision.SERIES}
+    store.set_decision(*checkpoint_module.NOT_DECIDED)
 
     clock = schedule.clock(case)
     wall_interval = case.run.checkpoint_wall
@@ -140,6 +148,16 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
                 theta_now = row["theta"]
             if clock.snapshot_due(state):
                 store.append_snapshot(diagnostics.snapshot(solver, state, rates))
+            if deciding and row is not None:
+                for name in decision.SERIES:
+                    history[name].append(row[name])
+                if len(history["t"]) % case.run.decision_samples == 0:
+                    decided = decision.decide({name: np.asarray(v) for name, v in history.items()},
+                                              case.physics.shear_rate, case.run, analysis)
+                    if decided is not None:
+                        write_rows()
+                        store.set_decision(decision.CODES[decided.regime], state.t, state.step)
+                        return finish(FINISHED, decided.message(), state)
             if done:
                 write_rows()
                 return finish(FINISHED, "", state)

@@ -51,6 +51,10 @@ class FixedClock:
     def finished_counts(self) -> tuple[int, int]:
         return self.recorded(self.n_steps + 1, math.inf)
 
+    def recorded_through(self, step: int, t: float) -> tuple[int, int]:
+        """(samples, snapshots) recorded up to and including the state after ``step`` steps."""
+        return self.recorded(step + 1, t)
+
     def sample_due(self, state) -> bool:
         return state.step % self.sample_every == 0
 
@@ -114,6 +118,11 @@ class AdaptiveClock:
     def finished_counts(self) -> tuple[int, int]:
         sample, snapshot, _ = self.intervals
         return self._total(sample), self._total(snapshot)
+
+    def recorded_through(self, step: int, t: float) -> tuple[int, int]:
+        """(samples, snapshots) recorded up to and including the state at time t."""
+        sample, snapshot, _ = self.intervals
+        return tuple(min(self._total(i), math.floor(t / i + COINCIDENT) + 1) for i in (sample, snapshot))
 
     # -------------------------------------------------------------- cadences
     def sample_due(self, state) -> bool:

@@ -112,10 +112,13 @@ class Study:
         A search study's cases are not known up front: its fingerprint covers
         what decides them -- base case, time rules, sweep, search range and
         the classification thresholds (which decide where the search goes next).
+        A grid study's covers the thresholds when its cases run until decided.
         """
         if self.search is None:
             payload = {"name": self.name,
                        "cases": [[c.case_id, c.case.significant()] for c in self.cases]}
+            if self.base.run.until_decided:          # the thresholds decide when its cases stop
+                payload["analysis"] = dataclasses.asdict(self.analysis)
         else:
             times = dataclasses.asdict(self.times)
             samples = times.pop("samples_per_shear_time")
