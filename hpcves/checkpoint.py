@@ -41,7 +41,7 @@ from . import __version__, faults
 from .atomic import METADATA_BYTES_PER_CASE, StorageError
 from .config import case_from_toml, case_to_toml
 from .decision import REGIMES_BY_CODE
-from .diagnostics import SERIES, SNAPSHOT_FIELDS
+from .diagnostics import OPTIONAL_SERIES, SERIES, SNAPSHOT_FIELDS
 from .params import Case, ConfigError
 from .schedule import clock
 from .timestepping import State
@@ -207,6 +207,8 @@ class CaseStore:
         self._ts = group["timeseries"]
         self._snap = group["snapshots"]
         self._ckpt = group["checkpoint"]
+        #: the series this case records (files written before OPTIONAL_SERIES existed lack those)
+        self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or n in self._ts)
 
     # ------------------------------------------------------------------ creation
     @classmethod
@@ -277,7 +279,7 @@ class CaseStore:
             out["traceback"] = ((), "S")
         if "decision" in self.group:                   # likewise
             out["decision"] = ((3,), "f")
-        for name in SERIES:
+        for name in self.series_names:
             out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f")
         for name in SNAPSHOT_FIELDS:
             out[f"snapshots/{name}"] = ((n_snapshots, N), "f")
@@ -426,7 +428,7 @@ class CaseStore:
             return
         start = self.n_samples
         stop = start + len(rows)
-        for name in SERIES:
+        for name in self.series_names:
             values = np.array([row[name] for row in rows], dtype=float)
             self._ts[name][start:stop] = values
         self._ts["length"][()] = stop
@@ -441,7 +443,7 @@ class CaseStore:
     def timeseries(self) -> dict:
         """The valid part of every series (numpy arrays)."""
         n = self.n_samples
-        return {name: self._ts[name][:n] for name in SERIES}
+        return {name: self._ts[name][:n] for name in self.series_names}
 
     def snapshots(self) -> dict:
         n = self.n_snapshots

@@ -11,6 +11,10 @@ Conventions
   (a0/eps)(g - eps^2/2 psi_s^2) being the line-energy part; it is subtracted.
 * ``phase_position`` -- circular mean of the material label alpha weighted by
   psi, in [0, 1).
+* ``tail_theta``, ``tail_psi`` -- the share of the top third of the Fourier
+  modes in the variation of theta_tilde and psi (spectral.spectral_tail): the
+  resolution watch; above ``run.max_spectral_tail`` the run stops as
+  under-resolved.
 * ``V_psi`` -- velocity (arclength per time) of the phase pattern relative to
   the material: L d(phase_position)/dt.
 * ``V_L`` -- velocity of the material point alpha = 0 relative to the point
@@ -26,13 +30,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import geometry, phasefield
+from .spectral import resolution_needed, spectral_tail
 from .forces import bending_energy, phase_energy
 from .timestepping import Rates, Solver, State
 
 #: Names of the scalar time series, in file order; ``centroid`` has two columns.
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",
           "tension_min", "tension_mean", "tension_max", "V_psi", "V_L", "phase_position",
-          "psi_min", "psi_max", "area_correction", "tank_treading_velocity", "stretching")
+          "psi_min", "psi_max", "area_correction", "tank_treading_velocity", "stretching",
+          "tail_theta", "tail_psi")
+
+#: series added after files of format 3 were first written: a case without them still reads
+OPTIONAL_SERIES = ("tail_theta", "tail_psi")
 
 #: Names of the snapshot fields (one value per node).
 SNAPSHOT_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "velocity_y")
@@ -42,6 +51,7 @@ SNAPSHOT_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "veloc
 class Health:
     ok: bool
     reason: str = ""
+    under_resolved: bool = False     # the failure is the resolution, not the dynamics
 
 
 def tension(state: State, rates: Rates, solver: Solver) -> np.ndarray:
@@ -132,6 +142,8 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "area_correction": state.area_correction,
         "tank_treading_velocity": V,
         "stretching": float(np.abs(flow.stretching(shape.tangent, sp)).max()),
+        "tail_theta": spectral_tail(sp.fft.rfft(state.theta), sp.N),
+        "tail_psi": 0.0 if phys.homogeneous else spectral_tail(rates.psi_hat, sp.N),
     }
 
 
@@ -188,6 +200,17 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
         return Health(False, f"psi left [{run.psi_min}, {run.psi_max}] (range [{lo:.4g}, {hi:.4g}]) at "
                              f"t = {solver.time(state):.6g}" + _overshoot_context(solver, state))
     if row is not None:
+        for field, name, initial in zip(("theta", "psi"), ("tail_theta", "tail_psi"), solver.initial_tails):
+            bound = max(run.max_spectral_tail, initial)
+            if row[name] > bound:
+                array = state.theta if field == "theta" else state.psi
+                needed = resolution_needed(solver.sp.fft.rfft(array), solver.sp.N, 0.1 * run.max_spectral_tail)
+                limit = (f"run.max_spectral_tail = {run.max_spectral_tail:g}" if bound == run.max_spectral_tail
+                         else f"more than the initial shape's {initial:.2g}, itself above run.max_spectral_tail")
+                return Health(False, f"the top third of the Fourier modes of {field} holds {row[name]:.2g} of its "
+                                     f"variation ({limit}) at t = {row['t']:.6g}: N = {solver.sp.N} does not "
+                                     f"resolve it; N = {needed} would (from the decay of its spectrum)",
+                              under_resolved=True)
         if abs(row["area_error"]) > run.max_area_error:
             return Health(False, f"relative area error {row['area_error']:.3g} exceeds "
                                  f"run.max_area_error = {run.max_area_error} at t = {row['t']:.6g}")

@@ -173,6 +173,10 @@ class RunControl:
     Intervals are in simulated time and are rounded to whole steps.
     ``checkpoint_wall`` additionally writes a checkpoint whenever that many
     wall-clock seconds have passed since the last one (0 disables it).
+    A run stops as under-resolved when the top third of the Fourier modes of
+    theta_tilde or psi holds more than ``max_spectral_tail`` of its variation
+    (1e-3: N = 32 at Delta = 0.194 and N = 64 at Delta = 2.3 exceed it, N = 64
+    and 128 there stay below; docs/numerics.md).
     With ``until_decided`` the run stops as soon as the classifier of ``hpcves
     analyze`` decides it (decision.py): tank-treading steady for
     ``decided_shear_times`` shear times, phase-treading or tumbling over
@@ -198,6 +202,7 @@ class RunControl:
     max_area_correction: float = 0.05
     psi_min: float = -0.25
     psi_max: float = 1.1
+    max_spectral_tail: float = 1e-3
     until_decided: bool = False
     decided_shear_times: float = 100.0
     decided_periods: float = 10.0
@@ -206,6 +211,8 @@ class RunControl:
     def __post_init__(self) -> None:
         _finite(self)
         _require(self.t_end > 0, f"run.t_end = {self.t_end}: must be > 0")
+        _require(0 < self.max_spectral_tail <= 1,
+                 f"run.max_spectral_tail = {self.max_spectral_tail}: must lie in (0, 1]")
         _require(self.decided_shear_times > 0, f"run.decided_shear_times = {self.decided_shear_times}: must be > 0")
         _require(self.decided_periods >= 1, f"run.decided_periods = {self.decided_periods}: must be >= 1")
         _require(isinstance(self.decision_samples, int) and self.decision_samples >= 1,
@@ -279,8 +286,9 @@ class Case:
 
     def significant(self) -> dict:
         """:meth:`to_dict` without the options that this run does not use: the adaptive options
-        of a fixed-step run, dt of an adaptive one, the decision rules of a run to t_end (what a
-        study's fingerprint covers, so that files written before these options existed keep theirs)."""
+        of a fixed-step run, dt of an adaptive one, the decision rules of a run to t_end, the
+        resolution watch at its default (what a study's fingerprint covers, so that files written
+        before these options existed keep theirs)."""
         out = self.to_dict()
         unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
         for key in unused:
@@ -288,6 +296,8 @@ class Case:
         if not self.run.until_decided:
             for key in ("until_decided", "decided_shear_times", "decided_periods", "decision_samples"):
                 del out["run"][key]
+        if self.run.max_spectral_tail == RunControl.max_spectral_tail:
+            del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
         return out
 
     def flat(self) -> dict:

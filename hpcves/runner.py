@@ -51,6 +51,10 @@ class Diverged(RuntimeError):
     pass
 
 
+class UnderResolved(Diverged):
+    """N is too small for the shape or the phase field (the spectral tail watch)."""
+
+
 def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         progress: Callable[[Tick], None] | None = None,
         stop_requested: Callable[[], bool] = lambda: False,
@@ -131,7 +135,7 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
             if not verdict.ok:
                 if row is not None:
                     rows.append(row)
-                raise Diverged(verdict.reason)
+                raise (UnderResolved if verdict.under_resolved else Diverged)(verdict.reason)
             # State n is sound. A checkpoint of it counts only what was recorded
             # *before* it, so a resumed run records state n again, once.
             now = time.perf_counter()
@@ -179,4 +183,5 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
-        return finish(FAILED, f"diverged: {reason} ({kept})", state)
+        what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"
+        return finish(FAILED, f"{what}: {reason} ({kept})", state)

@@ -133,6 +133,52 @@ def make_fft(n: int, backend: str = "fftw"):
     raise ValueError(f"unknown FFT backend {backend!r} (use 'fftw' or 'numpy')")
 
 
+#: the modes whose share of a field's variation measures its resolution: the top third
+TAIL_FROM = 1.0 / 3.0
+
+
+def spectral_tail(f_hat: np.ndarray, N: int, start: float = TAIL_FROM) -> float:
+    """sqrt(sum_{m >= m0} |f_m|^2 / sum_{m >= 1} |f_m|^2), m0 = ceil(start N): the share of the top modes.
+
+    ``f_hat`` is the rfft of N samples (modes 0 ... N/2); start = 1/3 takes
+    the top third of the band. 0 for a constant field. A resolved spectral
+    solution has a share that falls exponentially with N (docs/numerics.md).
+    """
+    power = np.abs(f_hat[1:]) ** 2
+    total = float(power.sum())
+    if total <= 0.0:
+        return 0.0
+    return float(np.sqrt(power[int(np.ceil(start * N)) - 1:].sum() / total))
+
+
+def resolution_needed(f_hat: np.ndarray, N: int, target: float, largest: int = 8) -> int:
+    """The smallest N' (a multiple of 16, at most ``largest`` N) at which this field's tail would be
+    ``target`` or less, extrapolating its spectrum.
+
+    log |f_m|^2 is fitted by a straight line over the upper part of the band
+    (N/6 <= m < N/2: the exponential decay of an analytic field); modes up to
+    N/2 keep their values, higher ones follow the line, and the tail share of
+    N' is computed from that spectrum. 2 N if the spectrum does not decay.
+    """
+    if spectral_tail(f_hat, N) <= target:
+        return N
+    power = np.abs(f_hat) ** 2
+    m = np.arange(power.size)
+    fit = (m >= N / 6.0) & (m < N // 2) & (power > 0)
+    if fit.sum() < 2:
+        return 2 * N
+    slope, intercept = np.polyfit(m[fit], np.log(power[fit]), 1)
+    if not slope < 0:
+        return 2 * N
+    for candidate in range(16 * (N // 16 + 1), largest * N + 1, 16):
+        modes = np.arange(candidate // 2 + 1)
+        extended = np.exp(intercept + slope * modes)
+        extended[: power.size] = power[: candidate // 2 + 1]
+        if spectral_tail(np.sqrt(extended), candidate) <= target:
+            return candidate
+    return largest * N
+
+
 class Spectral:
     """Derivatives, antiderivatives and interpolation for N-periodic samples.
 

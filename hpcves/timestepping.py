@@ -86,7 +86,7 @@ from .flow import Flow, MembraneFlow
 from .forces import bending_energy, phase_energy
 from .geometry import Shape
 from .params import Case
-from .spectral import Spectral
+from .spectral import Spectral, spectral_tail
 
 
 @dataclass(frozen=True)
@@ -232,7 +232,13 @@ class Solver:
                                                       num.phase_stabilization)
             self.cahn_hilliard = phasefield.LinearizedImplicit(self.sp, phys.mobility, phys.a0, phys.epsilon)
         self._applicable_memo: tuple = ()
-        self.area0 = geometry.enclosed_area(self.initial_state().theta + self.sp.circle_angle, self.sp)
+        start = self.initial_state()
+        self.area0 = geometry.enclosed_area(start.theta + self.sp.circle_angle, self.sp)
+        #: the spectral tails of the initial data (theta, psi): the ellipse's own, which its fast
+        #: relaxation forgets (diagnostics.health measures the dynamics against the larger of these
+        #: and run.max_spectral_tail)
+        self.initial_tails = (spectral_tail(self.sp.fft.rfft(start.theta), self.sp.N),
+                              spectral_tail(self.sp.fft.rfft(start.psi), self.sp.N))
 
     # ------------------------------------------------------------------ set-up
     def initial_state(self) -> State:

@@ -49,6 +49,7 @@ N = 32
 dt = 1e-3
 
 [run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
 sample_interval = 0.005
 snapshot_interval = 0.02
 checkpoint_interval = 0.01

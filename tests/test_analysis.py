@@ -24,6 +24,7 @@ t_end = 1.0
 N = 32
 dt = 1e-3
 [run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
 sample_interval = 0.005
 snapshot_interval = 0.05
 checkpoint_interval = 0.5
@@ -99,7 +100,7 @@ def test_a_running_campaign_is_analysed_but_not_written_to(campaign, tmp_path):
 
 def test_a_single_run_file_is_analysed_too(tmp_path):
     case = case_from_toml("[numerics]\nN = 32\ndt = 1e-3\n[physics]\nshear_rate = 80.0\npsi_bar = 0.3\n"
-                          "[run]\nt_end = 1.0\nsample_interval = 0.005\n")
+                          "[run]\nmax_spectral_tail = 1.0\nt_end = 1.0\nsample_interval = 0.005\n")
     path = tmp_path / "single.h5"
     with h5py.File(path, "w") as h5:
         store = CaseStore.create(h5, case)

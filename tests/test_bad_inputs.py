@@ -17,7 +17,7 @@ from hpcves.config import case_from_toml
 from hpcves import runner
 from hpcves.study import study_from_toml
 
-BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nt_end = 0.02\nsample_interval = 0.005\nsnapshot_interval = 0.01\n"
+BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.02\nsample_interval = 0.005\nsnapshot_interval = 0.01\n"
 
 #: case files: (text, words the one line must hold)
 CASE_FILES = {

@@ -27,6 +27,7 @@ TINY_RUN = """[numerics]
 N = 32
 dt = 1e-3
 [run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
 sample_interval = 0.005
 snapshot_interval = 0.05
 checkpoint_interval = {checkpoint}

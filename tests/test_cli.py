@@ -23,6 +23,7 @@ psi_bar = 0.3
 N = 32
 dt = 1e-3
 [run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
 t_end = {t_end}
 sample_interval = 0.005
 snapshot_interval = 0.05

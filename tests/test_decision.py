@@ -60,6 +60,7 @@ psi_bar = {psi_bar}
 N = 32
 rtol = 1e-2
 [run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
 t_end = 20.0
 sample_interval = 0.005
 snapshot_interval = 0.5
@@ -122,6 +123,7 @@ t_end = 6.0
 N = 32
 rtol = 1e-2
 [run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
 sample_interval = 0.005
 snapshot_interval = 0.5
 checkpoint_interval = 0.25

@@ -157,7 +157,7 @@ def test_run_overwrite_refuses_a_file_another_run_is_writing(tmp_path):
     import sys
 
     case = tmp_path / "case.toml"
-    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 100.0\ncheckpoint_interval = 1.0\n")
+    case.write_text("[numerics]\nN = 32\n[run]\nmax_spectral_tail = 1.0\nt_end = 100.0\ncheckpoint_interval = 1.0\n")
     out = tmp_path / "x.h5"
     job = subprocess.Popen([sys.executable, "-m", "hpcves.cli", "run", str(case), "--out", str(out), "--quiet"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -325,7 +325,7 @@ def test_a_write_refused_while_cases_run_stops_the_campaign_and_loses_nothing(tm
 ])
 def test_absurd_run_lengths_are_refused_with_the_numbers(tmp_path, numerics, run, words):
     case = tmp_path / "case.toml"
-    case.write_text(f"[numerics]\nN = 32\n{numerics}\n[run]\n{run}\n")
+    case.write_text(f"[numerics]\nN = 32\n{numerics}\n[run]\nmax_spectral_tail = 1.0\n{run}\n")
     result = hpcves("run", case, "--out", tmp_path / "out.h5")
     line = one_line(result)
     assert result.returncode == 2 and all(w in line for w in words), line
@@ -333,13 +333,18 @@ def test_absurd_run_lengths_are_refused_with_the_numbers(tmp_path, numerics, run
 
 
 def test_a_study_no_disk_can_hold_is_refused_with_the_numbers(tmp_path):
-    """10^8 steps a case (not absurd by itself), a sample every step: 18 GB a case, 18 TB for 1000."""
+    """10^8 steps a case (not absurd by itself), a sample every step: ~20 GB a case, ~20 TB for 1000."""
+    from hpcves.diagnostics import SERIES
+
     path, output = write_study(tmp_path / "job", t_end=1e5, shear="{ linspace = [10, 400, 500] }",
                                psi="[0.3, 0.5]")
     path.write_text(path.read_text().replace("sample_interval = 0.005", "sample_interval = 1e-3"))
     result = hpcves("campaign", path)
     line = one_line(result)
-    assert result.returncode == 2 and "needs 1" in line and " TB, but only " in line, line
+    assert result.returncode == 2 and " TB, but only " in line, line
+    series = 1000 * 1e8 * (len(SERIES) + 1) * 8 / 1e12          # TB of the time series alone
+    needs = float(line.split("needs ")[1].split(" TB")[0])
+    assert series <= needs < 1.3 * series, (needs, series)
     assert not output.exists()
 
 
@@ -347,7 +352,7 @@ def test_a_study_no_disk_can_hold_is_refused_with_the_numbers(tmp_path):
 def test_outputs_that_cannot_be_files_get_one_line(tmp_path):
     path, output = write_study(tmp_path / "job", t_end=0.01)
     case = tmp_path / "case.toml"
-    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 0.01\n")
+    case.write_text("[numerics]\nN = 32\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.01\n")
     (tmp_path / "afile").write_text("x")
     (tmp_path / "adir").mkdir()
     for args, words in (
@@ -369,7 +374,7 @@ def test_a_read_only_directory_gets_one_line(tmp_path, small_disk):
     subprocess.run(["mount", "-o", "remount,ro", str(disk)], check=True)
     path, output = write_study(tmp_path / "job", t_end=0.01, output=disk / "x.h5")
     case = tmp_path / "case.toml"
-    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 0.01\n")
+    case.write_text("[numerics]\nN = 32\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.01\n")
     for args in (["campaign", path], ["run", case, "--out", disk / "y.h5"]):
         result = hpcves(*args)
         line = one_line(result)
@@ -466,7 +471,7 @@ def test_resume_refuses_a_damaged_case_naming_it(finished, tmp_path, damage, cas
 
 def test_run_resume_refuses_a_damaged_case_file(tmp_path):
     case = tmp_path / "case.toml"
-    case.write_text("[numerics]\nN = 32\n[run]\nt_end = 0.02\ncheckpoint_interval = 0.01\n")
+    case.write_text("[numerics]\nN = 32\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.02\ncheckpoint_interval = 0.01\n")
     out = tmp_path / "one.h5"
     assert hpcves("run", case, "--out", out, "--quiet").returncode == 0
     with h5py.File(out, "r+") as f:
@@ -586,7 +591,7 @@ def test_a_run_killed_inside_a_checkpoint_resumes_bitwise(tmp_path):
     from jobs import mpi_env
 
     case = tmp_path / "case.toml"
-    case.write_text("[physics]\nshear_rate = 80.0\n[numerics]\nN = 32\n[run]\nt_end = 0.2\n"
+    case.write_text("[physics]\nshear_rate = 80.0\n[numerics]\nN = 32\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.2\n"
                     "sample_interval = 0.005\nsnapshot_interval = 0.05\ncheckpoint_interval = 0.02\n")
     assert hpcves("run", case, "--out", tmp_path / "a.h5", "--quiet").returncode == 0
     killed = hpcves("run", case, "--out", tmp_path / "b.h5", "--quiet", env=mpi_env(HPCVES_FAULT="checkpoint:9"))
