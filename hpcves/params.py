@@ -175,8 +175,8 @@ class RunControl:
     wall-clock seconds have passed since the last one (0 disables it).
     A run stops as under-resolved when the top third of the Fourier modes of
     theta_tilde or psi holds more than ``max_spectral_tail`` of its variation
-    (1e-3: N = 32 at Delta = 0.194 and N = 64 at Delta = 2.3 exceed it, N = 64
-    and 128 there stay below; docs/numerics.md).
+    (3e-3: N = 32 at Delta = 0.194 and N = 64 at Delta = 2.3 exceed it, the
+    resolutions that agreed with finer runs stay below; docs/numerics.md).
     With ``until_decided`` the run stops as soon as the classifier of ``hpcves
     analyze`` decides it (decision.py): tank-treading steady for
     ``decided_shear_times`` shear times, phase-treading or tumbling over
@@ -202,7 +202,7 @@ class RunControl:
     max_area_correction: float = 0.05
     psi_min: float = -0.25
     psi_max: float = 1.1
-    max_spectral_tail: float = 1e-3
+    max_spectral_tail: float = 3e-3
     until_decided: bool = False
     decided_shear_times: float = 100.0
     decided_periods: float = 10.0

@@ -114,7 +114,9 @@ def measure(directory: Path, n: int, io: str, points: int = POINTS) -> Timeline:
             seen["file"] = now
         if "file" in seen and "done" not in seen and all_finished(output):
             seen["done"] = now
-        time.sleep(0.003)
+        # fine steps until the file exists (creation can be short), then coarser: reading the file
+        # every few ms slows the job on a loaded machine, and the moments measured would be late
+        time.sleep(0.003 if "file" not in seen else 0.02)
     end = time.monotonic() - start
     assert job.returncode == 0, job.communicate()
     file = seen.get("file", end)
@@ -200,7 +202,7 @@ def trial(directory: Path, n: int, io: str, timeline: Timeline, rng: random.Rand
     planned = planned or rng.choices(["creation", "running", "end"], weights=[1, 2, 1])[0]
     mode = mode or rng.choices(["job", "group"], weights=[3, 1])[0]
     window = {"creation": (timeline.partial, timeline.file), "running": (timeline.file, timeline.done),
-              "end": (timeline.done - 0.1 * (timeline.done - timeline.file), timeline.exit)}[planned]
+              "end": (timeline.done - 0.3 * (timeline.done - timeline.file), timeline.exit)}[planned]
     record = Trial(n, io, planned, mode)
     started = time.monotonic()
     job = start_job(n, *campaign_args(path, io), own_group=(mode == "group"))
