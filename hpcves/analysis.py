@@ -26,6 +26,7 @@ from .checkpoint import FAILED, FINISHED, HDF5_ERRORS, STATUS_NAMES, CaseStore, 
 from .checkpoint import FORMAT as CASE_FORMAT
 from .lock import CampaignLock, real_path
 from .params import ConfigError
+from .decision import REGIMES_BY_CODE
 from .regimes import REGIMES, UNDECIDED, AnalysisSettings, Classification, classify
 
 PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
@@ -47,6 +48,7 @@ class CaseData:
     series: dict
     search: int = -1           # search files: the search the case belongs to
     mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
+    decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,7 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     t, t_end = (float(v) for v in store.progress[:2])
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
-                    search, mark(store))
+                    search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""))
 
 
 def mark(store: CaseStore) -> tuple:
@@ -140,8 +142,8 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
         found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
-    elif case.message.startswith("decided "):             # stopped by run.until_decided (decision.py)
-        regime = case.message.split()[1]
+    elif case.decided:                                    # stopped by run.until_decided (decision.py)
+        regime = case.decided
         note = (f"stopped when decided at t = {case.t:.4g} (cap {case.t_end:.4g})" if regime == found.regime else
                 f"the run decided {regime} at t = {case.t:.4g} and stopped, but these thresholds find "
                 f"{found.regime}: rerun to the cap without run.until_decided")

@@ -156,11 +156,6 @@ def capacities(case: Case) -> tuple[int, int]:
     return clock(case).capacities()
 
 
-def recorded(case: Case, step: int, t: float) -> tuple[int, int]:
-    """(samples, snapshots) a run has recorded *before* the state after ``step`` steps, at time ``t``."""
-    return clock(case).recorded(step, t)
-
-
 def raw_bytes(case: Case) -> int:
     """The bytes :meth:`CaseStore.create` allocates for a case's datasets (all of them, up front)."""
     n_samples, n_snapshots = capacities(case)
@@ -313,7 +308,8 @@ class CaseStore:
         if found:
             return found
         try:
-            n_samples, n_snapshots = capacities(case)
+            schedule = clock(case)
+            n_samples, n_snapshots = schedule.capacities()
             attrs = self.group.attrs
             if (int(attrs["sample_capacity"]), int(attrs["snapshot_capacity"]), int(attrs["N"])) != \
                     (n_samples, n_snapshots, case.numerics.N):
@@ -325,7 +321,6 @@ class CaseStore:
             for what, n, cap in (("timeseries", lengths[0], n_samples), ("snapshots", lengths[1], n_snapshots)):
                 if not 0 <= n <= cap:
                     found.append(f"{what}/length = {n} lies outside [0, {cap}] (the capacity)")
-            schedule = clock(case)
             for slot, meta in self._slot_meta().items():
                 valid, step = int(meta[0]), int(meta[1])
                 t = self._checkpoint_time(slot, step, case) if valid == 1 else math.nan

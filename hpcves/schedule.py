@@ -31,7 +31,6 @@ class FixedClock:
     adaptive = False
 
     def __init__(self, case: Case):
-        self.case = case
         self.n_steps = case.n_steps
         self.sample_every = case.every(case.run.sample_interval)
         self.snapshot_every = case.every(case.run.snapshot_interval)
@@ -81,7 +80,6 @@ class AdaptiveClock:
     adaptive = True
 
     def __init__(self, case: Case):
-        self.case = case
         run, num = case.run, case.numerics
         self.t_end = run.t_end
         self.intervals = (run.sample_interval, run.snapshot_interval, run.checkpoint_interval)

@@ -42,6 +42,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+
 @dataclass(frozen=True)
 class StepControl:
     """Tolerances and limits of the controller (see the module docstring)."""
@@ -128,7 +129,6 @@ class Taken:
     """An accepted step: the new state and what the controller did to get it."""
 
     state: object
-    estimate: object
     error: float
     rejections: int
 
@@ -161,4 +161,4 @@ def advance(solver, state, rates, k: float, control: StepControl, t_event: float
         proposal = min(proposal, step)
     if lands:
         new = replace(new, t=t_event)
-    return Taken(replace(new, error=err, dt_next=proposal), estimate, err, rejections)
+    return Taken(replace(new, error=err, dt_next=proposal), err, rejections)

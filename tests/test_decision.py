@@ -52,24 +52,27 @@ def test_undecided_and_short_series_never_stop_a_case():
     assert decision.decide(series(t, steady_but_moving, lab_speed=0.5), 80.0, RULES) is None
 
 
-UNTIL = """
-[physics]
-shear_rate = {S}
-psi_bar = {psi_bar}
-[numerics]
+#: numerics and run settings of the real cases here (a TOML tail, [run] last so that more keys can follow)
+DECIDING = """[numerics]
 N = 32
 rtol = 1e-2
 [run]
 max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
-t_end = 20.0
 sample_interval = 0.005
 snapshot_interval = 0.5
 checkpoint_interval = 0.25
+checkpoint_wall = 0
 until_decided = true
 decided_shear_times = 30
 decided_periods = 5
 decision_samples = 20
 """
+
+UNTIL = """
+[physics]
+shear_rate = {S}
+psi_bar = {psi_bar}
+""" + DECIDING + "t_end = 20.0\n"
 
 
 @pytest.mark.parametrize("S, psi_bar, regime", [(10.0, 0.0, "TT"), (80.0, 0.3, "PT")])
@@ -119,20 +122,7 @@ CAMPAIGN = """
 name = "decided"
 output = "{output}"
 t_end = 6.0
-[numerics]
-N = 32
-rtol = 1e-2
-[run]
-max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
-sample_interval = 0.005
-snapshot_interval = 0.5
-checkpoint_interval = 0.25
-checkpoint_wall = 0
-until_decided = true
-decided_shear_times = 30
-decided_periods = 5
-decision_samples = 20
-[sweep]
+""" + DECIDING + """[sweep]
 shear_rate = [10, 80]
 psi_bar = [0.0, 0.3]
 """
