@@ -20,7 +20,11 @@ from . import checkpoint as checkpoint_module
 from .checkpoint import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
 from .flow import TensionSolveError
 from .regimes import AnalysisSettings
+from .stepcontrol import StepSizeError
 from .timestepping import Solver, State
+
+#: psi beyond [-OVERSHOOT, 1 + OVERSHOOT] when the step control gives up: named in the failure
+OVERSHOOT = 0.03
 
 #: write buffered samples at least this often (seconds), so that a running case can be watched
 SAMPLE_FLUSH_SECONDS = 10.0
@@ -181,6 +185,13 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     except (Diverged, TensionSolveError, ArithmeticError, FloatingPointError) as exc:
         write_rows()
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
+        if isinstance(exc, StepSizeError) and not solver.case.physics.homogeneous:
+            levels = [p for p in (state.psi, state.prev_psi, state.prev2_psi) if p is not None]
+            lo, hi = min(float(p.min()) for p in levels), max(float(p.max()) for p in levels)
+            if lo < -OVERSHOOT or hi > 1.0 + OVERSHOOT:
+                reason += (f"; psi in [{lo:.4g}, {hi:.4g}] over the last steps, beyond [0, 1] (healthy steps "
+                           "stay within 0.005 of it), where the linear bending law B(psi) nears zero: "
+                           "the model, not the step, gives out (docs/numerics.md)")
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
         what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"

@@ -211,6 +211,39 @@ def test_the_spinodal_start_is_taken_in_small_steps_that_then_grow():
     assert max(early) < 1e-4 and min(late) > 10 * max(early), (early[:5], late[:5])
 
 
+DEFLATED = """[physics]
+shear_rate = 5.0
+psi_bar = 0.48
+excess_length = 1.3
+[numerics]
+N = 128
+rtol = 1e-2
+[run]
+t_end = 3.5
+sample_interval = 0.02
+snapshot_interval = 0.5
+checkpoint_interval = 3.5
+"""
+
+
+def test_fallback_steps_do_not_stall_the_controller_and_the_model_limit_is_named(tmp_path):
+    # psi_bar = 0.48, Delta = 1.3, S = 5 (jobs/reproduce/psi048_delta_S.toml): the stabilised Euler
+    # fallback once stalled the controller at t = 2.81 (21 rejections); now the run goes on until
+    # the tip's spectral tail stops it ...
+    with open_file(tmp_path / "a.h5", "w-") as f:
+        store = CaseStore.create(f, case_from_toml(DEFLATED))
+        outcome = runner.run(store, f.flush)
+    assert outcome.message.startswith("under-resolved:") and outcome.t > 2.9, outcome
+    # ... and without that watch (and with psi allowed to 1.5), until the model gives out, which the
+    # failure names
+    loose = DEFLATED + "max_spectral_tail = 1.0\npsi_max = 1.5\n"
+    with open_file(tmp_path / "b.h5", "w-") as f:
+        store = CaseStore.create(f, case_from_toml(loose))
+        outcome = runner.run(store, f.flush)
+    assert "StepSizeError" in outcome.message and "the model, not the step, gives out" in outcome.message
+    assert outcome.t > 3.0, outcome
+
+
 # ---------------------------------------------------------------- in a run: samples on time, resume bitwise
 ADAPTIVE = SHORT.replace("dt = 1e-3", "rtol = 1e-2")       # the short run of test_cli, adaptive
 
