@@ -3,7 +3,8 @@
     python tests/faults.py --kills 40 --out FAULTS.md            # what `make faults` runs
 
 Each trial runs the study below under ``mpirun -n 2`` or ``-n 3``, with ``--io mpio`` or
-``--io relay``, and SIGKILLs the whole job at a random moment. The moment is drawn from a timeline
+``--io relay``, with a fixed or an adaptive time step (``dt`` or ``rtol``: the step controller's
+state must resume bitwise too), and SIGKILLs the whole job at a random moment. The moment is drawn from a timeline
 measured first for that set-up, so that a quarter of the kills fall while the file is created,
 half while the cases run, and a quarter at the very end (the last cases finishing, the summary,
 the close). A quarter of the trials kill only mpirun's process group, which leaves the ranks
@@ -46,7 +47,7 @@ t_end = 0.06
 
 [numerics]
 N = 32
-dt = 1e-3
+{stepping}
 
 [run]
 max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
@@ -59,27 +60,30 @@ checkpoint_wall = 0
 shear_rate = {{ linspace = [10, 160, {points}] }}
 psi_bar = [0.3, 0.4, 0.5]
 """
-SETUPS = [(2, "mpio"), (3, "relay"), (3, "mpio"), (2, "relay")]
+#: (ranks, io, time stepping): each io with each stepping
+SETUPS = [(2, "mpio", "fixed"), (3, "relay", "adaptive"), (3, "mpio", "adaptive"), (2, "relay", "fixed")]
+#: the [numerics] line of each time stepping
+STEPPING = {"fixed": "dt = 1e-3", "adaptive": "rtol = 1e-2"}
 AFTER = "after the job ended"          # a kill that came too late: the job had ended by itself
 
 
 POINTS = 20                            # shear rates: 3 x 20 = 60 cases, whose creation takes a while
 
 
-def write_study(directory: Path, points: int = POINTS) -> tuple[Path, Path]:
+def write_study(directory: Path, points: int = POINTS, stepping: str = "fixed") -> tuple[Path, Path]:
     directory.mkdir(parents=True, exist_ok=True)
     output = directory / "faults.h5"
     path = directory / "faults.toml"
-    path.write_text(STUDY.format(output=output, points=points))
+    path.write_text(STUDY.format(output=output, points=points, stepping=STEPPING[stepping]))
     return path, output
 
 
-def reference(directory: Path, points: int = POINTS) -> Path:
+def reference(directory: Path, points: int = POINTS, stepping: str = "fixed") -> Path:
     """The study run uninterrupted, serially in this process."""
     from hpcves.campaign import run_campaign
     from hpcves.study import study_from_toml
 
-    path, output = write_study(directory, points)
+    path, output = write_study(directory, points, stepping)
     if not output.exists():
         assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
     return output
@@ -100,8 +104,8 @@ class Timeline:
     exit: float             # the job has ended
 
 
-def measure(directory: Path, n: int, io: str, points: int = POINTS) -> Timeline:
-    path, output = write_study(directory, points)
+def measure(directory: Path, n: int, io: str, points: int = POINTS, stepping: str = "fixed") -> Timeline:
+    path, output = write_study(directory, points, stepping)
     partial = output.with_name(output.name + ".partial")
     seen = {}
     start = time.monotonic()
@@ -150,6 +154,7 @@ class Trial:
     io: str
     planned: str
     mode: str                               # "job": every process; "group": mpirun's process group only
+    stepping: str = "fixed"                 # "fixed" (dt) or "adaptive" (rtol)
     kills: list = field(default_factory=list)   # where each kill landed
     refused: int = 0                        # resumes the lock refused (ranks still alive)
     differences: list = field(default_factory=list)
@@ -192,18 +197,18 @@ def run_to_completion(path, output, n, io, trial: Trial, lingering=frozenset()):
 
 def trial(directory: Path, n: int, io: str, timeline: Timeline, rng: random.Random, ref: Path,
           planned: str | None = None, mode: str | None = None, again: bool | None = None,
-          points: int = POINTS) -> Trial:
+          points: int = POINTS, stepping: str = "fixed") -> Trial:
     """Kill the job once at a moment drawn from ``timeline`` (``planned``: creation, running or end),
     perhaps kill the resume too, resume to the end, compare with ``ref``."""
     import shutil
 
     shutil.rmtree(directory, ignore_errors=True)
-    path, output = write_study(directory, points)
+    path, output = write_study(directory, points, stepping)
     planned = planned or rng.choices(["creation", "running", "end"], weights=[1, 2, 1])[0]
     mode = mode or rng.choices(["job", "group"], weights=[3, 1])[0]
     window = {"creation": (timeline.partial, timeline.file), "running": (timeline.file, timeline.done),
               "end": (timeline.done - 0.3 * (timeline.done - timeline.file), timeline.exit)}[planned]
-    record = Trial(n, io, planned, mode)
+    record = Trial(n, io, planned, mode, stepping)
     started = time.monotonic()
     job = start_job(n, *campaign_args(path, io), own_group=(mode == "group"))
     _sleep_until(started + rng.uniform(*window), job)
@@ -236,18 +241,20 @@ def _sleep_until(moment: float, job) -> None:
 # ---------------------------------------------------------------------- the whole experiment
 def experiment(work: Path, kills: int, seed: int, progress=print) -> tuple[list[Trial], dict]:
     rng = random.Random(seed)
-    ref = reference(work / "reference")
+    refs = {stepping: reference(work / f"reference-{stepping}", stepping=stepping) for stepping in STEPPING}
     timelines = {}
-    for n, io in SETUPS:
-        timelines[(n, io)] = measure(work / f"timeline-{n}-{io}", n, io)
-        progress(f"timeline -n {n} --io {io}: {timelines[(n, io)]}")
+    for setup in SETUPS:
+        n, io, stepping = setup
+        timelines[setup] = measure(work / f"timeline-{n}-{io}-{stepping}", n, io, stepping=stepping)
+        progress(f"timeline -n {n} --io {io}, {stepping} step: {timelines[setup]}")
     trials, landed = [], 0
     while landed < kills:                   # a kill that came after the job had ended does not count
-        n, io = SETUPS[len(trials) % len(SETUPS)]
-        t = trial(work / "trial", n, io, timelines[(n, io)], rng, ref)
+        n, io, stepping = setup = SETUPS[len(trials) % len(SETUPS)]
+        t = trial(work / "trial", n, io, timelines[setup], rng, refs[stepping], stepping=stepping)
         trials.append(t)
         landed += t.landed
-        progress(f"{landed:3d}/{kills}  -n {n} {io:5}  {t.planned:8} {t.mode:5}  killed {' / '.join(t.kills)}"
+        progress(f"{landed:3d}/{kills}  -n {n} {io:5} {stepping:8}  {t.planned:8} {t.mode:5}  "
+                 f"killed {' / '.join(t.kills)}"
                  f"{f'; {t.refused} resume(s) refused' if t.refused else ''}  ->  "
                  f"{'identical' if t.identical else 'DIFFERENT: ' + repr(t.differences[:3])}")
     return trials, timelines
@@ -277,11 +284,12 @@ def report(trials: list[Trial], timelines: dict, seed: int, wall: float) -> str:
         "Timelines of uninterrupted jobs (seconds from mpirun's start):", "",
         "| set-up | creation starts | file complete | all cases done | job ends |",
         "| --- | ---: | ---: | ---: | ---: |"]
-    lines += [f"| -n {n} --io {io} | {tl.partial:.2f} | {tl.file:.2f} | {tl.done:.2f} | {tl.exit:.2f} |"
-              for (n, io), tl in timelines.items()]
+    lines += [f"| -n {n} --io {io}, {stepping} step | {tl.partial:.2f} | {tl.file:.2f} | {tl.done:.2f} | "
+              f"{tl.exit:.2f} |" for (n, io, stepping), tl in timelines.items()]
     lines += ["", "| # | set-up | aimed at | kill | landed | resumes refused | result |",
               "| ---: | --- | --- | --- | --- | ---: | --- |"]
-    lines += [f"| {i + 1} | -n {t.n} --io {t.io} | {t.planned} | {t.mode} | {' / '.join(t.kills)} | {t.refused} | "
+    lines += [f"| {i + 1} | -n {t.n} --io {t.io}, {t.stepping} | {t.planned} | {t.mode} | {' / '.join(t.kills)} | "
+              f"{t.refused} | "
               f"{'identical' if t.identical else 'DIFFERENT'} |" for i, t in enumerate(trials)]
     return "\n".join(lines) + "\n"
 

@@ -549,31 +549,45 @@ SMALL = 8                                  # the harness study with 3 x 8 cases:
 
 
 @pytest.fixture(scope="module")
-def harness_reference(tmp_path_factory):
+def harness_references(tmp_path_factory):
+    """The harness study run uninterrupted, per time stepping (made when first asked for)."""
     import faults as harness
 
-    return harness.reference(tmp_path_factory.mktemp("harness"), SMALL)
+    made = {}
+
+    def get(stepping: str = "fixed"):
+        if stepping not in made:
+            made[stepping] = harness.reference(tmp_path_factory.mktemp(f"harness-{stepping}"), SMALL, stepping)
+        return made[stepping]
+    return get
+
+
+@pytest.fixture(scope="module")
+def harness_reference(harness_references):
+    return harness_references("fixed")
 
 
 @needs_mpi
-@pytest.mark.parametrize("fault, n, io", [
-    ("publish", 3, "relay"),                 # the file complete under .partial, killed before the rename
-    ("case-laid-out:20@0", 2, "relay"),      # rank 0 laying the file out alone
-    ("checkpoint:7@1", 3, "mpio"),           # rank 1 inside a checkpoint write (two points in each)
-    ("checkpoint:12@0", 3, "relay"),         # rank 0 applying another rank's checkpoint
-    ("finished:3@0", 2, "mpio"),             # rank 0 just after a case recorded that it finished
-    ("finished:2@2", 3, "relay"),            # a worker just after its case finished
+@pytest.mark.parametrize("fault, n, io, stepping", [
+    ("publish", 3, "relay", "fixed"),                # the file complete under .partial, killed before the rename
+    ("case-laid-out:20@0", 2, "relay", "fixed"),     # rank 0 laying the file out alone
+    ("checkpoint:7@1", 3, "mpio", "fixed"),          # rank 1 inside a checkpoint write (two points in each)
+    ("checkpoint:12@0", 3, "relay", "fixed"),        # rank 0 applying another rank's checkpoint
+    ("finished:3@0", 2, "mpio", "fixed"),            # rank 0 just after a case recorded that it finished
+    ("finished:2@2", 3, "relay", "fixed"),           # a worker just after its case finished
+    ("checkpoint:7@1", 3, "mpio", "adaptive"),       # the same with the step controller's state to resume
+    ("checkpoint:12@0", 3, "relay", "adaptive"),
 ])
-def test_a_kill_at_an_exact_moment_resumes_bitwise(tmp_path, harness_reference, fault, n, io):
+def test_a_kill_at_an_exact_moment_resumes_bitwise(tmp_path, harness_references, fault, n, io, stepping):
     import faults as harness
     from jobs import mpi_env
 
-    path, output = harness.write_study(tmp_path / "job", SMALL)
+    path, output = harness.write_study(tmp_path / "job", SMALL, stepping)
     killed = hpcves(*harness.campaign_args(path, io), n=n, env=mpi_env(HPCVES_FAULT=fault))
     assert killed.returncode != 0, "the fault point was never reached"
     result = hpcves(*harness.campaign_args(path, io, resume=True), n=n)
     assert result.returncode == 0, result.stderr
-    assert_same_results(output, harness_reference)
+    assert_same_results(output, harness_references(stepping))
 
 
 def test_a_serial_campaign_killed_inside_a_checkpoint_resumes_bitwise(tmp_path, harness_reference):
