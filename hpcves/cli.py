@@ -12,7 +12,7 @@ import time
 
 import click
 
-from . import __version__
+from . import __version__, accuracy
 from .params import ConfigError
 
 
@@ -215,7 +215,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
         sys.exit(1)
     if outcome.status != FINISHED:
         summary += f"; resume with: hpcves run --resume {path}"
-    elif outcome.message.startswith("decided"):
+    elif outcome.message:                       # a finished run says why only when it stopped early (decided)
         summary += f"\n{outcome.message}"
     click.echo(summary)
 
@@ -539,7 +539,10 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures):
         line.close()
     rows = report.rows
     for row in rows:
-        period = f"  T = {row['period']:.5g} +- {row['period_err']:.1g}" if row["regime"] in ("PT", "TU") else ""
+        period = ""
+        if row["regime"] in ("PT", "TU") and row["period"] == row["period"]:
+            error, dominant = accuracy.error_bar(row, "period")
+            period = f"  T = {row['period']:.5g} +- {error:.1g} [{dominant}]"
         click.echo(f"{row['case']}  {row['regime']:<9}{period}  {row['reason']}")
     counts = ", ".join(f"{n} {r}" for r, n in report.counts().items())
     click.echo(f"{report.source.path}: {len(rows)} case{'s' * (len(rows) != 1)}: {counts}")

@@ -59,6 +59,17 @@ class UnderResolved(Diverged):
     """N is too small for the shape or the phase field (the spectral tail watch)."""
 
 
+def model_limit_note(state: State) -> str:
+    """What to add to a step-size failure when psi has left [0, 1] over the last levels ("" if not)."""
+    levels = [p for p in (state.psi, state.prev_psi, state.prev2_psi) if p is not None]
+    lo, hi = min(float(p.min()) for p in levels), max(float(p.max()) for p in levels)
+    if lo >= -OVERSHOOT and hi <= 1.0 + OVERSHOOT:
+        return ""
+    return (f"; psi in [{lo:.4g}, {hi:.4g}] over the last steps, beyond [0, 1] (healthy steps stay within "
+            "0.005 of it), where the linear bending law B(psi) nears zero: the model, not the step, gives out "
+            "(docs/numerics.md)")
+
+
 def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         progress: Callable[[Tick], None] | None = None,
         stop_requested: Callable[[], bool] = lambda: False,
@@ -186,12 +197,7 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         write_rows()
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
         if isinstance(exc, StepSizeError) and not solver.case.physics.homogeneous:
-            levels = [p for p in (state.psi, state.prev_psi, state.prev2_psi) if p is not None]
-            lo, hi = min(float(p.min()) for p in levels), max(float(p.max()) for p in levels)
-            if lo < -OVERSHOOT or hi > 1.0 + OVERSHOOT:
-                reason += (f"; psi in [{lo:.4g}, {hi:.4g}] over the last steps, beyond [0, 1] (healthy steps "
-                           "stay within 0.005 of it), where the linear bending law B(psi) nears zero: "
-                           "the model, not the step, gives out (docs/numerics.md)")
+            reason += model_limit_note(state)
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
         what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"
