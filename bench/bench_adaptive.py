@@ -19,12 +19,10 @@ import sys
 import time
 
 import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
-import numpy as np
 
-from hpcves import geometry, schedule
+from hpcves import diagnostics
 from hpcves.params import Case, Numerics, Physics, RunControl
 from hpcves.periodicity import crossing_period
-from hpcves.timestepping import Solver
 from report import replace_section
 
 CASES = [(psi_bar, S) for psi_bar in (0.3, 0.5, 0.7) for S in (80.0, 160.0, 320.0)]
@@ -38,22 +36,11 @@ def run(psi_bar: float, S: float, numerics: dict) -> dict:
     case = Case(Physics(shear_rate=S, psi_bar=psi_bar, excess_length=0.194), Numerics(N=128, **numerics),
                 RunControl(t_end=t_end, sample_interval=1.0 / (5.0 * S), snapshot_interval=t_end,
                            checkpoint_interval=t_end))
-    solver, clock = Solver(case), schedule.clock(case)
-    state, times, theta, steps, rejected = solver.initial_state(), [], [], 0, 0
     start = time.perf_counter()
-    while True:
-        rates = solver.rates(state)
-        if clock.sample_due(state):
-            m = geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length)
-            times.append(state.t)
-            theta.append(m.inclination)
-        if clock.done(state):
-            break
-        state, r = clock.take_step(solver, state, rates)
-        steps, rejected = steps + 1, rejected + r
+    record = diagnostics.inclination_record(case)
     seconds = time.perf_counter() - start
-    period = crossing_period(np.array(times), np.array(theta), t_start=0.25 * t_end)
-    return {"period": period.period, "cycles": period.cycles, "steps": steps, "rejected": rejected,
+    period = crossing_period(record.t, record.theta, t_start=0.25 * t_end)
+    return {"period": period.period, "cycles": period.cycles, "steps": record.steps, "rejected": record.rejected,
             "seconds": seconds}
 
 

@@ -218,3 +218,34 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
             return Health(False, f"relative length error {row['length_error']:.3g} exceeds "
                                  f"run.max_length_error = {run.max_length_error} at t = {row['t']:.6g}")
     return Health(True)
+
+
+@dataclass(frozen=True)
+class InclinationRecord:
+    """theta at every sample time of a run made in memory (:func:`inclination_record`)."""
+
+    t: np.ndarray
+    theta: np.ndarray
+    steps: int
+    rejected: int
+
+
+def inclination_record(case) -> InclinationRecord:
+    """Run ``case`` in memory to its t_end, keeping only theta at its sample times (no file, no checks).
+
+    For benchmarks and measurements of the time stepping (bench/, analysis/error_rule.py); ``hpcves
+    run`` (runner.py) records every series and watches the run's health.
+    """
+    from . import schedule
+
+    solver, clock = Solver(case), schedule.clock(case)
+    state, times, theta, steps, rejected = solver.initial_state(), [], [], 0, 0
+    while True:
+        rates = solver.rates(state)
+        if clock.sample_due(state):
+            times.append(state.t)
+            theta.append(geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length).inclination)
+        if clock.done(state):
+            return InclinationRecord(np.array(times), np.array(theta), steps, rejected)
+        state, r = clock.take_step(solver, state, rates)
+        steps, rejected = steps + 1, rejected + r

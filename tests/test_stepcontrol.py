@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves import runner, schedule, stepcontrol
+from hpcves import diagnostics, runner, schedule, stepcontrol
 from hpcves.checkpoint import FINISHED, INTERRUPTED, CaseStore, open_file
 from hpcves.config import case_from_toml
 from hpcves.params import Case, ConfigError, Numerics, Physics, RunControl
@@ -293,6 +293,10 @@ def test_an_adaptive_run_samples_on_the_requested_times_and_its_file_validates(t
         assert np.array_equal(f["timeseries/t"][:n], np.arange(n) * 0.005)      # exactly j * interval
         snapshots = f["snapshots/t"][:int(f["snapshots/length"][()])]      # on sample times that coincide
         assert np.allclose(snapshots, np.arange(5) * 0.05, rtol=0, atol=1e-15) and snapshots.size == 5
+        theta = f["timeseries/theta"][:n]
+    # the in-memory record of bench/ and analysis/error_rule.py is the same run
+    record = diagnostics.inclination_record(case)
+    assert np.array_equal(record.t, np.arange(n) * 0.005) and np.array_equal(record.theta, theta)
 
 
 def test_an_adaptive_run_resumed_from_any_checkpoint_is_bitwise_identical(tmp_path):
