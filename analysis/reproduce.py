@@ -20,6 +20,7 @@ import sys
 import time
 from pathlib import Path
 
+from hpcves import accuracy
 from hpcves.analysis import analyze, markdown_table, read_source
 from hpcves.campaign_file import read_table
 from hpcves.search_campaign import critical_table
@@ -87,7 +88,8 @@ def period_table(report) -> str:
         for s in rates:
             r = cells[(psi, s)]
             if r["regime"] in ("PT", "TU"):
-                line.append(f"{r['period']:.4g} +- {r['period_err']:.1g} (S T = {s * r['period']:.3g})"
+                error, dominant = accuracy.error_bar(r, "period")
+                line.append(f"{r['period']:.4g} +- {error:.1g} [{dominant}] (S T = {s * r['period']:.3g})"
                             + (" TU" if r["regime"] == "TU" else ""))
             else:
                 line.append(r["regime"])
@@ -108,8 +110,9 @@ def doubts(reports: dict) -> list[str]:
                 lines.append(f"{label}: undecided -- {r['reason']}")
             elif r["regime"] in ("PT", "TU") and r["cycles"] < MIN_GOOD_CYCLES:
                 lines.append(f"{label}: {r['regime']} from only {r['cycles']:.1f} settled periods")
-            elif r["regime"] in ("PT", "TU") and r["period_err"] > 0.005 * r["period"]:
-                lines.append(f"{label}: period uncertain by {r['period_err'] / r['period']:.1%}")
+            elif r["regime"] in ("PT", "TU") and accuracy.error_bar(r, "period")[0] > 0.005 * r["period"]:
+                error, dominant = accuracy.error_bar(r, "period")
+                lines.append(f"{label}: period uncertain by {error / r['period']:.1%} ({dominant} dominates)")
         for s in report.searches:
             if s["status"] != "converged":
                 lines.append(f"{name}: search psi_bar = {s['psi_bar']:g}, B2 = {s['B2']:g}: {s['status']} -- "
@@ -150,7 +153,7 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
               f"the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`.", ""]
 
     lines += ["## PT period at Delta = 0.194", "",
-              "Period of theta +- its uncertainty; S T is the period in shear times (a 1/S law makes it "
+              "Period of theta +- its uncertainty (statistical + time-step discretisation; in brackets the part that dominates); S T is the period in shear times (a 1/S law makes it "
               "constant).", "", period_table(reports["periods"]), ""]
     lines += ["## Critical shear rate at Delta = 0.194", "",
               "S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU].", "",

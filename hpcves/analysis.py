@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, faults
+from . import __version__, accuracy, faults
 from .atomic import StorageError, copy_for_change, publish, remove_partial, size_text
 from .campaign_file import DAMAGED, CampaignFile
 from .campaign_file import FORMAT as CAMPAIGN_FORMAT
@@ -31,7 +31,9 @@ from .regimes import REGIMES, UNDECIDED, AnalysisSettings, Classification, class
 
 PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
 #: the columns of regimes.csv and of the file's analysis/ group, in order
-COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "regime", "period", "period_err", "theta_mean",
+#: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step, accuracy.py)
+COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "regime", "period", "period_err",
+                                     "period_dt_err", "theta_mean", "theta_mean_err", "theta_mean_dt_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
                                      "theta_drift", "period_crossings", "reason")
 TEXT_COLUMNS = ("case", "status", "regime", "reason")
@@ -49,6 +51,7 @@ class CaseData:
     search: int = -1           # search files: the search the case belongs to
     mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
     decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
+    rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
 
 
 @dataclass(frozen=True)
@@ -70,7 +73,8 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     t, t_end = (float(v) for v in store.progress[:2])
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
-                    search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""))
+                    search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
+                    float(attrs.get("numerics.rtol", math.nan)))
 
 
 def mark(store: CaseStore) -> tuple:
@@ -131,14 +135,15 @@ def read_source(path) -> Source:
 
 def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     """One row of regimes.csv (COLUMNS) for one case."""
-    base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end}
+    base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
+            "rtol": case.rtol}
     n = len(case.series["t"])
     if case.status in (STATUS_NAMES[FAILED], DAMAGED) or n == 0:
         first = case.message.splitlines()[0] if case.message else ""
         reason = (f"case failed: {first}" if case.status == STATUS_NAMES[FAILED] else
                   f"case damaged: {first}" if case.status == DAMAGED else "not run yet")
         empty = Classification(UNDECIDED, reason, *([math.nan] * (len(fields(Classification)) - 2)))
-        return {**base, **empty.row()}
+        return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
         found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
@@ -148,7 +153,10 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
                 f"the run decided {regime} at t = {case.t:.4g} and stopped, but these thresholds find "
                 f"{found.regime}: rerun to the cap without run.until_decided")
         found = replace(found, reason=f"{note}; {found.reason}")
-    return {**base, **found.row()}
+    rtol = case.rtol if math.isfinite(case.rtol) else None
+    flips = bool(found.theta_min < 0)                     # tumbling: no rule (accuracy.py)
+    return {**base, **found.row(), "period_dt_err": accuracy.period_error(found.period, rtol, flips),
+            "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips)}
 
 
 def analyse_source(source: Source, settings: AnalysisSettings | None = None, progress=None) -> list[dict]:
@@ -288,16 +296,31 @@ def markdown_table(header: list[str], body: list[list[str]], left: tuple = (0,))
 
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
-    header = ["case"] + keys + ["regime", "period", "+-", "mean theta", "min theta", "amplitude", "t settle",
-                                "evidence"]
+    header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
+                                "min theta", "amplitude", "t settle", "evidence"]
     body = [[row["case"]] + [_cell(row[k], k) for k in keys]
             + [row["regime"], _fmt(row["period"], ".6g"), _fmt(row["period_err"], ".2g"),
-               _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
+               _dt_cell(row, "period"), _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_mean_err"], ".2g"),
+               _dt_cell(row, "theta_mean"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
                _fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, len(header) - 1)
     return (f"# Regimes of {source.kind} {source.name!r}\n\n{source.path}: {len(rows)} cases: {summary}.\n\n"
-            + markdown_table(header, body, left) + "\n")
+            + markdown_table(header, body, left) + "\n\n" + ERROR_BARS + "\n")
+
+
+#: what the error columns of the tables mean
+ERROR_BARS = ("+- stat: the statistical uncertainty (period: the two estimators' fits and their disagreement; "
+              "mean theta: its drift and the averaging over whole periods, docs/analysis.md). +- dt: the "
+              "discretisation error of the time step, by the rule measured against rtol (hpcves/accuracy.py, "
+              "docs/error_rule.md); n/e: not estimated -- a fixed-step run (rerun with numerics.rtol), or "
+              "tumbling, for which the rule does not hold.")
+
+
+def _dt_cell(row: dict, quantity: str) -> str:
+    if not math.isfinite(row[quantity]):
+        return ""
+    return _fmt(row[f"{quantity}_dt_err"], ".2g") or "n/e"
 
 
 def _fmt(value: float, spec: str) -> str:
@@ -307,7 +330,8 @@ def _fmt(value: float, spec: str) -> str:
 def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str]) -> list[tuple[dict, str]]:
     """(fixed values of the other swept keys, Markdown table of row_key x col_key) for each combination.
 
-    A cell holds the period +- its uncertainty for PT and TU, else the regime.
+    A cell holds the period +- its uncertainty (statistical + discretisation, accuracy.error_bar) for PT and TU,
+    with the part that dominates in brackets; else the regime.
     """
     out = []
     for fixed, subset in facets(rows, others):
@@ -322,8 +346,9 @@ def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str
                 if row is None:
                     line.append("")
                 elif row["regime"] in ("PT", "TU") and math.isfinite(row["period"]):
-                    line.append(f"{row['period']:.4g} +- {row['period_err']:.1g}" + (" (TU)" if row["regime"] == "TU"
-                                                                                      else ""))
+                    error, dominant = accuracy.error_bar(row, "period")
+                    line.append(f"{row['period']:.4g} +- {error:.1g} [{dominant}]"
+                                + (" (TU)" if row["regime"] == "TU" else ""))
                 else:
                     line.append(row["regime"])
             body.append(line)
@@ -468,7 +493,10 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
     if source.kind == "campaign" and len(rows) > 1 and source.mode != "search":
         tables = period_tables(rows, y_key, x_key, others)
         text = [f"# Periods of {source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
-                "phase-treads (PT) or tumbles (TU); otherwise its regime.\n"]
+                "phase-treads (PT) or tumbles (TU); otherwise its regime. The uncertainty is the statistical "
+                "one plus the discretisation error of the time step; in brackets the one that dominates "
+                "(stat or dt; dt n/e: not estimated, for a fixed-step run or a tumbling case). regimes.md has "
+                "both.\n"]
         for fixed, table in tables:
             if fixed:
                 text.append(f"## {facet_label(fixed)}\n")

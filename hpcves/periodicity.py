@@ -27,6 +27,12 @@ The method (docs/analysis.md has the reasoning and the numbers behind the defaul
 6. **Uncertainty** ``period_err = max(sigma_acf, m sigma_cross,
    |T_acf - m T_cross|)``: the standard errors of both fits and their
    disagreement; the estimates ``agree`` when they differ by at most 1 %.
+7. **Mean** of an oscillating signal over the last m whole periods of the
+   settled part (a fraction of a period would bias it by up to A / cycles),
+   uncertain by ``mean_error = max(|drift|, 2 A (h + m period_err) / (m T)
+   + 2 sigma / sqrt(k))`` (the window's ends fall between samples h apart and
+   move with the period's error; k samples of noise sigma); of a steady one
+   over the settled part, uncertain by ``tol``.
 """
 from __future__ import annotations
 
@@ -78,6 +84,7 @@ class SignalAnalysis:
     amplitude: float           # (max - min) / 2
     drift: float               # change of the linear trend over the settled part
     period: PeriodEstimate
+    mean_error: float = float("nan")   # statistical uncertainty of ``mean`` (see :func:`analyse`)
 
     @property
     def cycles(self) -> float:
@@ -278,11 +285,22 @@ def analyse(t: np.ndarray, x: np.ndarray, *, abs_tol: float = 1e-4, rel_tol: flo
     if start >= n:
         return SignalAnalysis(nan, 0.0, steady, tol, noise, nan, nan, nan, nan, nan, period)
     settled = x[start:]
-    lag = period.period / ((t[-1] - t[0]) / (n - 1)) if np.isfinite(period.period) else 1
+    h = (t[-1] - t[0]) / (n - 1)
+    lag = period.period / h if np.isfinite(period.period) else 1
     drift = period_trend(settled, int(round(lag))) * (settled.size - 1)
-    return SignalAnalysis(float(t[start]), float(t[-1] - t[start]), steady, tol, noise, float(settled.mean()),
-                          float(settled.min()), float(settled.max()),
-                          float(0.5 * (settled.max() - settled.min())), drift, period)
+    amplitude = float(0.5 * (settled.max() - settled.min()))
+    mean, mean_error = float(settled.mean()), (tol if steady else float("nan"))
+    whole = int((t[-1] - t[start]) // period.period) if np.isfinite(period.period) and period.period > 0 else 0
+    if whole >= 1:
+        # the mean over the last `whole` periods: no bias from a fraction of a period. What is left:
+        # the samples at the window's ends (h), the period's own error (m dT), and the drift.
+        span = whole * period.period
+        window = x[t >= t[-1] - span - 1e-9 * h]
+        mean = float(np.mean(window))
+        ends = 2.0 * amplitude * (h + whole * (period.error if np.isfinite(period.error) else 0.0)) / span
+        mean_error = float(max(abs(drift), ends + 2.0 * noise / np.sqrt(window.size)))
+    return SignalAnalysis(float(t[start]), float(t[-1] - t[start]), steady, tol, noise, mean,
+                          float(settled.min()), float(settled.max()), amplitude, drift, period, mean_error)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,10 @@ import matplotlib.ticker
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+
 from matplotlib.collections import LineCollection  # noqa: E402
+
+from . import accuracy  # noqa: E402
 
 PSI_CMAP = "coolwarm"      # blue: hard phase (psi = 0), red: soft phase (psi = 1)
 
@@ -174,6 +177,7 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
     cells = {(r[row_key], r[col_key]): r for r in rows}
     fig, ax = plt.subplots(figsize=(1.6 * len(col_values) + 2.5, 0.8 * len(row_values) + 2), constrained_layout=True)
     scaled = np.full((len(row_values), len(col_values)), np.nan)
+    texts = {}
     for i, rv in enumerate(row_values):
         for j, cv in enumerate(col_values):
             r = cells.get((rv, cv))
@@ -182,11 +186,14 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
             if r["regime"] in ("PT", "TU") and np.isfinite(r["period"]):
                 scale = r["shear_rate"] if "shear_rate" in r else 1.0
                 scaled[i, j] = r["period"] * scale
-                text = f"{r['period']:.4g}\n$\\pm${r['period_err']:.1g}"
+                error, dominant = accuracy.error_bar(r, "period")
+                texts[i, j] = f"{r['period']:.4g}\n$\\pm${error:.1g} [{dominant}]"
             else:
-                text = r["regime"]
-            ax.text(j, i, text, ha="center", va="center", fontsize=10)
+                texts[i, j] = r["regime"]
     image = ax.imshow(np.ma.masked_invalid(scaled), cmap="YlOrBr", aspect="auto", origin="lower")
+    for (i, j), text in texts.items():              # white on the dark end of the colour scale
+        dark = np.isfinite(scaled[i, j]) and image.norm(scaled[i, j]) > 0.6
+        ax.text(j, i, text, ha="center", va="center", fontsize=10, color="white" if dark else "black")
     fig.colorbar(image, ax=ax, label="S x period")
     ax.set_xticks(range(len(col_values)), [f"{v:g}" for v in col_values])
     ax.set_yticks(range(len(row_values)), [f"{v:g}" for v in row_values])

@@ -73,6 +73,7 @@ class Classification:
     period_err: float
     cycles: float
     theta_mean: float
+    theta_mean_err: float      # its statistical uncertainty (periodicity.analyse: mean_error)
     theta_min: float
     theta_amplitude: float
     theta_drift: float
@@ -114,8 +115,8 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     speed = abs(v_lab) / v_tt if np.isfinite(v_lab) and v_tt > 0 else float("nan")
 
     def verdict(regime: str, reason: str) -> Classification:
-        return Classification(regime, reason, a.t_settle, p.period, p.error, a.cycles, a.mean, a.minimum,
-                              a.amplitude, a.drift, speed, p.crossing_period)
+        return Classification(regime, reason, a.t_settle, p.period, p.error, a.cycles, a.mean,
+                              a.mean_error, a.minimum, a.amplitude, a.drift, speed, p.crossing_period)
 
     duration = float(t[-1] - t[0]) if t.size else 0.0
     if t.size < settings.min_samples:

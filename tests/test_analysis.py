@@ -7,7 +7,7 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves import runner
+from hpcves import accuracy, runner
 from hpcves.analysis import COLUMNS, analyze, read_back
 from hpcves.campaign import run_campaign
 from hpcves.lock import CampaignLock
@@ -71,6 +71,10 @@ def test_a_tiny_campaign_is_classified_tabulated_drawn_and_stored(campaign, tmp_
     assert "| 0003 |" in (out / "regimes.md").read_text()
     periods = (out / "periods.md").read_text()
     assert "TT" in periods and f"{pt['period']:.4g} +-" in periods
+    # a fixed-step campaign: the discretisation error is not estimated, and the tables say so
+    assert np.isnan(pt["period_dt_err"]) and np.isnan(pt["theta_mean_dt_err"]) and np.isnan(pt["rtol"])
+    assert f"{pt['period']:.4g} +- {pt['period_err']:.1g} [stat, dt n/e]" in periods
+    assert "| n/e |" in (out / "regimes.md").read_text()
     for name in ("phase_diagram", "periods"):
         for ext in ("png", "pdf"):
             assert (out / f"{name}.{ext}").stat().st_size > 1000
@@ -98,15 +102,27 @@ def test_a_running_campaign_is_analysed_but_not_written_to(campaign, tmp_path):
     assert (tmp_path / "regimes.csv").exists()
 
 
-def test_a_single_run_file_is_analysed_too(tmp_path):
-    case = case_from_toml("[numerics]\nN = 32\ndt = 1e-3\n[physics]\nshear_rate = 80.0\npsi_bar = 0.3\n"
+def test_a_single_adaptive_run_is_analysed_with_discretisation_error_bars(tmp_path):
+    case = case_from_toml("[numerics]\nN = 32\nrtol = 3e-2\n[physics]\nshear_rate = 80.0\npsi_bar = 0.3\n"
                           "[run]\nmax_spectral_tail = 1.0\nt_end = 1.0\nsample_interval = 0.005\n")
     path = tmp_path / "single.h5"
     with h5py.File(path, "w") as h5:
         store = CaseStore.create(h5, case)
         runner.run(store, h5.flush)
     report = analyze(path, tmp_path / "out", case_figures=False)
-    assert [r["regime"] for r in report.rows] == ["PT"] and report.wrote_back
+    [row] = report.rows
+    assert row["regime"] == "PT" and report.wrote_back and row["rtol"] == 3e-2
+    # the rule of accuracy.py, from the rtol the file records
+    assert row["period_dt_err"] == pytest.approx(accuracy.PERIOD_PER_RTOL * 3e-2 * row["period"])
+    assert row["theta_mean_dt_err"] == pytest.approx(accuracy.INCLINATION_PER_RTOL * 3e-2)
+    assert 0 < row["theta_mean_err"] < row["theta_amplitude"]
+    error, dominant = accuracy.error_bar(row, "period")
+    assert error == pytest.approx(row["period_err"] + row["period_dt_err"])
+    assert dominant == ("dt" if row["period_dt_err"] >= row["period_err"] else "stat")
+    table = (tmp_path / "out" / "regimes.md").read_text()
+    assert f"| {row['period_dt_err']:.2g} |" in table and "+- dt" in table
+    stored = read_back(path)
+    assert stored[0]["period_dt_err"] == pytest.approx(row["period_dt_err"])
 
 
 def test_the_command_line_reports_and_refuses_bad_options(campaign, tmp_path):
@@ -122,3 +138,15 @@ def test_the_command_line_reports_and_refuses_bad_options(campaign, tmp_path):
         assert result.returncode == 2 and words in result.stderr and "Traceback" not in result.stderr
     missing = subprocess.run(command[:4] + [str(tmp_path / "nope.h5")], capture_output=True, text=True)
     assert missing.returncode == 2 and "no such file" in missing.stderr
+
+
+def test_error_bars_say_which_part_dominates_and_tumbling_gets_none():
+    pt = {"period": 0.1, "period_err": 1e-6, "period_dt_err": accuracy.period_error(0.1, 1e-2)}
+    assert pt["period_dt_err"] == pytest.approx(accuracy.PERIOD_PER_RTOL * 1e-3)
+    assert accuracy.error_bar(pt, "period") == (pytest.approx(1e-6 + pt["period_dt_err"]), "dt")
+    noisy = {**pt, "period_err": 1.0}
+    assert accuracy.error_bar(noisy, "period")[1] == "stat"
+    assert np.isnan(accuracy.period_error(7.1, 1e-2, flips=True))          # tumbling: no rule
+    assert np.isnan(accuracy.inclination_error(0.1, 1e-2, flips=True))
+    assert np.isnan(accuracy.period_error(0.1, None))                       # a fixed step: none
+    assert accuracy.error_bar({"period_err": 1e-6, "period_dt_err": np.nan}, "period") == (1e-6, "stat, dt n/e")

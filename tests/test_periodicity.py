@@ -141,3 +141,20 @@ def test_settings_are_checked():
         AnalysisSettings(abs_tol=-1.0)
     with pytest.raises(ConfigError, match="must be a number"):
         AnalysisSettings(rel_tol="x")
+
+
+@pytest.mark.parametrize("name", ["clean", "noise 10 %", "decaying transient", "peaked"])
+def test_the_mean_over_whole_periods_is_within_its_error_bar(name):
+    # the exact mean of each waveform over a period (a fine grid over one period)
+    one = np.linspace(0.0, T, 200001)[:-1]
+    exact = {"peaked": np.mean(0.6 + 0.2 * np.exp(-8 * (1 - np.cos(2 * np.pi * one / T))))}.get(name, 0.6)
+    for end in (20.0, 19.77, 19.5):                    # records ending at different phases
+        keep = t < end
+        a = analyse(t[keep], SIGNALS[name][keep])
+        assert 0 < a.mean_error < 0.1 * a.amplitude, (name, end, a.mean_error)
+        assert abs(a.mean - exact) <= a.mean_error, (name, end, a.mean - exact, a.mean_error)
+
+
+def test_a_steady_mean_is_within_its_band():
+    a = analyse(t, 0.56 - 0.3 * np.exp(-t / 1.2))
+    assert a.steady and a.mean_error == a.tolerance and abs(a.mean - 0.56) <= a.mean_error

@@ -46,3 +46,24 @@ def test_homogeneous_angle_is_the_same_at_S350():
         shape = solver.shape(state)
         return geometry.moments(shape.z, shape.normal, solver.sp.length).inclination
     assert settled(350.0, 1e-4, 0.3) == pytest.approx(settled(2.0, 1e-3, 8.0), abs=0.01)
+
+
+def test_the_discretisation_error_bar_covers_the_period_and_inclination_error():
+    """hpcves/accuracy.py's rule on the period table's fastest case (psi_bar = 0.3, S = 320) at sparse
+    sampling (the controller alone sets the step), against rtol = 1e-4 (docs/error_rule.md)."""
+    import sys
+    from pathlib import Path
+
+    from hpcves import accuracy
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
+    import error_rule
+
+    reference = error_rule.run("PT a", "sparse", 1e-4)
+    for rtol in (1e-1, 1e-2):
+        r = error_rule.run("PT a", "sparse", rtol)
+        # the whole error bar (statistical, of both estimates, + discretisation) covers the difference
+        stat = r["period_err"] + reference["period_err"]
+        assert abs(r["period"] - reference["period"]) <= stat + accuracy.period_error(r["period"], rtol), (rtol, r)
+        stat = r["mean_err"] + reference["mean_err"]
+        assert abs(r["mean"] - reference["mean"]) <= stat + accuracy.inclination_error(r["mean"], rtol), (rtol, r)

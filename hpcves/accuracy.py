@@ -1,0 +1,62 @@
+"""Discretisation error bars: how far a period or a mean inclination may be off for the time step.
+
+An adaptive run (``numerics.rtol``) keeps each step's local error estimate below
+(atol + rtol |y|) sqrt(rtol) (stepcontrol.py), which makes the global error
+proportional to rtol (tolerance proportionality, measured in
+tests/test_stepcontrol.py). The error of what ``hpcves analyze`` reads from
+theta(t) then follows the same law, with constants measured by
+analysis/error_rule.py over TT, PT and TU cases at rtol = 0.1 ... 0.003, at the
+job files' sampling and at a sparse one (docs/error_rule.md):
+
+    |T - T_exact| / T      <= PERIOD_PER_RTOL * rtol
+    |theta - theta_exact|  <= INCLINATION_PER_RTOL * rtol    (rad)
+
+beyond what the statistical errors of the estimates allow. The constants are
+the largest measured ratios times a safety factor of 2. Two kinds of run get
+no bar (nan, "not estimated"): a fixed-step run, whose error is found only by
+rerunning at dt / 2 or with ``rtol``; and tumbling (theta flips), where the
+measured periods moved by up to 1 % between rtol = 1e-2 and 1e-4 out of
+proportion to rtol (docs/error_rule.md). The spatial error (the grid N) is not
+in these bars (docs/analysis.md says what is known of it).
+"""
+from __future__ import annotations
+
+import math
+
+#: relative period error per unit rtol: 2 x the largest ratio measured, 0.068 (docs/error_rule.md)
+PERIOD_PER_RTOL = 0.14
+#: error of the mean inclination in rad per unit rtol: 2 x the largest ratio measured, 0.0012
+INCLINATION_PER_RTOL = 0.0025
+
+
+def period_error(period: float, rtol: float | None, flips: bool = False) -> float:
+    """Discretisation error bar of a period: PERIOD_PER_RTOL rtol T.
+
+    nan without rtol (a fixed-step run) or without a period, and for a motion whose theta flips
+    (tumbling: min theta < 0), for which the rule does not hold (docs/error_rule.md).
+    """
+    if rtol is None or not math.isfinite(rtol) or not math.isfinite(period) or flips:
+        return math.nan
+    return PERIOD_PER_RTOL * rtol * abs(period)
+
+
+def inclination_error(theta_mean: float, rtol: float | None, flips: bool = False) -> float:
+    """Discretisation error bar of a mean inclination: INCLINATION_PER_RTOL rtol (rad); nan as for
+    :func:`period_error`."""
+    if rtol is None or not math.isfinite(rtol) or not math.isfinite(theta_mean) or flips:
+        return math.nan
+    return INCLINATION_PER_RTOL * rtol
+
+
+def error_bar(row: dict, quantity: str) -> tuple[float, str]:
+    """(statistical + discretisation error of ``quantity`` ("period" or "theta_mean"), which dominates).
+
+    The two are added (not in quadrature: the discretisation error is a bound, not a spread).
+    Which dominates: "dt" or "stat"; "stat, dt n/e" where the discretisation error is not
+    estimated (a fixed step, tumbling).
+    """
+    stat, dt = row.get(f"{quantity}_err", math.nan), row.get(f"{quantity}_dt_err", math.nan)
+    stat = stat if math.isfinite(stat) else 0.0
+    if not math.isfinite(dt):
+        return stat, "stat, dt n/e"
+    return stat + dt, "dt" if dt >= stat else "stat"
