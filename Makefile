@@ -2,7 +2,7 @@
 #   make demo   -- set up (apt + .venv + parallel h5py, once), run a small MPI campaign (mpirun -n 2), analyze it
 #   make test   -- set up, then the test suite (what CI runs)
 # Further: make bench (BENCHMARKS.md, ~2 min), make validate (VALIDATION.md, ~2 min),
-#          make faults (FAULTS.md: 40 campaigns SIGKILLed at random moments, resumed, compared; ~4 min).
+#          make faults (FAULTS.md: 40 campaigns SIGKILLed at random moments, resumed, compared; ~8 min).
 
 PY      := .venv/bin/python
 HPCVES  := .venv/bin/hpcves
@@ -46,7 +46,7 @@ KILLS   ?= 40
 faults: setup
 	$(PY) tests/faults.py --kills $(KILLS) --out FAULTS.md
 
-# the published studies on coarse grids (~25 min on 2 cores; GRID=full for the full grids, NP ranks)
+# the published studies on coarse grids (~4 min on 2 cores; GRID=full for the full grids, NP ranks)
 reproduce: setup
 	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" \
 	    --out $(if $(filter full,$(GRID)),REPRODUCTION-full.md,REPRODUCTION.md)
