@@ -125,35 +125,17 @@ def render(results: dict, seconds: float) -> tuple[list[str], bool]:
 def tumbling_from_one_state(t_start: float = 10.0, t_end: float = 60.0) -> list[str]:
     """The TU case continued from one state (reached at rtol = 1e-4) at rtol = 1e-2, 1e-3, 1e-4:
     does its period follow rtol once the start-up is common? (``--tumbling``; ~2 min)"""
-    import dataclasses
-
-    from hpcves import geometry, schedule
-    from hpcves.timestepping import Solver
-
     label, _, psi_bar, delta, S, N, _, interval = next(c for c in CASES if c[0] == "TU")
 
     def case(rtol, t):
         return Case(Physics(shear_rate=S, psi_bar=psi_bar, excess_length=delta), Numerics(N=N, rtol=rtol),
                     RunControl(t_end=t, sample_interval=interval, snapshot_interval=t, checkpoint_interval=t))
 
-    def advance(c, state):
-        solver, clock = Solver(c), schedule.clock(c)
-        times, theta = [], []
-        while True:
-            rates = solver.rates(state)
-            if clock.sample_due(state):
-                times.append(state.t)
-                theta.append(geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length).inclination)
-            if clock.done(state):
-                return state, np.array(times), np.array(theta)
-            state, _ = clock.take_step(solver, state, rates)
-
-    start = case(REFERENCE_RTOL, t_start)
-    common, _, _ = advance(start, Solver(start).initial_state())
+    common = diagnostics.inclination_record(case(REFERENCE_RTOL, t_start)).state
     lines = []
     for rtol in (1e-2, 1e-3, 1e-4):
-        _, times, theta = advance(case(rtol, t_end), dataclasses.replace(common))
-        p = analyse(times, theta).period
+        record = diagnostics.inclination_record(case(rtol, t_end), common)
+        p = analyse(record.t, record.theta).period
         lines.append(f"rtol = {rtol:g} from t = {t_start:g}: period {p.period:.7g} +- {p.error:.2g}")
     return lines
 

@@ -110,9 +110,8 @@ def doubts(reports: dict) -> list[str]:
                 lines.append(f"{label}: undecided -- {r['reason']}")
             elif r["regime"] in ("PT", "TU") and r["cycles"] < MIN_GOOD_CYCLES:
                 lines.append(f"{label}: {r['regime']} from only {r['cycles']:.1f} settled periods")
-            elif r["regime"] in ("PT", "TU") and accuracy.error_bar(r, "period")[0] > 0.005 * r["period"]:
-                error, dominant = accuracy.error_bar(r, "period")
-                lines.append(f"{label}: period uncertain by {error / r['period']:.1%} ({dominant} dominates)")
+            elif r["regime"] in ("PT", "TU") and (bar := accuracy.error_bar(r, "period"))[0] > 0.005 * r["period"]:
+                lines.append(f"{label}: period uncertain by {bar[0] / r['period']:.1%} ({bar[1]} dominates)")
         for s in report.searches:
             if s["status"] != "converged":
                 lines.append(f"{name}: search psi_bar = {s['psi_bar']:g}, B2 = {s['B2']:g}: {s['status']} -- "
@@ -153,8 +152,9 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
               f"the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`.", ""]
 
     lines += ["## PT period at Delta = 0.194", "",
-              "Period of theta +- its uncertainty (statistical + time-step discretisation; in brackets the part that dominates); S T is the period in shear times (a 1/S law makes it "
-              "constant).", "", period_table(reports["periods"]), ""]
+              "Period of theta +- its uncertainty (statistical + time-step discretisation; in brackets the part "
+              "that dominates); S T is the period in shear times (a 1/S law makes it constant).", "",
+              period_table(reports["periods"]), ""]
     lines += ["## Critical shear rate at Delta = 0.194", "",
               "S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU].", "",
               "### Against psi_bar (B2 = 0.1)", "", critical_table(list(reports["sc_psi"].searches), ["psi_bar"]), "",

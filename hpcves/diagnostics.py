@@ -228,10 +228,12 @@ class InclinationRecord:
     theta: np.ndarray
     steps: int
     rejected: int
+    state: State               # the state at t_end
 
 
-def inclination_record(case) -> InclinationRecord:
-    """Run ``case`` in memory to its t_end, keeping only theta at its sample times (no file, no checks).
+def inclination_record(case, start: State | None = None) -> InclinationRecord:
+    """Run ``case`` in memory to its t_end (from ``start``, default its initial state), keeping only
+    theta at its sample times (no file, no checks).
 
     For benchmarks and measurements of the time stepping (bench/, analysis/error_rule.py); ``hpcves
     run`` (runner.py) records every series and watches the run's health.
@@ -239,13 +241,14 @@ def inclination_record(case) -> InclinationRecord:
     from . import schedule
 
     solver, clock = Solver(case), schedule.clock(case)
-    state, times, theta, steps, rejected = solver.initial_state(), [], [], 0, 0
+    state = solver.initial_state() if start is None else start
+    times, theta, steps, rejected = [], [], 0, 0
     while True:
         rates = solver.rates(state)
         if clock.sample_due(state):
             times.append(state.t)
             theta.append(geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length).inclination)
         if clock.done(state):
-            return InclinationRecord(np.array(times), np.array(theta), steps, rejected)
+            return InclinationRecord(np.array(times), np.array(theta), steps, rejected, state)
         state, r = clock.take_step(solver, state, rates)
         steps, rejected = steps + 1, rejected + r
