@@ -13,20 +13,26 @@ The method (docs/analysis.md has the reasoning and the numbers behind the defaul
    the linear trend of the second half removed; the transient ends with the
    first window after which every window's max and min stay within
    ``max(tol, rel_tol x range)`` of those of the last quarter.
-4. **Period** of the settled part, linear trend removed (robust to a slow
-   drift), by the unbiased **autocorrelation**: its first peak at least 80 %
-   as high as the highest, refined by a parabola through the three samples
-   around it and then at every multiple m T within half the record; T is the
-   least-squares slope of the peak lags against m (which averages the
-   refinement errors down).
-5. **Check** against **mid-line crossings**: upward crossings of the settled
-   signal's mid-line with a hysteresis of a quarter of its half-range (noise
-   cannot add crossings; a noisy signal is first averaged over 1/8 period), located by linear interpolation, T_cross the slope
-   of crossing time against index. A waveform may cross more than once per
-   period, so T_acf is compared with m T_cross for the nearest integer m.
-6. **Uncertainty** ``period_err = max(sigma_acf, m sigma_cross,
-   |T_acf - m T_cross|)``: the standard errors of both fits and their
-   disagreement; the estimates ``agree`` when they differ by at most 1 %.
+4. **Drift removed** from the settled part: the slope of its one-period moving
+   average and its mean over the last whole periods (a straight line fitted to
+   the samples tilts with the phase at which the record ends, and moved the
+   crossings of sin 2 pi t / T by 0.14 % of T over 8.45 cycles).
+5. **Autocorrelation** (unbiased): its first peak at least 80 % as high as
+   the highest, refined by a parabola through the three samples around it and
+   then at every multiple m T within half the record; T_acf is the
+   least-squares slope of the peak lags against m. It finds the period's scale
+   robustly but is biased by the finite record (0.16 % at 8.45 cycles).
+6. **Mid-line crossings**: upward crossings of the settled signal's mid-line
+   with a hysteresis of a quarter of its half-range (noise cannot add
+   crossings; a noisy signal is first averaged over 1/8 period), located by
+   linear interpolation, T_cross the slope of crossing time against index. A
+   waveform may cross more than once per period, so T_acf is compared with
+   m T_cross for the nearest integer m, and the estimates ``agree`` when they
+   differ by at most 1 %. With at least MIN_CROSSINGS = 5 crossings and
+   agreement the **period is m T_cross** (unbiased: 1e-8 relative on the same
+   8.45 cycles), uncertain by m sigma_cross, the standard error of the slope
+   (with a round-off floor); otherwise T_acf, uncertain by
+   ``max(sigma_acf, m sigma_cross, |T_acf - m T_cross|)``.
 7. **Mean** of an oscillating signal over the last m whole periods of the
    settled part (a fraction of a period would bias it by up to A / cycles),
    uncertain by ``mean_error = max(|drift|, 2 A (h + m period_err) / (m T)
@@ -47,6 +53,8 @@ PEAK_FRACTION = 0.8
 HYSTERESIS = 0.25
 #: the two period estimates agree when they differ by at most this fraction
 AGREEMENT = 0.01
+#: crossings (3 degrees of freedom in their fit) from which their period is the estimate
+MIN_CROSSINGS = 5
 
 
 @dataclass(frozen=True)
@@ -112,6 +120,21 @@ def detrend(x: np.ndarray) -> np.ndarray:
     i = np.arange(x.size, dtype=float)
     slope, intercept = np.polyfit(i, x, 1)
     return x - (slope * i + intercept)
+
+
+def untilted(x: np.ndarray, lag: float) -> np.ndarray:
+    """x minus its drift and its mean, both taken over whole periods of ``lag`` samples.
+
+    A straight line fitted to an oscillation tilts with the phase at which the record ends (by
+    up to amplitude / cycles), and crossings of a tilted mid-line drift by a fraction of a
+    sample per period: 0.14 % off the period of sin 2 pi t / T over 8.45 cycles. The drift of
+    the one-period moving average (:func:`period_trend`) and the mean over the last whole
+    periods do not tilt."""
+    i = np.arange(x.size, dtype=float)
+    z = x - period_trend(x, int(round(lag))) * i
+    whole = int(x.size // lag) if lag > 0 else 0
+    tail = z[-int(round(whole * lag)):] if whole >= 1 else z
+    return z - tail.mean()
 
 
 def period_trend(x: np.ndarray, window: int) -> float:
@@ -212,11 +235,14 @@ def crossing_fit(times: np.ndarray) -> tuple[float, float]:
 
 
 def estimate_period(t: np.ndarray, x: np.ndarray) -> PeriodEstimate:
-    """The period of x(t), uniformly sampled, after removing its linear trend (steps 4-6 above)."""
+    """The period of x(t), uniformly sampled, after removing its drift (steps 4-6 above)."""
     if x.size < 8:
         return PeriodEstimate.none()
     h = float((t[-1] - t[0]) / (t.size - 1))
-    y = detrend(x)
+    lag = acf_period(detrend(x))[0]
+    if not np.isfinite(lag):
+        return PeriodEstimate.none()
+    y = untilted(x, lag)
     lag, lag_error, peak = acf_period(y)
     if not np.isfinite(lag):
         return PeriodEstimate.none()
@@ -235,8 +261,11 @@ def estimate_period(t: np.ndarray, x: np.ndarray) -> PeriodEstimate:
     m = max(1, int(round(T_acf / T_c)))
     difference = abs(T_acf - m * T_c)
     agree = difference <= AGREEMENT * T_acf
-    error = float(np.nanmax([s_acf, m * s_c, difference]))
-    return PeriodEstimate(T_acf, error, T_acf, s_acf, peak, m * T_c, m * s_c, m, agree)
+    if not agree or crossings.size < MIN_CROSSINGS:
+        return PeriodEstimate(T_acf, float(np.nanmax([s_acf, m * s_c, difference])), T_acf, s_acf, peak,
+                              m * T_c, m * s_c, m, agree)
+    roundoff = 16 * np.finfo(float).eps * float(np.abs(t).max())       # crossing times carry it
+    return PeriodEstimate(m * T_c, max(m * s_c, roundoff), T_acf, s_acf, peak, m * T_c, m * s_c, m, agree)
 
 
 def settle_index(within: np.ndarray) -> int:

@@ -158,3 +158,19 @@ def test_the_mean_over_whole_periods_is_within_its_error_bar(name):
 def test_a_steady_mean_is_within_its_band():
     a = analyse(t, 0.56 - 0.3 * np.exp(-t / 1.2))
     assert a.steady and a.mean_error == a.tolerance and abs(a.mean - 0.56) <= a.mean_error
+
+
+def test_a_tumbling_period_of_whole_samples_is_not_locked_to_the_sample_grid():
+    """The folded angle jumps at every flip between two samples; with a flip period of exactly 355
+    sample intervals (the TU case psi_bar = 0.5, Delta = 0.94, S = 5 at h = 0.02 came close) its
+    crossings all fall at the same place in a sample interval, and a period estimated from them
+    carried an error 50x too small for how far it was off. The flip period comes from sin 2 theta."""
+    h, true = 0.02, 355 * 0.02 + 0.0013               # 0.0013 off the sample grid
+    time = np.arange(0.0, 60.0, h)
+    phase = 2 * np.pi * time / true
+    # a flip rate that varies along the cycle, and a 1e-3 alternation between successive flips
+    angle = -(np.pi * time / true + 0.25 * np.sin(phase) + 1e-3 * np.sin(0.5 * phase))
+    tu = classify(series(fold(angle), time=time))
+    assert tu.regime == TU, tu
+    assert abs(tu.period - true) <= max(tu.period_err, 1e-4), (tu.period, tu.period_err, true)
+    assert tu.period_err < 2e-3
