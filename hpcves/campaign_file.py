@@ -153,7 +153,9 @@ class CampaignFile:
         if self.fingerprint != study.fingerprint:
             other = attr_text(self.h5.attrs.get("name", "?"))
             detail = (f"study {other!r}" if other != study.name
-                      else f"a different version of study {other!r} (some parameter or sweep value changed)")
+                      else f"a different version of study {other!r} (some parameter or sweep value changed; files "
+                            "from before physics.bending_law ran the linear law: bending_law = \"linear\" in "
+                            "[physics] resumes them)")
             raise FileFormatError(f"{where}: belongs to {detail}, not to this campaign file; "
                                   "use another output file, or --overwrite to start over")
 

@@ -359,7 +359,8 @@ class CaseStore:
     @property
     def case(self) -> Case:
         try:
-            return case_from_toml(attr_text(self.group.attrs["config"]), source=f"{self.group.name} config")
+            return case_from_toml(attr_text(self.group.attrs["config"]), source=f"{self.group.name} config",
+                                  stored=True)
         except ConfigError as exc:
             raise FileFormatError(str(exc)) from None
 

@@ -119,11 +119,24 @@ def load_case(path: str | Path) -> Case:
     return case_from_toml(read_text(path), source=str(path))
 
 
-def case_from_toml(text: str, source: str = "<string>") -> Case:
+#: What a stored case (written out in full by :func:`case_to_toml`) meant by an option it
+#: does not name: the behaviour of hpcves before the option existed, not today's default.
+STORED_BEFORE_OPTION = {"physics": {"bending_law": "linear"}}
+
+
+def case_from_toml(text: str, source: str = "<string>", stored: bool = False) -> Case:
+    """A case from TOML text. ``stored``: the full text of a case in a file, where an option it
+    does not name takes its value from before the option existed (STORED_BEFORE_OPTION)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+    if stored:
+        for group, options in STORED_BEFORE_OPTION.items():
+            table = data.get(group)
+            if isinstance(table, dict):
+                for key, value in options.items():
+                    table.setdefault(key, value)
     try:
         return case_from_dict(data)
     except ConfigError as exc:

@@ -174,7 +174,7 @@ def _overshoot_context(solver: Solver, state: State) -> str:
     phys = solver.case.physics
     j = int(np.argmax(state.psi))
     curvature = np.abs(solver.shape(state).curvature)
-    if phys.B2 >= phys.B1 or curvature[j] < 0.5 * curvature.max():
+    if phys.bending_law != "linear" or phys.B2 >= phys.B1 or curvature[j] < 0.5 * curvature.max():
         return ""
     return (f"; the maximum of psi sits where |H| = {curvature[j]:.3g} (largest |H| {curvature.max():.3g}): "
             f"the soft phase is drawn past 1 at a sharp tip, towards psi = {phys.B1 / (phys.B1 - phys.B2):.3g} "

@@ -40,7 +40,7 @@ def bending_force(curvature, psi, psi_s, tangent, physics: Physics, sp: Spectral
     normal_part = sp.ds2(BH)
     normal_part += 0.5 * (BH * curvature) * curvature
     density = np.empty_like(tangent)
-    np.multiply(curvature * curvature, 0.5 * physics.dbending * psi_s, out=density.real)
+    np.multiply(curvature * curvature, 0.5 * physics.bending_prime(psi) * psi_s, out=density.real)
     np.negative(normal_part, out=density.imag)
     density *= tangent
     return density

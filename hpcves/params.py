@@ -16,6 +16,8 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Literal
 
+from . import bending
+
 #: Perimeter of the 1/2 : 1/3 ellipse, the published reference shape.
 REFERENCE_LENGTH = 2.6442
 
@@ -60,6 +62,8 @@ class Physics:
     delta: float = 0.05
     mobility: float = 1.0
     psi_init_coordinate: Literal["arclength", "ellipse_parameter"] = "arclength"
+    bending_law: Literal["linear", "saturating"] = "saturating"
+    bending_width: float = 0.05
 
     def __post_init__(self) -> None:
         _finite(self)
@@ -87,6 +91,14 @@ class Physics:
             f"physics.psi_init_coordinate = {self.psi_init_coordinate!r}: must be one of "
             + ", ".join(repr(c) for c in PSI_COORDINATES),
         )
+        _require(self.bending_law in bending.LAWS, f"physics.bending_law = {self.bending_law!r}: must be one of "
+                 + ", ".join(repr(c) for c in bending.LAWS))
+        _require(self.bending_width > 0, f"physics.bending_width = {self.bending_width}: must be > 0")
+        if bending.stiffness_bounds(self.B1, self.B2, self.bending_law, self.bending_width)[0] <= 0 \
+                and self.bending_law == "saturating":
+            raise ConfigError(f"physics.bending_width = {self.bending_width}: the saturating law would reach "
+                              "B <= 0 outside [0, 1]; it needs bending_width < "
+                              f"{bending.largest_width(self.B1, self.B2):.3g}")
 
     @property
     def homogeneous(self) -> bool:
@@ -94,13 +106,17 @@ class Physics:
         return self.psi_bar in (0.0, 1.0)
 
     def bending(self, psi):
-        """B(psi) = (1 - psi) B1 + psi B2."""
-        return self.B1 + (self.B2 - self.B1) * psi
+        """B(psi) = B1 + (B2 - B1) s(psi): s = psi for the linear law, and on [0, 1] for both (bending.py)."""
+        return self.B1 + (self.B2 - self.B1) * bending.fraction(psi, self.bending_law, self.bending_width)
 
-    @property
-    def dbending(self) -> float:
-        """B'(psi) = B2 - B1."""
-        return self.B2 - self.B1
+    def bending_prime(self, psi):
+        """B'(psi) = (B2 - B1) s'(psi): a scalar where it is the constant B2 - B1, else an array."""
+        return (self.B2 - self.B1) * bending.fraction_prime(psi, self.bending_law, self.bending_width)
+
+    def bending_second(self, psi):
+        """B''(psi) = (B2 - B1) s''(psi), or None where it is 0 (the linear law, psi inside [0, 1])."""
+        second = bending.fraction_second(psi, self.bending_law, self.bending_width)
+        return None if second is None else (self.B2 - self.B1) * second
 
 
 @dataclass(frozen=True)
@@ -288,7 +304,7 @@ class Case:
         """:meth:`to_dict` without the options that this run does not use: the adaptive options
         of a fixed-step run, dt of an adaptive one, the decision rules of a run to t_end, the
         resolution watch at its default (what a study's fingerprint covers, so that files written
-        before these options existed keep theirs)."""
+        before these options existed keep theirs; the linear bending law, which they all ran)."""
         out = self.to_dict()
         unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
         for key in unused:
@@ -298,6 +314,8 @@ class Case:
                 del out["run"][key]
         if self.run.max_spectral_tail == RunControl.max_spectral_tail:
             del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
+        if self.physics.bending_law == "linear":      # the law of files from before the option
+            del out["physics"]["bending_law"], out["physics"]["bending_width"]
         return out
 
     def flat(self) -> dict:

@@ -118,7 +118,10 @@ class LinearizedImplicit:
 
         J(psi*) = nu ( a0 eps D^4 - (a0/eps) D^2 diag g''(psi*) ),
 
-    with D^2, D^4 the spectral differentiation matrices (arclength). A step solves
+    with D^2, D^4 the spectral differentiation matrices (arclength). Where the bending
+    law bends (the saturating law outside [0, 1], bending.py) mu's B'(psi) H^2 / 2 adds
+    B''(psi*) H^2 / 2 to (a0/eps) g''(psi*), H the curvature at the current level: without
+    it psi near the bounds jitters from step to step. A step solves
     (c I + J + V D) psi_new = explicit + J psi*, V D an implicit uniform advection.
     Taking the local g'' (instead of a constant stabilisation) leaves only
     O((psi_new - psi*)^2) of the stiff double-well term explicit, which is what
@@ -152,6 +155,7 @@ class LinearizedImplicit:
         self.cutoff = cutoff
         self._fft = sp.fft
         self._c2 = mobility * a0 / eps
+        self._bending_scale = eps / a0 if a0 > 0 else 0.0   # B'' H^2 / 2 in units of (a0/eps) g''
         self._k2 = sp.k2                                        # symbol of D^2 (Nyquist kept)
         self._ik = sp.ik                                        # symbol of D (Nyquist dropped)
         self._bulk = (mobility * a0 * eps) * sp.k2**2 - 0.5 * self._c2 * sp.k2   # J at g'' = 1/2
@@ -188,23 +192,27 @@ class LinearizedImplicit:
         """g''(psi*) - 1/2 = 3 psi* (psi* - 1)."""
         return 3.0 * psi_star * (psi_star - 1.0)
 
-    def excess_curvature(self, psi_star, truncated=True):
-        """e = g''(psi*) - 1/2, set to 0 where |e| <= cutoff if ``truncated`` (as the solve does)."""
+    def excess_curvature(self, psi_star, truncated=True, bending=None):
+        """e = g''(psi*) - 1/2 + (eps/a0) B''(psi*) H^2 / 2, set to 0 where |e| <= cutoff if ``truncated``
+        (as the solve does). ``bending`` = B''(psi*) H^2 / 2, or None where B'' = 0 (the linear law)."""
         e = self._excess(psi_star)
+        if bending is not None:
+            e = e + self._bending_scale * bending
         if truncated:
             e[np.abs(e) <= self.cutoff] = 0.0
         return e
 
-    def jacobian(self, psi_star, truncated=True):
+    def jacobian(self, psi_star, truncated=True, bending=None):
         """J(psi*) as a dense matrix (for checks; the solve never forms it)."""
         eye = np.eye(self.N)
         bulk = np.array([self._fft.irfft(self._bulk * self._fft.rfft(row)) for row in eye]).T
         D2 = np.array([self._fft.irfft(self._k2 * self._fft.rfft(row)) for row in eye]).T
-        return bulk - self._c2 * D2 * self.excess_curvature(psi_star, truncated)
+        return bulk - self._c2 * D2 * self.excess_curvature(psi_star, truncated, bending)
 
-    def solve_linearized(self, psi_star, c, explicit, advection=0.0):
+    def solve_linearized(self, psi_star, c, explicit, advection=0.0, bending=None):
         """psi_new with (c I + J + V D) psi_new = explicit + J psi*, J = J(psi*) truncated,
-        V = ``advection`` (the uniform advection psi_t = -V psi_s, implicit as a whole).
+        V = ``advection`` (the uniform advection psi_t = -V psi_s, implicit as a whole),
+        ``bending`` = B''(psi*) H^2 / 2 where the bending law bends (see :meth:`excess_curvature`).
 
         Woodbury: c I + J + V D = K + U W^T with K circulant (symbol
         kappa = c + nu a0 eps k^4 + nu (a0/eps) k^2 / 2 + i k V) and
@@ -215,12 +223,14 @@ class LinearizedImplicit:
         no p x p scaling pass).
         """
         fft = self._fft
-        return self.solve_spectral(psi_star, fft.rfft(psi_star), c, fft.rfft(explicit), advection)
+        return self.solve_spectral(psi_star, fft.rfft(psi_star), c, fft.rfft(explicit), advection, bending)
 
-    def solve_spectral(self, psi_star, psi_star_hat, c, explicit_hat, advection=0.0):
+    def solve_spectral(self, psi_star, psi_star_hat, c, explicit_hat, advection=0.0, bending=None):
         """:meth:`solve_linearized` given the rfft spectra of psi* and of the explicit side."""
         fft, N = self._fft, self.N
         e = self._excess(psi_star)
+        if bending is not None:
+            e += self._bending_scale * bending
         P = (np.abs(e) > self.cutoff).nonzero()[0]          # where excess_curvature keeps e
         rhs_hat = explicit_hat + self._bulk * psi_star_hat
         if c not in self._diagonal:

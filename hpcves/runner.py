@@ -59,8 +59,11 @@ class UnderResolved(Diverged):
     """N is too small for the shape or the phase field (the spectral tail watch)."""
 
 
-def model_limit_note(state: State) -> str:
-    """What to add to a step-size failure when psi has left [0, 1] over the last levels ("" if not)."""
+def model_limit_note(state: State, bending_law: str = "linear") -> str:
+    """What to add to a step-size failure when psi has left [0, 1] over the last levels under the
+    linear bending law ("" if not: the saturating law is bounded there)."""
+    if bending_law != "linear":
+        return ""
     levels = [p for p in (state.psi, state.prev_psi, state.prev2_psi) if p is not None]
     lo, hi = min(float(p.min()) for p in levels), max(float(p.max()) for p in levels)
     if lo >= -OVERSHOOT and hi <= 1.0 + OVERSHOOT:
@@ -197,7 +200,7 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         write_rows()
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
         if isinstance(exc, StepSizeError) and not solver.case.physics.homogeneous:
-            reason += model_limit_note(state)
+            reason += model_limit_note(state, case.physics.bending_law)
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
         what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"

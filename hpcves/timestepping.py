@@ -291,7 +291,7 @@ class Solver:
         if phys.homogeneous:
             psi_t, mu = np.zeros_like(psi), None
         else:
-            mu = phasefield.chemical_potential(psi, psi_ss, shape.curvature, phys.dbending,
+            mu = phasefield.chemical_potential(psi, psi_ss, shape.curvature, phys.bending_prime(psi),
                                                phys.a0, phys.epsilon)
             psi_t = fft.multiply(mu, self._mobility_k2)
         return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
@@ -403,7 +403,8 @@ class Solver:
         if ch.applicable(psi_star) and self._applicable(state.psi) and self._applicable(state.prev_psi):
             explicit_hat = (((c.current / k) * psi_hat + c.current * fft.rfft(rates.psi)) * to_n
                             - ((c.previous / k) * prev_hat + c.w * fft.rfft(state.prev_rate_psi)) * to_prev)
-            psi = ch.solve_spectral(psi_star, star_hat, c.implicit / k, explicit_hat, V_star - W)
+            psi = ch.solve_spectral(psi_star, star_hat, c.implicit / k, explicit_hat, V_star - W,
+                                    self._bending_curvature(psi_star, rates.shape.curvature))
             if phasefield.plausible(psi):
                 return psi, psi_star, (to_n, to_prev, moved), False
         return (self._stabilized_euler_phase(state.psi, rates.psi, k, V_star), psi_star, (to_n, to_prev, moved),
@@ -438,12 +439,18 @@ class Solver:
         else:
             psi = None
             if self._applicable(state.psi):
-                psi = self.cahn_hilliard.solve_linearized(state.psi, 1.0 / dt, state.psi / dt + rates.psi, V)
+                psi = self.cahn_hilliard.solve_linearized(state.psi, 1.0 / dt, state.psi / dt + rates.psi, V,
+                                                          self._bending_curvature(state.psi, rates.shape.curvature))
             if psi is None or not phasefield.plausible(psi):
                 psi = self._stabilized_euler_phase(state.psi, rates.psi, dt, V)
             psi = self._conserve(psi, state.psi)
         return State(step=state.step, theta=theta, psi=psi, center=state.center + dt * rates.center,
                      shift=state.shift + dt * rates.shift)
+
+    def _bending_curvature(self, psi_star, curvature):
+        """B''(psi*) H^2 / 2, the bending law's part of d mu / d psi for the Jacobian (None where B'' = 0)."""
+        second = self.case.physics.bending_second(psi_star)
+        return None if second is None else 0.5 * second * curvature * curvature
 
     def _applicable(self, psi) -> bool:
         """cahn_hilliard.applicable(psi), remembered for the last few levels.

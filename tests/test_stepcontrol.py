@@ -234,6 +234,7 @@ DEFLATED = """[physics]
 shear_rate = 5.0
 psi_bar = 0.48
 excess_length = 1.3
+bending_law = "linear"
 [numerics]
 N = 128
 rtol = 1e-2
@@ -248,11 +249,22 @@ checkpoint_interval = 3.5
 def test_fallback_steps_do_not_stall_the_controller(tmp_path):
     # psi_bar = 0.48, Delta = 1.3, S = 5 (jobs/reproduce/psi048_delta_S.toml): the stabilised Euler
     # fallback once stalled the controller at t = 2.81 (21 rejections); now the run goes on until
-    # the tip's spectral tail stops it
+    # the tip's spectral tail stops it (under the linear bending law; the saturating one keeps the
+    # tip resolved: test_the_saturating_law_runs_the_deflated_case_through)
     with open_file(tmp_path / "a.h5", "w-") as f:
         store = CaseStore.create(f, case_from_toml(DEFLATED))
         outcome = runner.run(store, f.flush)
     assert outcome.message.startswith("under-resolved:") and outcome.t > 2.9, outcome
+
+
+def test_the_saturating_law_runs_the_deflated_case_through(tmp_path):
+    with open_file(tmp_path / "a.h5", "w-") as f:
+        store = CaseStore.create(f, case_from_toml(DEFLATED.replace('bending_law = "linear"',
+                                                                    'bending_law = "saturating"')))
+        outcome = runner.run(store, f.flush)
+        tail = store.timeseries()["tail_psi"][: store.n_samples]
+    assert outcome.status == FINISHED and outcome.t == 3.5 and outcome.message == "", outcome
+    assert tail.max() < 3e-3
 
 
 def test_a_step_size_failure_beyond_the_physical_range_of_psi_blames_the_model():

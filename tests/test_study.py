@@ -129,8 +129,31 @@ def test_search_fingerprint_of_older_files_is_kept():
     """A search file records a fingerprint of what decides its cases, and --resume refuses
     any other. This one was written by the version before samples_per_shear_time existed:
     new options must leave it unchanged when they are not used (change it only with a
-    migration of existing files)."""
-    assert study_from_toml(SEARCH_TOML).fingerprint == \
+    migration of existing files). Files from before physics.bending_law ran the linear law: its
+    study keeps the fingerprint once it says so, and today's default (saturating) is another study."""
+    linear = SEARCH_TOML.replace("excess_length = 0.194", "excess_length = 0.194\nbending_law = \"linear\"")
+    assert study_from_toml(linear).fingerprint == \
         "b69211a0947811a2d19a661353dd2203f7313add8746547afb026fb05b8bb73d"
-    sampled = study_from_toml(SEARCH_TOML.replace("t_end_min = 1.0", "t_end_min = 1.0\nsamples_per_shear_time = 10"))
-    assert sampled.fingerprint != study_from_toml(SEARCH_TOML).fingerprint
+    assert study_from_toml(SEARCH_TOML).fingerprint != study_from_toml(linear).fingerprint
+    sampled = study_from_toml(linear.replace("t_end_min = 1.0", "t_end_min = 1.0\nsamples_per_shear_time = 10"))
+    assert sampled.fingerprint != study_from_toml(linear).fingerprint
+
+
+def test_a_case_stored_before_the_bending_law_option_reads_back_as_the_linear_law(tmp_path):
+    """Every stored case writes all its parameters; one written before physics.bending_law has
+    none, and ran the linear law: it must resume with that, not with today's default."""
+    from hpcves.checkpoint import CaseStore, open_file
+    from hpcves.config import case_from_toml, case_to_toml
+
+    case = case_from_toml("[physics]\nbending_law = \"linear\"\n[run]\nt_end = 0.1\n")
+    with open_file(tmp_path / "old.h5", "w-") as f:
+        store = CaseStore.create(f, case)
+        text = case_to_toml(case)
+        old = "\n".join(line for line in text.splitlines() if not line.startswith("bending_"))
+        assert "bending_law" in text and "bending_law" not in old
+        store.group.attrs["config"] = old
+        assert store.case.physics.bending_law == "linear"
+        assert store.case.to_dict() == case.to_dict()
+        store.group.attrs["config"] = text.replace('"linear"', '"saturating"')
+        assert store.case.physics.bending_law == "saturating"
+    assert case_from_toml("[run]\nt_end = 0.1\n").physics.bending_law == "saturating"   # a new input
