@@ -229,6 +229,7 @@ class InclinationRecord:
     steps: int
     rejected: int
     state: State               # the state at t_end
+    psi_range: tuple[float, float] = (np.nan, np.nan)   # min and max of psi over the samples
 
 
 def inclination_record(case, start: State | None = None) -> InclinationRecord:
@@ -243,12 +244,14 @@ def inclination_record(case, start: State | None = None) -> InclinationRecord:
     solver, clock = Solver(case), schedule.clock(case)
     state = solver.initial_state() if start is None else start
     times, theta, steps, rejected = [], [], 0, 0
+    low, high = np.inf, -np.inf
     while True:
         rates = solver.rates(state)
         if clock.sample_due(state):
             times.append(state.t)
             theta.append(geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length).inclination)
+            low, high = min(low, float(state.psi.min())), max(high, float(state.psi.max()))
         if clock.done(state):
-            return InclinationRecord(np.array(times), np.array(theta), steps, rejected, state)
+            return InclinationRecord(np.array(times), np.array(theta), steps, rejected, state, (low, high))
         state, r = clock.take_step(solver, state, rates)
         steps, rejected = steps + 1, rejected + r

@@ -49,6 +49,11 @@ class Physics:
     the mean of psi is then exactly psi_bar); ``"ellipse_parameter"`` -- the
     parameter t/(2 pi) of the ellipse x = a cos t, y = b sin t at the node (what
     the authors' code does; the mean then differs from psi_bar by O(delta e^2)).
+    ``bending_law`` is B(psi) (bending.py): ``"linear"``, B1 + (B2 - B1) psi for
+    every psi (SPEC section 1), which vanishes at psi = B1 / (B1 - B2) and lets a
+    sharp tip draw the soft phase past 1 (Delta = 2.3); ``"saturating"`` (the
+    default), the same on [0, 1] with B' fading to zero over ``bending_width``
+    outside it, so that B stays positive (docs/numerics.md, "Bending law").
     """
 
     shear_rate: float = 10.0
