@@ -9,7 +9,9 @@ Two clocks, one interface:
   time, and the end at t_end. Steps are cut so that they land on these times
   exactly (stepcontrol.fit_to): every sample is a state of the scheme, nothing
   is interpolated. Times of two cadences that agree to 1e-9 of an interval
-  (0.1 and 10 * 0.01) are one event.
+  (0.1 and 10 * 0.01) are one event, and a state is on an event when its
+  time is (a time within 1e-13 of its own size of a grid time: the round-off
+  of landing there; the start-up's steps of 1e-9 at t ~ 0 are not on t = 0).
 
 Both count what a run has recorded *before* a state, so a checkpoint of that
 state says how many samples and snapshots a resumed run keeps.
@@ -23,6 +25,14 @@ from .stepcontrol import StepControl, advance
 
 #: two event times closer than this fraction of an interval are the same event
 COINCIDENT = 1e-9
+#: ... unless that is more than this fraction of the time itself: a step lands on an event to
+#: round-off, and steps far below 1e-9 of an interval are taken (the spinodal start-up at t ~ 0)
+ROUNDOFF = 1e-13
+
+
+def _slack(x: float) -> float:
+    """How far x = t / interval may lie from a whole number j and still be j (in intervals)."""
+    return min(COINCIDENT, ROUNDOFF * max(abs(x), 1.0))
 
 
 class FixedClock:
@@ -87,19 +97,22 @@ class AdaptiveClock:
 
     # -------------------------------------------------------------- the time grid
     def _on_grid(self, t: float, interval: float) -> bool:
-        j = round(t / interval)
-        return abs(t - j * interval) <= COINCIDENT * interval and j * interval <= self.t_end * (1 + COINCIDENT)
+        x = t / interval
+        j = round(x)
+        return abs(x - j) <= _slack(x) and j * interval <= self.t_end * (1 + COINCIDENT)
 
     def _count_before(self, t: float, interval: float) -> int:
         """Grid times j * interval (up to t_end) before t: ceil(t / interval), coincident times excluded."""
-        return min(self._total(interval), max(0, math.ceil(t / interval - COINCIDENT)))
+        x = t / interval
+        return min(self._total(interval), max(0, math.ceil(x - _slack(x))))
 
     def _total(self, interval: float) -> int:
         return math.floor(self.t_end / interval + COINCIDENT) + 1
 
     def _next(self, t: float, interval: float) -> float:
         """The first multiple of ``interval`` after t (and not coincident with it)."""
-        j = math.floor(t / interval + COINCIDENT) + 1
+        x = t / interval
+        j = math.floor(x + _slack(x)) + 1
         return j * interval
 
     def capacities(self) -> tuple[int, int]:
@@ -120,7 +133,7 @@ class AdaptiveClock:
     def recorded_through(self, step: int, t: float) -> tuple[int, int]:
         """(samples, snapshots) recorded up to and including the state at time t."""
         sample, snapshot, _ = self.intervals
-        return tuple(min(self._total(i), math.floor(t / i + COINCIDENT) + 1) for i in (sample, snapshot))
+        return tuple(min(self._total(i), math.floor(t / i + _slack(t / i)) + 1) for i in (sample, snapshot))
 
     # -------------------------------------------------------------- cadences
     def sample_due(self, state) -> bool:

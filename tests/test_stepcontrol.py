@@ -327,3 +327,25 @@ def test_dt_and_rtol_together_are_refused():
         case_from_toml("[numerics]\ndt = 1e-3\nrtol = 1e-3\n")
     with pytest.raises(ConfigError, match="rtol"):
         case_from_toml("[numerics]\nrtol = 0.5\n")
+
+
+def test_start_up_steps_far_below_an_interval_are_not_on_its_first_event():
+    """The spinodal start-up takes steps of 1e-9 and less; with a snapshot interval of 4, the
+    states at t = 1e-10 ... 3e-9 lay within 1e-9 of an interval of t = 0 and were each taken for
+    the snapshot at t = 0 (psi_bar = 0.3, Delta = 2.3, S = 5: an IndexError past the snapshots'
+    capacity). Only the state that lands on an event is on it, to the round-off of landing."""
+    case = Case(Physics(), Numerics(N=32, rtol=1e-2),
+                RunControl(t_end=4.0, sample_interval=0.01, snapshot_interval=4.0, checkpoint_interval=4.0))
+    clock = schedule.clock(case)
+    at = lambda t: dataclasses.replace(Solver(case).initial_state(), t=t)   # noqa: E731
+    assert clock.snapshot_due(at(0.0)) and clock.sample_due(at(0.0))
+    for t in (1e-12, 1e-10, 3e-9, 1e-6):
+        assert not clock.snapshot_due(at(t)) and not clock.sample_due(at(t)), t
+        assert clock.recorded(1, t) == (1, 1) and clock.recorded_through(1, t) == (1, 1), t
+        assert clock.next_event(t) == 0.01
+    landed = 0.0
+    for _ in range(400):                                     # 400 landings on the sample grid
+        landed = landed + (clock.next_event(landed) - landed)
+        assert clock.sample_due(at(landed))
+    assert landed == pytest.approx(4.0) and clock.snapshot_due(at(landed)) and clock.done(at(landed))
+    assert clock.capacities() == (402, 3) and clock.recorded_through(401, landed) == (401, 2)
