@@ -35,7 +35,7 @@ PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
 COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "regime", "period", "period_err",
                                      "period_dt_err", "theta_mean", "theta_mean_err", "theta_mean_dt_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
-                                     "theta_drift", "period_crossings", "reason")
+                                     "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "reason")
 TEXT_COLUMNS = ("case", "status", "regime", "reason")
 
 
@@ -297,11 +297,12 @@ def markdown_table(header: list[str], body: list[list[str]], left: tuple = (0,))
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
     header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
-                                "min theta", "amplitude", "t settle", "evidence"]
+                                "min theta", "amplitude", "Delta E_b", "+-", "t settle", "evidence"]
     body = [[row["case"]] + [_cell(row[k], k) for k in keys]
             + [row["regime"], _fmt(row["period"], ".6g"), _fmt(row["period_err"], ".2g"),
                _dt_cell(row, "period"), _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_mean_err"], ".2g"),
                _dt_cell(row, "theta_mean"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
+               _fmt(row.get("bending_gap", math.nan), ".4g"), _fmt(row.get("bending_gap_err", math.nan), ".2g"),
                _fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, len(header) - 1)
@@ -316,7 +317,9 @@ ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error 
               "time step, by the rule measured against rtol (hpcves/accuracy.py, docs/error_rule.md); n/e: not "
               "estimated -- a fixed-step run (rerun with numerics.rtol), or tumbling, for which the rule does "
               "not hold: the tolerance picks the orbit, and a tumbling period was 1 % longer at rtol = 1e-2 "
-              "and 1e-3, 0.1 % at 1e-4, than at 1e-5.")
+              "and 1e-3, 0.1 % at 1e-4, than at 1e-5. Delta E_b: max - min of the bending energy over a "
+              "period of a phase-treading case, averaged over its whole settled periods, +- their standard "
+              "error and what the sampling can miss of the extremes (the time step's error not included).")
 
 
 def _dt_cell(row: dict, quantity: str) -> str:

@@ -22,7 +22,7 @@ uncertainty, theta's mean, minimum and amplitude, the pattern's speed).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
@@ -80,9 +80,39 @@ class Classification:
     theta_drift: float
     pattern_speed: float       # |<V_psi + V_L>| / |<V>| over the settled part (nan: no pattern)
     period_crossings: float    # the crossing check of the period (nan: not available)
+    bending_gap: float = float("nan")       # Delta E_b = max - min of E_b over a period (PT; bending_gap())
+    bending_gap_err: float = float("nan")
 
     def row(self) -> dict:
         return asdict(self)
+
+
+def bending_gap(t: np.ndarray, energy: np.ndarray, period: float, t_settle: float) -> tuple[float, float]:
+    """Delta E_b = max - min of the bending energy over one period (the publication relates it to S_C),
+    averaged over the last whole periods of the settled part, and its uncertainty.
+
+    The uncertainty: the standard error of the per-period values (their scatter over k periods,
+    std / sqrt k; with one period, its whole size), plus what sampling every h can miss of a smooth
+    extremum, gap (1 - cos(pi h / T)) for the maximum and minimum together. The time step's error of
+    E_b is not estimated. (nan, nan) without a period or a whole settled period.
+    """
+    t, energy = np.asarray(t, dtype=float), np.asarray(energy, dtype=float)
+    if not (np.isfinite(period) and period > 0 and np.isfinite(t_settle)) or t.size < 2:
+        return float("nan"), float("nan")
+    whole = int((t[-1] - t_settle) // period)
+    if whole < 1:
+        return float("nan"), float("nan")
+    h = float((t[-1] - t[0]) / (t.size - 1))
+    gaps = []
+    for j in range(whole):
+        window = (t > t[-1] - (j + 1) * period - 1e-9 * h) & (t <= t[-1] - j * period + 1e-9 * h)
+        values = energy[window]
+        if values.size:
+            gaps.append(float(values.max() - values.min()))
+    gaps = np.array(gaps)
+    gap = float(gaps.mean())
+    scatter = float(gaps.std(ddof=1) / np.sqrt(gaps.size)) if gaps.size > 1 else gap
+    return gap, scatter + gap * (1.0 - np.cos(np.pi * h / period))
 
 
 def _settled_mean(t, values, t_settle) -> float:
@@ -160,7 +190,11 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     if a.minimum < 0:
         return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}")
     if np.isfinite(speed) and speed > settings.pattern_tol:
-        return verdict(PT, f"the pattern {pattern}; theta oscillates, min {a.minimum:.3f} > 0; {periodic}")
+        found = verdict(PT, f"the pattern {pattern}; theta oscillates, min {a.minimum:.3f} > 0; {periodic}")
+        if "E_bending" in series:
+            gap, gap_err = bending_gap(t, series["E_bending"], p.period, a.t_settle)
+            found = replace(found, bending_gap=gap, bending_gap_err=gap_err)
+        return found
     what = f"the pattern {pattern}" if np.isfinite(speed) else f"there is {_no_pattern(contrast)}"
     return verdict(UNDECIDED, f"theta oscillates ({periodic}) but {what}")
 

@@ -27,7 +27,9 @@ from .search import RUNNING, SearchSettings, SearchState, step
 from .study import SEARCHABLE, Study, study_from_toml
 
 #: the columns of critical_shear.csv
-CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "status", "cases", "reason")
+#: (bending_gap: Delta E_b of the case at bracket_high, the smallest phase-treading shear rate; nan if none)
+CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "bending_gap", "bending_gap_err", "status",
+                                 "cases", "reason")
 
 
 @dataclass(frozen=True)
@@ -46,8 +48,8 @@ class SearchOutcome:
         if self.state.status == RUNNING:
             reason = f"unfinished: next S = {', '.join(f'{s:g}' for s in self.state.next_shear_rates)} ({reason})"
         return {**self.point, "S_C": self.state.critical, "bracket_low": self.state.low,
-                "bracket_high": self.state.high, "status": self.state.status, "cases": len(self.regimes),
-                "reason": reason}
+                "bracket_high": self.state.high, "bending_gap": math.nan, "bending_gap_err": math.nan,
+                "status": self.state.status, "cases": len(self.regimes), "reason": reason}
 
 
 def case_regime(row: dict) -> str:
@@ -144,16 +146,31 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
     found = [(case.search, case.parameters["shear_rate"], case_regime(row)) for case, row in zip(source.cases, rows)
              if row["status"] in (STATUS_NAMES[FINISHED], STATUS_NAMES[FAILED])]
-    return [o.row() for o in outcomes(study.search, search_points(study), found, tuple(study.sweep))]
+    searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
+    gaps = {(case.search, case.parameters["shear_rate"]): (row.get("bending_gap", math.nan),
+                                                           row.get("bending_gap_err", math.nan))
+            for case, row in zip(source.cases, rows)}
+    out = []
+    for o in searched:
+        row = o.row()
+        row["bending_gap"], row["bending_gap_err"] = gaps.get((o.index, o.state.high), (math.nan, math.nan))
+        out.append(row)
+    return out
 
 
 def critical_table(rows: list[dict], keys) -> str:
     """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
     body = [[f"{r[k]:g}" for k in keys]
-            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]", str(r["cases"]),
+            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]",
+               _gap(r.get("bending_gap", math.nan), r.get("bending_gap_err", math.nan)), str(r["cases"]),
                r["status"], r["reason"]] for r in rows]
-    return markdown_table([LABELS.get(k, k) for k in keys] + ["S_C", "bracket", "cases", "status", "reason"],
-                          body, left=(len(keys) + 3, len(keys) + 4))
+    return markdown_table([LABELS.get(k, k) for k in keys]
+                          + ["S_C", "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
+                          body, left=(len(keys) + 4, len(keys) + 5))
+
+
+def _gap(gap: float, error: float) -> str:
+    return f"{gap:.4g} +- {error:.1g}" if math.isfinite(gap) else ""
 
 
 def _fmt(value: float) -> str:
@@ -162,5 +179,6 @@ def _fmt(value: float) -> str:
 
 def critical_markdown(name: str, searches: list[dict]) -> str:
     return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
-            "between the largest TT and the smallest PT/TU shear rate.\n\n"
+            "between the largest TT and the smallest PT/TU shear rate. Delta E_b: the bending-energy gap (max - "
+            "min of E_b over a period) of the phase-treading case at the bracket's top.\n\n"
             + critical_table(searches, SEARCHABLE) + "\n")

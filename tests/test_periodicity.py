@@ -174,3 +174,23 @@ def test_a_tumbling_period_of_whole_samples_is_not_locked_to_the_sample_grid():
     assert tu.regime == TU, tu
     assert abs(tu.period - true) <= max(tu.period_err, 1e-4), (tu.period, tu.period_err, true)
     assert tu.period_err < 2e-3
+
+
+def test_the_bending_energy_gap_is_max_minus_min_over_a_period_and_its_error_covers_it():
+    from hpcves.regimes import bending_gap
+
+    gap_true, T = 0.37, 0.7
+    energy = 5.0 + 0.5 * gap_true * np.sin(2 * np.pi * t / T) + 0.1 * gap_true * np.sin(4 * np.pi * t / T + 0.3)
+    # the two-harmonic waveform's max - min, on a fine grid
+    fine = np.linspace(0, T, 200001)
+    exact = np.ptp(0.5 * gap_true * np.sin(2 * np.pi * fine / T) + 0.1 * gap_true * np.sin(4 * np.pi * fine / T + 0.3))
+    gap, error = bending_gap(t, energy, T, t_settle=2.0)
+    assert abs(gap - exact) <= error and error < 1e-3 * exact, (gap, exact, error)
+    noisy = energy + 1e-3 * rng.standard_normal(t.size)
+    gap, error = bending_gap(t, noisy, T, t_settle=2.0)
+    assert abs(gap - exact) <= error + 2e-3, (gap, exact, error)     # noise widens every period's range
+    assert np.isnan(bending_gap(t, energy, T, t_settle=t[-1] - 0.5 * T)[0])   # no whole settled period
+    pt = classify({**series(SIGNALS["noise 10 %"]), "E_bending": energy})
+    assert pt.regime == PT and pt.bending_gap == pytest.approx(exact, rel=2e-3)
+    tt = classify({**series(0.56 - 0.3 * np.exp(-t / 1.2), pattern_speed=1e-6), "E_bending": energy})
+    assert tt.regime == TT and np.isnan(tt.bending_gap)

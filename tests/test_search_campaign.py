@@ -99,6 +99,16 @@ def test_analyze_replays_the_searches_into_critical_shear_csv(searched, tmp_path
     assert float(table[1]["bracket_low"]) == pytest.approx(mixed.low)
     assert float(table[1]["bracket_high"]) == pytest.approx(mixed.high)
     assert table[0]["S_C"] == "" and table[0]["status"] == "not bracketed"
+    # the bending-energy gap of the phase-treading case at the bracket's top, as regimes.csv has it
+    with open(tmp_path / "regimes.csv") as f:
+        cases = list(csv.DictReader(f))
+    top = next(c for c in cases if float(c["psi_bar"]) == 0.3
+               and float(c["shear_rate"]) == pytest.approx(mixed.high, rel=1e-5))
+    assert top["regime"] == "PT" and float(top["bending_gap"]) > 0
+    assert float(table[1]["bending_gap"]) == pytest.approx(float(top["bending_gap"]), rel=1e-5)
+    assert 0 < float(table[1]["bending_gap_err"]) < float(table[1]["bending_gap"])
+    assert table[0]["bending_gap"] == ""
+    assert "Delta E_b" in (tmp_path / "critical_shear.md").read_text()
     assert [s["status"] for s in report.searches] == ["not bracketed", "converged"]
     for name in ("critical_shear", "phase_diagram"):
         assert (tmp_path / f"{name}.png").stat().st_size > 1000
