@@ -142,8 +142,8 @@ def _log_scale(values) -> bool:
 @plt.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
 def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True):
     """Regimes over two swept parameters: one marker per case, coloured by regime;
-    undecided cases are grey crosses; PT/TU points carry their period."""
-    fig, ax = plt.subplots(figsize=(8, 6), constrained_layout=True)
+    undecided cases are grey crosses; PT/TU points carry their period; the legend beside the axes."""
+    fig, ax = plt.subplots(figsize=(10, 6), constrained_layout=True)
     for regime, (colour, marker, label) in REGIME_STYLE.items():
         chosen = [r for r in rows if r["regime"] == regime]
         if not chosen:
@@ -156,17 +156,29 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
                 if np.isfinite(r["period"]):
                     ax.annotate(f"{r['period']:.3g}", (r[x_key], r[y_key]), textcoords="offset points",
                                 xytext=(0, 9), ha="center", fontsize=9)
-    if _log_scale([r[x_key] for r in rows]):
-        ax.set_xscale("log")
-    if _log_scale([r[y_key] for r in rows]):
-        ax.set_yscale("log")
+    for axis, key in ((ax.xaxis, x_key), (ax.yaxis, y_key)):
+        values = sorted({r[key] for r in rows})
+        if _log_scale(values):
+            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
+            if len(values) <= MAX_SWEEP_TICKS:          # ticks at the swept values, not at powers of ten
+                axis.set_ticks(values, [f"{v:g}" for v in values])
+                axis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)
-    ax.legend(loc="best", fontsize=11, framealpha=0.9)
+    _legend_outside(ax)
     if title:
         ax.set_title(title, fontsize=13)
     return fig
+
+
+#: a log axis gets ticks at the swept values when there are at most this many
+MAX_SWEEP_TICKS = 12
+
+
+def _legend_outside(ax) -> None:
+    """The legend beside the axes, where it can cover no point."""
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=11, frameon=False)
 
 
 def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = ""):
@@ -216,7 +228,7 @@ def mark_critical(ax, searches: list[dict], y_key: str) -> None:
                 ax.plot(r["S_C"], r[y_key], "D", color="gold", mec="k", ms=9, zorder=5)
             label = None
     if label is None:
-        ax.legend(loc="best", fontsize=11, framealpha=0.9)
+        _legend_outside(ax)
 
 
 def critical_shear_figure(searches: list[dict], x_key: str, title: str = ""):
