@@ -25,7 +25,8 @@ import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 
 from hpcves import diagnostics
 from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.periodicity import crossing_period
+from hpcves.periodicity import crossing_period, estimate_period
+from hpcves.regimes import flip_period
 
 LAWS = ("linear", "saturating")
 TABLE = [(psi_bar, S) for psi_bar in (0.3, 0.5, 0.7) for S in (80.0, 160.0, 320.0)]
@@ -75,9 +76,6 @@ def deflated_run(psi_bar: float, delta: float, S: float, N: int, law: str, t_end
 
 
 def moderate_run(psi_bar: float, delta: float, S: float, N: int, t_end: float, rtol: float, law: str) -> dict:
-    from hpcves.regimes import flip_period
-    from hpcves.periodicity import estimate_period
-
     case = Case(Physics(shear_rate=S, psi_bar=psi_bar, excess_length=delta, bending_law=law),
                 Numerics(N=N, rtol=rtol),
                 RunControl(t_end=t_end, sample_interval=min(0.02, 1.0 / (10.0 * S)), snapshot_interval=t_end,

@@ -302,7 +302,7 @@ def regimes_markdown(source: Source, rows: list[dict]) -> str:
             + [row["regime"], _fmt(row["period"], ".6g"), _fmt(row["period_err"], ".2g"),
                _dt_cell(row, "period"), _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_mean_err"], ".2g"),
                _dt_cell(row, "theta_mean"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
-               _fmt(row.get("bending_gap", math.nan), ".4g"), _fmt(row.get("bending_gap_err", math.nan), ".2g"),
+               _fmt(row["bending_gap"], ".4g"), _fmt(row["bending_gap_err"], ".2g"),
                _fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, len(header) - 1)

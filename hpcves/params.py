@@ -99,8 +99,8 @@ class Physics:
         _require(self.bending_law in bending.LAWS, f"physics.bending_law = {self.bending_law!r}: must be one of "
                  + ", ".join(repr(c) for c in bending.LAWS))
         _require(self.bending_width > 0, f"physics.bending_width = {self.bending_width}: must be > 0")
-        if bending.stiffness_bounds(self.B1, self.B2, self.bending_law, self.bending_width)[0] <= 0 \
-                and self.bending_law == "saturating":
+        if self.bending_law == "saturating" and \
+                bending.stiffness_bounds(self.B1, self.B2, self.bending_law, self.bending_width)[0] <= 0:
             raise ConfigError(f"physics.bending_width = {self.bending_width}: the saturating law would reach "
                               "B <= 0 outside [0, 1]; it needs bending_width < "
                               f"{bending.largest_width(self.B1, self.B2):.3g}")

@@ -187,17 +187,17 @@ class LinearizedImplicit:
         flags = (deviation < SPINODAL_HALF_WIDTH).tobytes()          # b"\x00" / b"\x01" per point
         return self._too_long not in flags + flags[: points - 1]
 
-    @staticmethod
-    def _excess(psi_star):
-        """g''(psi*) - 1/2 = 3 psi* (psi* - 1)."""
-        return 3.0 * psi_star * (psi_star - 1.0)
+    def _excess(self, psi_star, bending=None):
+        """g''(psi*) - 1/2 = 3 psi* (psi* - 1), plus (eps/a0) ``bending`` where the bending law bends."""
+        e = 3.0 * psi_star * (psi_star - 1.0)
+        if bending is not None:
+            e += self._bending_scale * bending
+        return e
 
     def excess_curvature(self, psi_star, truncated=True, bending=None):
         """e = g''(psi*) - 1/2 + (eps/a0) B''(psi*) H^2 / 2, set to 0 where |e| <= cutoff if ``truncated``
         (as the solve does). ``bending`` = B''(psi*) H^2 / 2, or None where B'' = 0 (the linear law)."""
-        e = self._excess(psi_star)
-        if bending is not None:
-            e = e + self._bending_scale * bending
+        e = self._excess(psi_star, bending)
         if truncated:
             e[np.abs(e) <= self.cutoff] = 0.0
         return e
@@ -228,9 +228,7 @@ class LinearizedImplicit:
     def solve_spectral(self, psi_star, psi_star_hat, c, explicit_hat, advection=0.0, bending=None):
         """:meth:`solve_linearized` given the rfft spectra of psi* and of the explicit side."""
         fft, N = self._fft, self.N
-        e = self._excess(psi_star)
-        if bending is not None:
-            e += self._bending_scale * bending
+        e = self._excess(psi_star, bending)
         P = (np.abs(e) > self.cutoff).nonzero()[0]          # where excess_curvature keeps e
         rhs_hat = explicit_hat + self._bulk * psi_star_hat
         if c not in self._diagonal:

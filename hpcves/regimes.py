@@ -145,9 +145,12 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     v_tt = abs(_settled_mean(t, None if tt is None else np.asarray(tt, dtype=float), t_settle))
     speed = abs(v_lab) / v_tt if np.isfinite(v_lab) and v_tt > 0 else float("nan")
 
+    def cycles() -> float:
+        """Settled periods of the period in use (a tumbling one may replace theta's own)."""
+        return a.settled_span / p.period if np.isfinite(p.period) and p.period > 0 else 0.0
+
     def verdict(regime: str, reason: str) -> Classification:
-        cycles = a.settled_span / p.period if np.isfinite(p.period) and p.period > 0 else 0.0
-        return Classification(regime, reason, a.t_settle, p.period, p.error, cycles, a.mean,
+        return Classification(regime, reason, a.t_settle, p.period, p.error, cycles(), a.mean,
                               a.mean_error, a.minimum, a.amplitude, a.drift, speed, p.crossing_period)
 
     duration = float(t[-1] - t[0]) if t.size else 0.0
@@ -184,8 +187,7 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
         flips = flip_period(t[settled], theta[settled])
         if np.isfinite(flips.period) and flips.agree is not False:
             p = flips
-    cycles = a.settled_span / p.period
-    periodic = (f"period {p.period:.5g} +- {p.error:.1g} ({cycles:.0f} cycles after t = {a.t_settle:.3g}), "
+    periodic = (f"period {p.period:.5g} +- {p.error:.1g} ({cycles():.0f} cycles after t = {a.t_settle:.3g}), "
                 f"amplitude {a.amplitude:.3g} rad")
     if a.minimum < 0:
         return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}")

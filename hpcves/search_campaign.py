@@ -147,8 +147,7 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
     found = [(case.search, case.parameters["shear_rate"], case_regime(row)) for case, row in zip(source.cases, rows)
              if row["status"] in (STATUS_NAMES[FINISHED], STATUS_NAMES[FAILED])]
     searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
-    gaps = {(case.search, case.parameters["shear_rate"]): (row.get("bending_gap", math.nan),
-                                                           row.get("bending_gap_err", math.nan))
+    gaps = {(case.search, case.parameters["shear_rate"]): (row["bending_gap"], row["bending_gap_err"])
             for case, row in zip(source.cases, rows)}
     out = []
     for o in searched:
@@ -162,7 +161,7 @@ def critical_table(rows: list[dict], keys) -> str:
     """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
     body = [[f"{r[k]:g}" for k in keys]
             + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]",
-               _gap(r.get("bending_gap", math.nan), r.get("bending_gap_err", math.nan)), str(r["cases"]),
+               _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
                r["status"], r["reason"]] for r in rows]
     return markdown_table([LABELS.get(k, k) for k in keys]
                           + ["S_C", "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
