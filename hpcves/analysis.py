@@ -21,13 +21,15 @@ from . import __version__, accuracy, faults
 from .atomic import StorageError, copy_for_change, publish, remove_partial, size_text
 from .campaign_file import DAMAGED, CampaignFile
 from .campaign_file import FORMAT as CAMPAIGN_FORMAT
-from .checkpoint import FAILED, FINISHED, HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, \
+from .checkpoint import FAILED, FINISHED, HDF5_ERRORS, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, attr_text, \
     open_file, reading
 from .checkpoint import FORMAT as CASE_FORMAT
 from .lock import CampaignLock, real_path
 from .params import ConfigError
 from .decision import REGIMES_BY_CODE
-from .regimes import REGIMES, UNDECIDED, AnalysisSettings, Classification, classify
+from .regimes import FAILED as FAILED_OUTCOME
+from .regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
+from .regimes import OUTCOMES, UNDECIDED, AnalysisSettings, Classification, classify
 
 PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
 #: the columns of regimes.csv and of the file's analysis/ group, in order
@@ -138,11 +140,14 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
             "rtol": case.rtol}
     n = len(case.series["t"])
-    if case.status in (STATUS_NAMES[FAILED], DAMAGED) or n == 0:
+    unclassified = {STATUS_NAMES[FAILED]: (FAILED_OUTCOME, "case failed: "),
+                    STATUS_NAMES[MODEL_LIMIT]: (MODEL_LIMIT_OUTCOME, f"stopped at t = {case.t:.4g}: "),
+                    DAMAGED: (UNDECIDED, "case damaged: ")}
+    if case.status in unclassified or n == 0:
         first = case.message.splitlines()[0] if case.message else ""
-        reason = (f"case failed: {first}" if case.status == STATUS_NAMES[FAILED] else
-                  f"case damaged: {first}" if case.status == DAMAGED else "not run yet")
-        empty = Classification(UNDECIDED, reason, *([math.nan] * (len(fields(Classification)) - 2)))
+        regime, prefix = unclassified.get(case.status, (UNDECIDED, "not run yet"))
+        reason = prefix + first.removeprefix("model limit: ") if case.status in unclassified else prefix
+        empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
         return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
@@ -406,8 +411,9 @@ def facet_label(fixed: dict) -> str:
 
 
 def regime_counts(rows: list[dict]) -> dict:
-    """Number of cases per regime, in the order TT, PT, TU, undecided; regimes with none left out."""
-    counts = {r: sum(1 for row in rows if row["regime"] == r) for r in REGIMES}
+    """Number of cases per outcome, in the order TT, PT, TU, undecided, model limit, failed; outcomes
+    with none left out."""
+    counts = {r: sum(1 for row in rows if row["regime"] == r) for r in OUTCOMES}
     return {r: n for r, n in counts.items() if n}
 
 

@@ -53,7 +53,8 @@ from . import runner
 from .atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
     remove_partial, require_space, size_text
 from .campaign_file import CampaignFile
-from .checkpoint import (FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, PENDING, STATUS_NAMES, FileFormatError,
+from .checkpoint import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
+                         FileFormatError,
                          attr_text, open_file, reading, safe_flush, storage_bytes)
 from .lock import CampaignLock, LockError, real_path
 from .params import ConfigError
@@ -192,12 +193,13 @@ def check_file(study: Study, path: Path) -> None:
 def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[tuple[str, bool]]:
     """(case_id, resume) for every case to run, most expensive first.
 
-    Finished cases are skipped; failed ones too, unless ``retry_failed`` (then
-    they start over); everything else continues from its last valid checkpoint.
+    Finished cases and those that reached the model's limit are skipped; failed ones too,
+    unless ``retry_failed`` (then they start over); everything else continues from its last
+    valid checkpoint.
     """
     todo = []
     for case_id, status in campaign.statuses().items():
-        if status == FINISHED or (status == FAILED and not retry_failed):
+        if status in (FINISHED, MODEL_LIMIT) or (status == FAILED and not retry_failed):
             continue
         todo.append((case_id, status != FAILED))
     todo.sort(key=lambda item: (-study.by_id(item[0]).cost, item[0]))
@@ -312,12 +314,15 @@ class Master:
             self.refused(result.message)
             return
         self.results.append(result)
-        self.fraction[result.case_id] = 1.0 if result.status in (FINISHED, FAILED) else self.fraction.get(
+        self.fraction[result.case_id] = 1.0 if result.status in ENDED else self.fraction.get(
             result.case_id, 0.0)
         if result.status == FAILED:
             first = result.message.splitlines()[0] if result.message else ""
             print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) failed on rank "
                   f"{result.rank}: {first}", file=sys.stderr)
+        elif result.status == MODEL_LIMIT:
+            print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) reached the model's "
+                  f"limit at t = {result.t:.4g}: {result.message.removeprefix('model limit: ').split('; the run stopped')[0]}", file=sys.stderr)
         if result.status == INTERRUPTED and not self.stopping:
             self.begin_stop(f"rank {result.rank} was stopped")
 
@@ -753,6 +758,9 @@ def _stage_line(study, statuses, todo, stage) -> str:
     if failed:
         parts.append(f"{failed} failed before" + ("" if any(not r for _, r in todo) else
                                                   " (--retry-failed reruns them)"))
+    limited = sum(1 for s in statuses.values() if s == MODEL_LIMIT)
+    if limited:
+        parts.append(f"{limited} at the model's limit before")
     if study.search is not None and stage > 0:
         searches = len({study.by_id(case_id).search for case_id, _ in todo})
         parts[0] = f"stage {stage}: {len(todo)} new case{'s' * (len(todo) != 1)} for {searches} " \

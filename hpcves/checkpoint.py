@@ -52,10 +52,14 @@ READS_VERSIONS = (2, 3)             # 2: fixed-step checkpoints (t = step dt); 1
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
-PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED = range(5)
+PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED, MODEL_LIMIT = range(6)
 NOT_DECIDED = (0.0, math.nan, -1.0)
 STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
-                INTERRUPTED: "interrupted"}
+                INTERRUPTED: "interrupted", MODEL_LIMIT: "model limit"}
+#: statuses of a case that is over: it is not run again (FAILED is with --retry-failed). MODEL_LIMIT:
+#: psi left the range where the linear bending law is physics (runner.beyond_model) -- an outcome of
+#: the model, not a fault of the numerics
+ENDED = (FINISHED, FAILED, MODEL_LIMIT)
 
 # scalars of a State, stored as one float64 vector (complex values as two entries), and the
 # arrays, per format version (version 2 files are fixed-step runs: see CaseStore.read_checkpoint)

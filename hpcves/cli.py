@@ -1,7 +1,8 @@
 """The ``hpcves`` command line.
 
-Exit status: 0 done (or stopped cleanly with a checkpoint written),
-1 the computation failed (diverged), 2 bad input (configuration, files).
+Exit status: 0 done (or stopped cleanly with a checkpoint written, or at the model's limit:
+psi left [0, 1] under the linear bending law), 1 the computation failed (diverged), 2 bad
+input (configuration, files).
 """
 from __future__ import annotations
 
@@ -155,7 +156,8 @@ def run_command(case_file, out, resume, overwrite, quiet):
     """Run one case: ``hpcves run CASE.toml --out case.h5`` or ``hpcves run --resume case.h5``."""
     from . import runner
     from .atomic import StorageError
-    from .checkpoint import FAILED, FINISHED, STATUS_NAMES, CaseStore, FileFormatError, open_file, safe_flush
+    from .checkpoint import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, open_file, \
+        safe_flush
     from .config import load_case
 
     if resume and (case_file or out):
@@ -176,10 +178,10 @@ def run_command(case_file, out, resume, overwrite, quiet):
         except BaseException:
             h5.close()
             raise
-        if store.status == FINISHED:
+        if store.status in (FINISHED, MODEL_LIMIT):
             t_done = store.progress[0]
             h5.close()
-            click.echo(f"{path}: finished already (t = {t_done:.6g}); nothing to do.")
+            click.echo(f"{path}: {STATUS_NAMES[store.status]} already (t = {t_done:.6g}); nothing to do.")
             return
     else:
         case = load_case(case_file)
@@ -213,7 +215,9 @@ def run_command(case_file, out, resume, overwrite, quiet):
     if outcome.status == FAILED:
         click.echo(summary + f"\n{outcome.message}", err=True)
         sys.exit(1)
-    if outcome.status != FINISHED:
+    if outcome.status == MODEL_LIMIT:               # an outcome of the model, not a fault: exit 0
+        summary += f"\n{outcome.message}"
+    elif outcome.status != FINISHED:
         summary += f"; resume with: hpcves run --resume {path}"
     elif outcome.message:                       # a finished run says why only when it stopped early (decided)
         summary += f"\n{outcome.message}"
@@ -272,9 +276,9 @@ class CampaignProgress(_StatusLine):
     def __call__(self, master) -> None:
         if not self.due(0.5):
             return
-        from .checkpoint import FAILED, FINISHED
+        from .checkpoint import ENDED, FAILED
 
-        ended = [r for r in master.results if r.status in (FINISHED, FAILED)]
+        ended = [r for r in master.results if r.status in ENDED]
         failed = sum(1 for r in ended if r.status == FAILED)
         fraction = master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0
         elapsed = time.monotonic() - self.start
@@ -310,7 +314,7 @@ def _mpi_world():
 def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io):
     """Run a study: ``mpirun -n P hpcves campaign STUDY.toml`` (or without mpirun, on one core).
 
-    Exit status: 0 every case finished (or the campaign was stopped by a signal
+    Exit status: 0 every case finished or at the model's limit (or the campaign was stopped by a signal
     and can be resumed), 1 some case failed, 2 bad input.
     """
     from pathlib import Path

@@ -129,6 +129,8 @@ REGIME_STYLE = {            # colour, marker, label
     "PT": ("tab:orange", "s", "phase-treading"),
     "TU": ("tab:red", "^", "tumbling"),
     "undecided": ("0.55", "x", "undecided"),
+    "model limit": ("tab:purple", "D", r"model limit ($\psi$ left [0, 1])"),
+    "failed": ("k", "X", "failed"),
 }
 AXIS_LABELS = {"shear_rate": "shear rate $S$", "psi_bar": r"mean composition $\bar\psi$",
                "excess_length": r"excess length $\Delta$", "B2": r"bending rigidity $B_2$"}
@@ -142,14 +144,16 @@ def _log_scale(values) -> bool:
 @plt.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
 def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True):
     """Regimes over two swept parameters: one marker per case, coloured by regime;
-    undecided cases are grey crosses; PT/TU points carry their period; the legend beside the axes."""
+    undecided cases are grey crosses, model-limit ones purple diamonds, failed ones black crosses;
+    PT/TU points carry their period; the legend beside the axes."""
     fig, ax = plt.subplots(figsize=(10, 6), constrained_layout=True)
     for regime, (colour, marker, label) in REGIME_STYLE.items():
         chosen = [r for r in rows if r["regime"] == regime]
         if not chosen:
             continue
         ax.scatter([r[x_key] for r in chosen], [r[y_key] for r in chosen], s=140, c=colour, marker=marker,
-                   label=f"{label} ({len(chosen)})", edgecolors="k" if marker != "x" else None, linewidths=0.6,
+                   label=f"{label} ({len(chosen)})", edgecolors="k" if marker not in "xX" else None,
+                   linewidths=0.6,
                    zorder=3)
         if annotate_periods and regime in ("PT", "TU"):
             for r in chosen:
@@ -300,7 +304,7 @@ def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):
         series = c["series"]
         ax.plot(series["t"], series["theta"], color="k", lw=0.8)
         label = ", ".join(f"{names.get(k, k)} = {c[k]:g}" for k in keys)
-        colour = {"finished": "k", "failed": "tab:red"}.get(c["status"], "tab:orange")
+        colour = {"finished": "k", "failed": "tab:red", "model limit": "tab:purple"}.get(c["status"], "tab:orange")
         ax.set_title(label + ("" if c["status"] == "finished" else f" ({c['status']})"), fontsize=9,
                      color=colour)
         if i == len(rows) - 1:

@@ -17,6 +17,10 @@ membrane's tank-treading velocity V (all recorded by diagnostics.py).
 * **undecided** otherwise -- too short, not settled, still drifting, no
   consistent period, or theta and the pattern disagree -- with the reason.
 
+Two outcomes come from how the run ended, not from the series: **model limit**
+(psi left the range where the linear bending law holds: runner.beyond_model)
+and **failed** (the numerics gave out or the code raised).
+
 Every classification carries its evidence (settling time, period and its
 uncertainty, theta's mean, minimum and amplitude, the pattern's speed).
 """
@@ -32,6 +36,9 @@ from .periodicity import PeriodEstimate, analyse, estimate_period
 
 TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
 REGIMES = (TT, PT, TU, UNDECIDED)
+#: the regime column of a case whose run ended at the model's limit or failed (analysis.analyse_case)
+MODEL_LIMIT, FAILED = "model limit", "failed"
+OUTCOMES = (*REGIMES, MODEL_LIMIT, FAILED)
 
 #: psi_max - psi_min below which psi is a mixture, not a pattern of domains. Separated
 #: domains span ~[0, 1]; a mixture outside the spinodal (psi_bar = 0.1) decays to a

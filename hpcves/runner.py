@@ -17,13 +17,13 @@ import numpy as np
 
 from . import decision, diagnostics, faults, schedule
 from . import checkpoint as checkpoint_module
-from .checkpoint import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
+from .checkpoint import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore
 from .flow import TensionSolveError
 from .regimes import AnalysisSettings
-from .stepcontrol import StepSizeError
 from .timestepping import Solver, State
 
-#: psi beyond [-OVERSHOOT, 1 + OVERSHOOT] when the step control gives up: named in the failure
+#: psi beyond [-OVERSHOOT, 1 + OVERSHOOT] when a run under the linear bending law gives out: the
+#: model's limit, not a failure (healthy steps stay within 0.005 of [0, 1]; beyond_model)
 OVERSHOOT = 0.03
 
 #: write buffered samples at least this often (seconds), so that a running case can be watched
@@ -33,7 +33,7 @@ SAMPLE_BUFFER_ROWS = 512
 
 @dataclass(frozen=True)
 class Outcome:
-    status: int          # checkpoint.FINISHED / FAILED / INTERRUPTED
+    status: int          # checkpoint.FINISHED / FAILED / MODEL_LIMIT / INTERRUPTED
     message: str
     t: float
     steps: int           # steps taken in this call
@@ -59,18 +59,25 @@ class UnderResolved(Diverged):
     """N is too small for the shape or the phase field (the spectral tail watch)."""
 
 
-def model_limit_note(state: State, bending_law: str = "linear") -> str:
-    """What to add to a step-size failure when psi has left [0, 1] over the last levels under the
-    linear bending law ("" if not: the saturating law is bounded there)."""
+def beyond_model(state: State, bending_law: str = "linear") -> str:
+    """Why a run that gives out has reached the limit of its model, or "" if it has not.
+
+    Under the linear bending law B(psi) = B1 + (B2 - B1) psi, which reaches zero at
+    psi = B1 / (B1 - B2), the energy (a0/eps) g(psi) + B(psi) H^2 / 2 is unbounded below at
+    high curvature once psi leaves [0, 1]: the soft phase gathers at a tip that sharpens
+    without end (docs/numerics.md, "Bending law"). psi beyond [-OVERSHOOT, 1 + OVERSHOOT]
+    over the last levels is that; the saturating law is bounded there, so its failures are
+    failures.
+    """
     if bending_law != "linear":
         return ""
     levels = [p for p in (state.psi, state.prev_psi, state.prev2_psi) if p is not None]
     lo, hi = min(float(p.min()) for p in levels), max(float(p.max()) for p in levels)
     if lo >= -OVERSHOOT and hi <= 1.0 + OVERSHOOT:
         return ""
-    return (f"; psi in [{lo:.4g}, {hi:.4g}] over the last steps, beyond [0, 1] (healthy steps stay within "
-            "0.005 of it), where the linear bending law B(psi) nears zero: the model, not the step, gives out "
-            "(docs/numerics.md)")
+    return (f"psi in [{lo:.4g}, {hi:.4g}] over the last steps, beyond [0, 1] (healthy steps stay within "
+            "0.005 of it), where the linear bending law B(psi) nears zero: the model, not the numerics, gives "
+            'out (bending_law = "saturating" is bounded there; docs/numerics.md)')
 
 
 def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
@@ -199,9 +206,10 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     except (Diverged, TensionSolveError, ArithmeticError, FloatingPointError) as exc:
         write_rows()
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
-        if isinstance(exc, StepSizeError) and not solver.case.physics.homogeneous:
-            reason += model_limit_note(state, case.physics.bending_law)
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
         what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"
+        limit = "" if case.physics.homogeneous else beyond_model(state, case.physics.bending_law)
+        if limit:
+            return finish(MODEL_LIMIT, f"model limit: {limit}; the run stopped {what}: {reason} ({kept})", state)
         return finish(FAILED, f"{what}: {reason} ({kept})", state)

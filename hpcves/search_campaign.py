@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .analysis import LABELS, analyse_case, case_data, markdown_table
-from .checkpoint import FAILED, FINISHED, STATUS_NAMES
+from .checkpoint import ENDED, STATUS_NAMES
 from .search import RUNNING, SearchSettings, SearchState, step
 from .study import SEARCHABLE, Study, study_from_toml
 
@@ -52,9 +52,8 @@ class SearchOutcome:
                 "status": self.state.status, "cases": len(self.regimes), "reason": reason}
 
 
-def case_regime(row: dict) -> str:
-    """The regime a search sees for one classified case (analysis.analyse_case row): failed cases say so."""
-    return "failed" if row["status"] == STATUS_NAMES[FAILED] else row["regime"]
+#: status names of the cases a search reads (those that are over)
+ENDED_NAMES = tuple(STATUS_NAMES[s] for s in ENDED)
 
 
 def outcomes(settings: SearchSettings, points: list[dict], found: list[tuple[int, float, str]],
@@ -95,10 +94,10 @@ class SearchDriver:
         """The regime of one case, or None while it is not finished (or failed)."""
         if case_id not in self._regimes:
             store = campaign.store(case_id)
-            if store.status not in (FINISHED, FAILED):
+            if store.status not in ENDED:
                 return None
             row = analyse_case(case_data(store, case_id), self.settings)
-            self._regimes[case_id] = case_regime(row)
+            self._regimes[case_id] = row["regime"]
         return self._regimes[case_id]
 
     def next_stage(self, study: Study, campaign) -> tuple[list[SearchOutcome], list]:
@@ -144,8 +143,8 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
     status is then "running", its reason names them).
     """
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
-    found = [(case.search, case.parameters["shear_rate"], case_regime(row)) for case, row in zip(source.cases, rows)
-             if row["status"] in (STATUS_NAMES[FINISHED], STATUS_NAMES[FAILED])]
+    found = [(case.search, case.parameters["shear_rate"], row["regime"]) for case, row in zip(source.cases, rows)
+             if row["status"] in ENDED_NAMES]
     searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
     gaps = {(case.search, case.parameters["shear_rate"]): (row["bending_gap"], row["bending_gap_err"])
             for case, row in zip(source.cases, rows)}

@@ -285,3 +285,47 @@ def test_a_diverging_case_fails_alone_under_mpi(tmp_path, io):
     assert "case 0002 failed: diverged" in result.stderr
     status = hpcves("status", output)
     assert "2 finished, 2 failed" in status.stdout.splitlines()[-1]
+
+
+LIMIT_STUDY = """
+[campaign]
+name = "limit"
+output = "{output}"
+t_end = 3.5
+[physics]
+psi_bar = 0.48
+shear_rate = 5.0
+bending_law = "linear"
+[numerics]
+N = 128
+rtol = 1e-2
+[run]
+sample_interval = 0.02
+snapshot_interval = 0.5
+checkpoint_interval = 3.5
+[sweep]
+excess_length = [0.194, 1.3]
+"""
+
+
+def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed(tmp_path):
+    # Delta = 1.3 under the linear bending law: the soft phase sharpens a tip until psi = 1.08 and
+    # the spectral tail stops the run at t = 2.92 (test_stepcontrol.py); Delta = 0.194 runs through
+    from hpcves.analysis import analyze
+    from hpcves.checkpoint import MODEL_LIMIT
+
+    output = tmp_path / "limit.h5"
+    study = study_from_toml(LIMIT_STUDY.format(output=output))
+    summary = run_campaign(study, output)
+    assert statuses(output) == {"0000": FINISHED, "0001": MODEL_LIMIT}
+    assert summary.exit_status == 0 and summary.failed == ()
+    assert summary.counts["model limit"] == 1 and summary.counts["failed"] == 0
+    again = run_campaign(study, output, resume=True, retry_failed=True)    # an outcome: never rerun
+    assert again.ran == () and again.exit_status == 0
+    status = hpcves("status", output)
+    assert status.returncode == 0 and "1 finished, 1 model limit" in status.stdout.splitlines()[-1]
+    assert "model limit  2.92 / 3.5" in status.stdout
+    report = analyze(output, tmp_path / "out", case_figures=False)
+    limit = next(r for r in report.rows if r["case"] == "0001")
+    assert limit["regime"] == "model limit" and limit["reason"].startswith("stopped at t = 2.92: psi in [")
+    assert report.counts()["model limit"] == 1

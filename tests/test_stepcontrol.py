@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hpcves import diagnostics, runner, schedule, stepcontrol
-from hpcves.checkpoint import FINISHED, INTERRUPTED, CaseStore, open_file
+from hpcves.checkpoint import FINISHED, INTERRUPTED, MODEL_LIMIT, CaseStore, open_file
 from hpcves.config import case_from_toml
 from hpcves.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.timestepping import Coefficients, Estimate, Solver, quadratic_weights
@@ -249,12 +249,15 @@ checkpoint_interval = 3.5
 def test_fallback_steps_do_not_stall_the_controller(tmp_path):
     # psi_bar = 0.48, Delta = 1.3, S = 5 (jobs/reproduce/psi048_delta_S.toml): the stabilised Euler
     # fallback once stalled the controller at t = 2.81 (21 rejections); now the run goes on until
-    # the tip's spectral tail stops it (under the linear bending law; the saturating one keeps the
-    # tip resolved: test_the_saturating_law_runs_the_deflated_case_through)
+    # the tip's spectral tail stops it with psi at 1.08: under the linear bending law that is the
+    # model's limit, not a failure (the saturating law keeps the tip resolved:
+    # test_the_saturating_law_runs_the_deflated_case_through)
     with open_file(tmp_path / "a.h5", "w-") as f:
         store = CaseStore.create(f, case_from_toml(DEFLATED))
         outcome = runner.run(store, f.flush)
-    assert outcome.message.startswith("under-resolved:") and outcome.t > 2.9, outcome
+        assert store.status == MODEL_LIMIT
+    assert outcome.status == MODEL_LIMIT and outcome.t > 2.9, outcome
+    assert outcome.message.startswith("model limit: psi in [") and "stopped under-resolved" in outcome.message
 
 
 def test_the_saturating_law_runs_the_deflated_case_through(tmp_path):
@@ -267,13 +270,16 @@ def test_the_saturating_law_runs_the_deflated_case_through(tmp_path):
     assert tail.max() < 3e-3
 
 
-def test_a_step_size_failure_beyond_the_physical_range_of_psi_blames_the_model():
+def test_psi_beyond_the_physical_range_is_the_limit_of_the_linear_law_only():
     solver = make_solver(N=32, psi_bar=0.5)
     state = solver.initial_state()
-    assert runner.model_limit_note(state) == ""
+    assert runner.beyond_model(state) == ""
     over = dataclasses.replace(state, prev_psi=state.psi + (1.06 - state.psi.max()))
-    assert "the model, not the step, gives out" in runner.model_limit_note(over)
-    assert "1.06" in runner.model_limit_note(over)
+    assert "the model, not the numerics, gives out" in runner.beyond_model(over)
+    assert "1.06" in runner.beyond_model(over)
+    under = dataclasses.replace(state, prev2_psi=state.psi - (0.031 + state.psi.min()))
+    assert "-0.031" in runner.beyond_model(under)
+    assert runner.beyond_model(over, "saturating") == ""     # bounded there: a failure is a failure
 
 
 @pytest.mark.slow
