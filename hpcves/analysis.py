@@ -535,8 +535,10 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
                 group = h5 if source.kind == "case" else h5[f"cases/{case.case_id}"]
                 store = CaseStore(group)
                 title = (f"case {case.case_id}: " if source.kind == "campaign" else "") \
-                    + plots.case_title(dict(group.attrs)) + f"\n{row['regime']}: {row['reason']}"
-                fig = plots.case_figure(case.series, store.snapshots(), title=_wrap(title), kymographs=True)
+                    + plots.case_title(dict(group.attrs)) + f" -- {row['regime']}"
+                fig = plots.case_figure(case.series, store.snapshots(), title=title, kymographs=True,
+                                        t_settle=row["t_settle"], period=row["period"], physics=store.case.physics,
+                                        subtitle=_brief(row["reason"]))
                 fig.savefig(directory / f"{case.case_id}.png", dpi=90)
                 plots.plt.close(fig)
                 if progress is not None:
@@ -557,7 +559,8 @@ def _save(fig, stem: Path) -> list[Path]:
     return paths
 
 
-def _wrap(text: str, width: int = 110) -> str:
-    import textwrap
+def _brief(text: str, width: int = 120) -> str:
+    """The first clause of a reason, clipped to ``width`` characters: a figure's subtitle."""
+    first = text.split("; ")[0]
+    return first if len(first) <= width else first[: width - 3].rstrip() + "..."
 
-    return "\n".join(textwrap.fill(line, width) for line in text.splitlines())

@@ -9,27 +9,33 @@ ch. 2):
 
 continuous across the membrane, where it equals the membrane velocity.
 
-Three zones, by the distance d of a target from the membrane:
+Three zones, by the distance d of a target from the nearest node (h = L/N):
 
-* **far** (d >= FAR h, h = L/N the node spacing): the trapezoid rule on the N
-  nodes. Its error falls like exp(-2 pi d / h) (the integrand is periodic and
-  analytic, with its nearest singularity d away), 2e-14 of |f| at d = 5 h;
-* **near** (NEAR h/UPSAMPLE <= d < FAR h): the same rule on the curve and the
-  force Fourier-interpolated to UPSAMPLE N nodes, accurate to the same round-off
-  from NEAR h / UPSAMPLE on;
-* **close** (d < NEAR h/UPSAMPLE): interpolation along the normal through the
-  nearest membrane point p, as in Ying, Biros & Zorin (J. Comput. Phys. 219,
-  2006) and the 2-D vesicle codes after them (Quaife & Biros, J. Comput. Phys.
-  274, 2014): a polynomial in the distance through the membrane velocity at p
-  (d = 0) and the near-zone values at d = D, 2D, ..., CLOSE_POINTS D (D = NEAR
-  h/UPSAMPLE) on the target's side. The velocity is smooth on each side up to
-  the membrane, so this converges like D^(CLOSE_POINTS + 1); it needs the
-  curve's radius of curvature on the concave side, and its distance to any
-  other part of itself, to exceed CLOSE_POINTS D (N = 128, L = 2.64:
-  CLOSE_POINTS D = 0.064).
+* **far** (d >= FAR h): the trapezoid rule on the N nodes. Its error falls like
+  exp(-2 pi d / h) (the integrand is periodic and analytic, its nearest
+  singularity d away): round-off on an ellipse, 1e-11 of |f| at 6 h from the
+  tip of a Delta = 2.3 shape (N = 128, tip radius 3.7 h);
+* **near** (D <= d < FAR h, D = NEAR h / UPSAMPLE = 5 h / 32): the same rule on
+  the curve and the force Fourier-interpolated to UPSAMPLE N nodes, at
+  round-off from D on;
+* **close** (d < D): interpolation along the normal through the nearest
+  membrane point p, as in Ying, Biros & Zorin (J. Comput. Phys. 219, 2006) and
+  the 2-D vesicle codes after them (Quaife & Biros, J. Comput. Phys. 274,
+  2014): the polynomial in the distance through the single layer at p (the
+  membrane velocity less u_inf, d = 0) and the near-zone values at d = D, 2D,
+  ..., CLOSE_POINTS D on the target's side. The velocity is smooth on each side
+  up to the membrane (its normal derivative jumps across it), so this converges
+  like (CLOSE_POINTS D / rho)^(CLOSE_POINTS + 1), rho the scale on which u
+  varies off the membrane: the radius of curvature and the force's shortest
+  wavelength along it (3e-9 of max |u| on a circle with force modes up to 9 at
+  N = 64, 2e-7 with UPSAMPLE = 16, 8e-6 with 8; 4e-8 at the Delta = 2.3 tip).
+  It needs the curve's distance to any other part of itself to exceed
+  CLOSE_POINTS D (0.94 h).
 
-Tested against the exact single layer of Fourier-mode forces on a circle
-(tests/test_flowfield.py) from 1e-6 h to 10 h inside and outside.
+Tested against the closed-form single layer of Fourier-mode forces on a circle
+(tests/test_flowfield.py) from 1e-6 h to 10 h inside and outside. The cost is
+that of the direct sums: 0.3 s for a 120 x 120 grid around a Delta = 2.3 shape
+at N = 128 (a tenth of the targets near the membrane).
 """
 from __future__ import annotations
 
@@ -202,3 +208,13 @@ def _resample(samples: np.ndarray, n: int) -> np.ndarray:
     padded[half] = 0.5 * c[half]                         # Nyquist split between +-N/2
     padded[n - half] = 0.5 * c[half]
     return np.fft.ifft(padded) * (n / N)
+
+
+def around_snapshot(snapshot: dict, physics: Physics, targets) -> np.ndarray:
+    """u (lab frame) at ``targets`` for one snapshot: its nodes ``x``, ``y`` and ``psi``,
+    ``tension``, ``curvature`` and membrane velocity ``velocity_x``, ``velocity_y`` there
+    (diagnostics.snapshot), under the case's ``physics``."""
+    z = np.asarray(snapshot["x"]) + 1j * np.asarray(snapshot["y"])
+    force = traction(z, snapshot["psi"], snapshot["tension"], snapshot["curvature"], physics)
+    membrane = np.asarray(snapshot["velocity_x"]) + 1j * np.asarray(snapshot["velocity_y"])
+    return velocity(targets, z, force, membrane, physics.shear_rate)

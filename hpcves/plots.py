@@ -8,6 +8,8 @@ and kymographs of tension and curvature in the material frame.
 """
 from __future__ import annotations
 
+import math
+
 import matplotlib
 import matplotlib.ticker
 
@@ -22,77 +24,202 @@ from . import accuracy  # noqa: E402
 PSI_CMAP = "coolwarm"      # blue: hard phase (psi = 0), red: soft phase (psi = 1)
 
 
-def shape_strip(ax, snapshots: dict, indices, spacing: float = 1.3, label_times: bool = True):
-    """Draw the shapes of the chosen snapshots side by side, coloured by psi."""
+def shape_strip(ax, snapshots: dict, indices, spacing: float = 1.3, label_times: bool = True,
+                physics=None, colour_width: float = 3.0):
+    """Draw the shapes of the chosen snapshots side by side, coloured by psi; with the case's
+    ``physics``, the streamlines of the flow around each (:func:`streamlines`) behind it."""
     collections = []
     for k, i in enumerate(indices):
         x, y, psi = snapshots["x"][i], snapshots["y"][i], snapshots["psi"][i]
         cx, cy = x.mean(), y.mean()
+        if physics is not None and "velocity_x" in snapshots:
+            streamlines(ax, {name: snapshots[name][i] for name in STREAMLINE_FIELDS}, physics,
+                        offset=complex(k * spacing - cx, -cy), half_width=0.5 * spacing)
         xs = np.r_[x, x[0]] - cx + k * spacing
         ys = np.r_[y, y[0]] - cy
         points = np.stack([xs, ys], axis=1)
         segments = np.stack([points[:-1], points[1:]], axis=1)
-        lc = LineCollection(segments, cmap=PSI_CMAP, linewidth=3)
+        lc = LineCollection(segments, cmap=PSI_CMAP, linewidth=colour_width, zorder=3)
         lc.set_array(0.5 * (np.r_[psi, psi[0]][:-1] + np.r_[psi, psi[0]][1:]))
         lc.set_clim(0.0, 1.0)
         ax.add_collection(lc)
         collections.append(lc)
         if label_times:
             ax.text(k * spacing, -0.62, f"t = {snapshots['t'][i]:.3g}", ha="center", fontsize=9)
-    ax.set_xlim(-0.7, (len(indices) - 1) * spacing + 0.7)
+    ax.set_xlim(-0.5 * spacing, (len(indices) - 0.5) * spacing)
     ax.set_ylim(-0.75, 0.6)
     ax.set_aspect("equal")
     ax.axis("off")
     return collections[-1] if collections else None
 
 
-def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 8, kymographs: bool = False):
-    """A one-page summary of a case (with ``kymographs``: tension and curvature over (alpha, t))."""
-    t = series["t"]
+#: what :func:`streamlines` reads of a snapshot
+STREAMLINE_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "velocity_y")
+
+
+def streamlines(ax, snapshot: dict, physics, offset: complex = 0.0, half_width: float = 0.65,
+                half_height: float = 0.55, points: int = 56, density: float = 0.7) -> None:
+    """Streamlines of the flow around one snapshot, inside and outside (hpcves/flowfield.py), in
+    the frame moving with the vesicle: the lab-frame velocity less the membrane's mean velocity.
+    The snapshot's point z is drawn at z + ``offset``."""
+    from .flowfield import around_snapshot
+
+    x, y = np.asarray(snapshot["x"]), np.asarray(snapshot["y"])
+    centre = complex(x.mean(), y.mean())
+    gx = np.linspace(-half_width, half_width, points)
+    gy = np.linspace(-half_height, half_height, int(points * half_height / half_width))
+    grid = centre + gx[None, :] + 1j * gy[:, None]
+    u = around_snapshot(snapshot, physics, grid)
+    u -= np.mean(np.asarray(snapshot["velocity_x"]) + 1j * np.asarray(snapshot["velocity_y"]))
+    ax.streamplot(gx + (centre + offset).real, gy + (centre + offset).imag, u.real, u.imag, density=density,
+                  color="0.55", linewidth=0.6, arrowsize=0.6, zorder=1, broken_streamlines=True)
+
+
+#: snapshots per fastest period below which a kymograph is coarse (and below 2: aliased)
+SMOOTH_SNAPSHOTS_PER_PERIOD = 8
+
+
+def fastest_period(tank_treading_velocity, length: float, period: float = math.nan) -> float:
+    """The shortest time on which the material-frame fields repeat: the oscillation ``period``,
+    or half the time a material point takes round the membrane, L / (2 |<V>|) (a shape's two
+    tips pass it twice a circuit), whichever is shorter (NaN if neither is known)."""
+    speed = abs(float(np.nanmean(np.asarray(tank_treading_velocity, dtype=float))))
+    circuit = 0.5 * length / speed if speed > 0 else math.nan
+    known = [p for p in (period, circuit) if np.isfinite(p) and p > 0]
+    return min(known) if known else math.nan
+
+
+def cadence_warning(snapshot_interval: float, fastest: float) -> str:
+    """"" when the snapshots resolve the fastest period (at least SMOOTH_SNAPSHOTS_PER_PERIOD in it),
+    else what is wrong and the run.snapshot_interval that would do."""
+    if not (np.isfinite(fastest) and np.isfinite(snapshot_interval)) or snapshot_interval <= 0:
+        return ""
+    per_period = fastest / snapshot_interval
+    if per_period >= SMOOTH_SNAPSHOTS_PER_PERIOD:
+        return ""
+    what = "aliased" if per_period < 2 else "coarse"
+    return (f"{what}: snapshots every {snapshot_interval:.3g}, {per_period:.2g} per period {fastest:.3g}; "
+            f"run.snapshot_interval <= {fastest / SMOOTH_SNAPSHOTS_PER_PERIOD:.2g} resolves it")
+
+
+def settled_window(t: np.ndarray, t_settle: float = math.nan) -> np.ndarray:
+    """The samples from ``t_settle`` on (all of them when it is unknown or leaves fewer than 10)."""
+    t = np.asarray(t)
+    if not np.isfinite(t_settle):
+        return np.ones(t.size, dtype=bool)
+    window = t >= t_settle
+    return window if np.count_nonzero(window) >= 10 else np.ones(t.size, dtype=bool)
+
+
+def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 8, kymographs: bool = False,
+                *, t_settle: float = math.nan, period: float = math.nan, physics=None, subtitle: str = ""):
+    """A one-page summary of a case: theta, the energies, the tension (min / mean / max) and the
+    phase velocities over the settled window (from ``t_settle``; an inset shows theta's whole
+    record), shapes coloured by psi over the last ``period`` (with ``physics``: and the
+    streamlines around them), and with ``kymographs`` tension and curvature over (alpha, t)."""
+    t = np.asarray(series["t"])
+    window = settled_window(t, t_settle)
+    settled = not np.all(window)
+    tw = t[window]
     rows = 4 if kymographs and len(snapshots["t"]) >= 2 else 3
-    fig = plt.figure(figsize=(12, 3 * rows), constrained_layout=True)
-    grid = fig.add_gridspec(rows, 2, height_ratios=[1, 1, 1.1, 1.1][:rows])
+    fig = plt.figure(figsize=(12, 3.1 * rows + 0.4), constrained_layout=True)
+    grid = fig.add_gridspec(rows, 2, height_ratios=[1, 1, 1.2, 1.1][:rows])
+    xlabel = f"t (settled from t = {tw[0]:.3g})" if settled else "t"
+
     ax = fig.add_subplot(grid[0, 0])
-    ax.plot(t, series["theta"], color="k", lw=1)
-    ax.set_xlabel("t")
-    ax.set_ylabel(r"inclination $\theta$ [rad]")
+    shown, label = _about_mean(np.asarray(series["theta"])[window], r"$\theta$", " [rad]")
+    ax.plot(tw, shown, color="k", lw=1)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("inclination " + label)
+    if settled:                                 # the whole record, the window shaded
+        inset = ax.inset_axes([0.7, 0.62, 0.28, 0.34])
+        inset.plot(t, series["theta"], color="0.3", lw=0.7)
+        inset.axvspan(tw[0], tw[-1], color="tab:green", alpha=0.2, lw=0)
+        inset.tick_params(labelsize=7)
+        inset.set_title("whole run", fontsize=7, pad=2)
 
     ax = fig.add_subplot(grid[0, 1])
-    ax.plot(t, series["E_bending"], label=r"$E_b$")
-    ax.plot(t, series["E_phase"], label=r"$E_\psi$")
-    ax.set_xlabel("t")
-    ax.set_ylabel("energy")
-    ax.legend(frameon=False)
+    shown, label = _about_mean(np.asarray(series["E_bending"])[window], "$E_b$")
+    line_b, = ax.plot(tw, shown, color="tab:blue", label=r"$E_b$ (left)")
+    ax.set_ylabel("bending energy " + label, color="tab:blue")
+    twin = ax.twinx()                           # each energy on its own scale: neither flattens the other
+    shown, label = _about_mean(np.asarray(series["E_phase"])[window], r"$E_\psi$")
+    line_p, = twin.plot(tw, shown, color="tab:orange", ls="--", label=r"$E_\psi$ (right)")
+    twin.set_ylabel("line energy " + label, color="tab:orange")
+    ax.legend(handles=[line_b, line_p], frameon=False, fontsize=9, loc="upper left")
+    ax.set_xlabel(xlabel)
 
     ax = fig.add_subplot(grid[1, 0])
-    ax.fill_between(t, series["tension_min"], series["tension_max"], alpha=0.3, label="min - max")
-    ax.plot(t, series["tension_mean"], label="mean")
-    ax.set_xlabel("t")
+    ax.fill_between(tw, np.asarray(series["tension_min"])[window], np.asarray(series["tension_max"])[window],
+                    alpha=0.3, label="min - max")
+    ax.plot(tw, np.asarray(series["tension_mean"])[window], label="mean")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(r"tension $\Lambda$")
-    ax.legend(frameon=False)
+    ax.legend(frameon=False, fontsize=9)
 
     ax = fig.add_subplot(grid[1, 1])
-    ax.plot(t, series["V_psi"], label=r"$V_\psi$ (phase vs material)")
-    ax.plot(t, series["V_L"], label=r"$V_L$ (material vs long axis)")
-    ax.plot(t, series["V_psi"] + series["V_L"], color="k", lw=1.2, label=r"$V_\psi + V_L$ (phase, lab)")
-    ax.set_xlabel("t")
+    v_psi, v_l = np.asarray(series["V_psi"])[window], np.asarray(series["V_L"])[window]
+    ax.plot(tw, v_psi + v_l, color="k", lw=2.4, alpha=0.35, label=r"$V_\psi + V_L$ (phase, lab)")
+    ax.plot(tw, v_psi, color="tab:blue", lw=1.2, label=r"$V_\psi$ (phase vs material)")
+    ax.plot(tw, v_l, color="tab:orange", lw=1.2, ls="--", label=r"$V_L$ (material vs long axis)")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("velocity along the membrane")
     ax.legend(frameon=False, fontsize=8)
 
     ax = fig.add_subplot(grid[2, :])
-    n = len(snapshots["t"])
+    snap_t = np.asarray(snapshots["t"])
+    n = snap_t.size
     if n:
-        indices = np.unique(np.linspace(0, n - 1, min(n_shapes, n)).round().astype(int))
-        mappable = shape_strip(ax, snapshots, indices)
+        indices = _shape_indices(snap_t, tw[0] if settled else snap_t[0], period, n_shapes)
+        mappable = shape_strip(ax, snapshots, indices, physics=physics)
         fig.colorbar(mappable, ax=ax, shrink=0.7, label=r"$\psi$ (1 = soft)")
+        if physics is not None and "velocity_x" in snapshots:
+            ax.set_title("streamlines in the frame moving with the vesicle", fontsize=9)
     if kymographs and n >= 2:
+        chosen = snap_t >= (tw[0] if settled else snap_t[0])
+        if np.count_nonzero(chosen) < 2:
+            chosen = np.ones(n, dtype=bool)
+        window_snaps = {k: np.asarray(v)[chosen] for k, v in snapshots.items()}
+        interval = float(np.median(np.diff(snap_t))) if n >= 2 else math.nan
+        z = np.asarray(snapshots["x"][-1]) + 1j * np.asarray(snapshots["y"][-1])
+        length = float(np.sum(np.abs(np.diff(np.r_[z, z[:1]]))))
+        warning = cadence_warning(interval, fastest_period(np.asarray(series["tank_treading_velocity"])[window],
+                                                           length, period))
         for k, (name, label) in enumerate((("tension", r"tension $\Lambda(\alpha, t)$"),
                                            ("curvature", r"curvature $H(\alpha, t)$"))):
             ax = fig.add_subplot(grid[3, k])
-            kymograph(ax, fig, snapshots, name, label)
+            kymograph(ax, fig, window_snaps, name, label)
+            if warning:
+                ax.set_title(warning, fontsize=8, color="tab:red")
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=11)
     return fig
+
+
+def _about_mean(values: np.ndarray, name: str, unit: str = "") -> tuple[np.ndarray, str]:
+    """(what to plot, its axis label): the values, or where they vary by less than 1e-3 of their
+    mean, their deviation from it, named so ("theta - 0.5121 [rad]"): no offset notation."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return values, name + unit
+    mean = float(np.mean(finite))
+    if mean == 0 or np.ptp(finite) >= 1e-3 * abs(mean):
+        return values, name + unit
+    return values - mean, f"{name} $-$ {mean:.6g}{unit}"
+
+
+def _shape_indices(snap_t: np.ndarray, start: float, period: float, n_shapes: int) -> np.ndarray:
+    """Snapshots to draw: over the last period when it holds at least 4 of them, else spread over
+    the snapshots from ``start`` on."""
+    last = snap_t[-1]
+    if np.isfinite(period) and np.count_nonzero(snap_t >= last - period) >= 4:
+        candidates = np.flatnonzero(snap_t >= last - period)
+    else:
+        candidates = np.flatnonzero(snap_t >= start)
+        if candidates.size == 0:
+            candidates = np.arange(snap_t.size)
+    picks = np.linspace(0, candidates.size - 1, min(n_shapes, candidates.size)).round().astype(int)
+    return candidates[np.unique(picks)]
 
 
 def material_frame(snapshots: dict, name: str, n_alpha: int = 128) -> tuple[np.ndarray, np.ndarray]:

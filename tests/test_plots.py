@@ -6,6 +6,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
 from hpcves import plots  # noqa: E402
 from hpcves.regimes import OUTCOMES  # noqa: E402
@@ -28,5 +29,65 @@ def test_every_outcome_has_its_own_marker_and_legend_entry():
         assert len(styles) == len(OUTCOMES)                 # no two outcomes look alike
         for collection, regime in zip(fig.axes[0].collections, OUTCOMES):
             assert np.allclose(collection.get_offsets()[:, 1], rows[2 * OUTCOMES.index(regime)]["psi_bar"])
+    finally:
+        plt.close(fig)
+
+
+def test_a_kymograph_warns_when_its_snapshots_alias_the_fastest_period():
+    # a material point goes round L = 2.64 at |V| = 1.32 in 2, its two tips pass in 1
+    assert plots.fastest_period([-1.32, -1.32], 2.64) == 1.0
+    assert plots.fastest_period([-1.32], 2.64, period=0.4) == 0.4           # the oscillation is faster
+    assert math.isnan(plots.fastest_period([0.0], 2.64))
+    assert plots.cadence_warning(1.0 / 8, 1.0) == ""
+    coarse = plots.cadence_warning(0.25, 1.0)
+    assert coarse.startswith("coarse: snapshots every 0.25, 4 per period 1") and "<= 0.12" in coarse
+    assert plots.cadence_warning(0.6, 1.0).startswith("aliased")
+    assert plots.cadence_warning(0.6, math.nan) == ""
+
+
+def test_the_settled_window_and_the_shapes_of_the_last_period():
+    t = np.linspace(0.0, 10.0, 1001)
+    assert plots.settled_window(t, 4.0).sum() == 601
+    assert plots.settled_window(t, math.nan).all() and plots.settled_window(t, 9.995).all()   # too few left
+    snap_t = np.arange(0.0, 10.01, 0.25)
+    last_period = plots._shape_indices(snap_t, 4.0, period=2.0, n_shapes=8)
+    assert snap_t[last_period].min() >= 8.0 and last_period.size == 8 and snap_t[last_period[-1]] == 10.0
+    spread = plots._shape_indices(snap_t, 4.0, period=math.nan, n_shapes=5)
+    assert np.allclose(snap_t[spread], [4.0, 5.5, 7.0, 8.5, 10.0])
+
+
+def _ellipse_snapshots(n_snapshots=6, N=64):
+    """Snapshots of a still ellipse with zero force: the flow is the imposed shear."""
+    alpha = np.arange(N) / N
+    z = 0.5 * np.cos(2 * np.pi * alpha) + 0.3j * np.sin(2 * np.pi * alpha)
+    zeros = np.zeros((n_snapshots, N))
+    return {"t": np.arange(n_snapshots) * 0.5, "x": np.tile(z.real, (n_snapshots, 1)),
+            "y": np.tile(z.imag, (n_snapshots, 1)), "psi": zeros + 0.5, "tension": zeros,
+            "curvature": zeros, "velocity_x": np.tile(2.0 * z.imag, (n_snapshots, 1)),
+            "velocity_y": zeros.copy(), "shift": np.zeros(n_snapshots)}
+
+
+def test_a_case_page_shows_the_settled_window_streamlines_and_short_titles():
+    from hpcves.params import Physics
+
+    t = np.linspace(0.0, 3.0, 301)
+    theta = 0.5 + 0.4 * np.exp(-10 * t) + 1e-4 * np.sin(2 * np.pi * t / 0.7)
+    series = {"t": t, "theta": theta, "E_bending": 4.47 + 1e-5 * np.sin(t), "E_phase": 23.6 + np.exp(-t),
+              "tension_min": t * 0, "tension_mean": t * 0 + 1, "tension_max": t * 0 + 2, "V_psi": t * 0 + 0.9,
+              "V_L": t * 0 - 0.9, "tank_treading_velocity": t * 0 - 1.0}
+    physics = Physics(shear_rate=2.0, B1=1.0, B2=1.0)     # f = 0 in these snapshots: u = S y, a uniform shear
+    fig = plots.case_figure(series, _ellipse_snapshots(), title="case 0000: S = 2 -- PT", kymographs=True,
+                            t_settle=1.0, period=0.7, physics=physics, subtitle="stopped when decided")
+    try:
+        theta_ax = fig.axes[0]
+        line = theta_ax.get_lines()[0]
+        assert line.get_xdata()[0] == pytest.approx(1.0) and "settled from t = 1" in theta_ax.get_xlabel()
+        assert np.ptp(line.get_ydata()) < 3e-4                       # the oscillation, not the transient
+        assert theta_ax.get_ylabel().startswith(r"inclination $\theta$ $-$ 0.49999")   # about its mean
+        assert fig._suptitle.get_text() == "case 0000: S = 2 -- PT\nstopped when decided"
+        strip = next(ax for ax in fig.axes if ax.get_title().startswith("streamlines"))
+        assert len(strip.collections) > 6                             # streamlines and shapes
+        warnings = [ax.get_title() for ax in fig.axes if ax.get_title().startswith(("coarse", "aliased"))]
+        assert len(warnings) == 2 and "per period 0.7" in warnings[0]
     finally:
         plt.close(fig)
