@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 
 import matplotlib
+import matplotlib.cm
+import matplotlib.colors
 import matplotlib.ticker
 
 matplotlib.use("Agg")
@@ -259,6 +261,7 @@ REGIME_STYLE = {            # colour, marker, label
     "model limit": ("tab:purple", "D", r"model limit ($\psi$ left [0, 1])"),
     "failed": ("k", "X", "failed"),
 }
+SHORT_NAMES = {"shear_rate": "S", "psi_bar": r"$\bar\psi$", "excess_length": r"$\Delta$", "B2": r"$B_2$"}
 AXIS_LABELS = {"shear_rate": "shear rate $S$", "psi_bar": r"mean composition $\bar\psi$",
                "excess_length": r"excess length $\Delta$", "B2": r"bending rigidity $B_2$"}
 
@@ -422,7 +425,7 @@ def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):
                              squeeze=False, constrained_layout=True)
     for ax in axes.flat:
         ax.set_visible(False)
-    names = {"shear_rate": "S", "psi_bar": r"$\bar\psi$", "excess_length": r"$\Delta$", "B2": r"$B_2$"}
+    names = SHORT_NAMES
     for c in cases:
         i = rows.index(c[row_key]) if row_key else 0
         j = cols.index(c[col_key]) if col_key else 0
@@ -445,3 +448,62 @@ def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):
     if title:
         fig.suptitle(title)
     return fig
+
+
+@plt.rc_context({"font.size": 12})
+def shape_sequences(rows: list[tuple], title: str = "", n_shapes: int = 6, streamlines_on: bool = True):
+    """Rows of shapes coloured by psi, one row per case, over its last period (else its settled
+    window), with the streamlines around each; ``rows``: (label, snapshots, physics, t_settle,
+    period) per case. One colour bar for all."""
+    fig, axes = plt.subplots(len(rows), 1, figsize=(2.1 * n_shapes + 1.6, 2.0 * len(rows) + 0.6),
+                             squeeze=False, constrained_layout=True)
+    mappable = None
+    for ax, (label, snapshots, physics, t_settle, period) in zip(axes[:, 0], rows):
+        snap_t = np.asarray(snapshots["t"])
+        start = t_settle if np.isfinite(t_settle) else snap_t[0]
+        indices = _shape_indices(snap_t, start, period, n_shapes)
+        mappable = shape_strip(ax, snapshots, indices, physics=physics if streamlines_on else None) or mappable
+        ax.set_xlim(-0.65, (n_shapes - 0.5) * 1.3)          # every row on the same scale, from the left
+        ax.set_title(label, fontsize=12, loc="left")
+    if mappable is not None:
+        fig.colorbar(mappable, ax=axes[:, 0].tolist(), shrink=0.8, label=r"$\psi$ (1 = soft)")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def animation(series: dict, snapshots: dict, physics=None, title: str = "", extent: float = 0.75):
+    """matplotlib FuncAnimation of a case, one frame per snapshot: the shape coloured by psi with
+    the streamlines around it (with ``physics``) beside theta(t) up to the frame's time."""
+    from matplotlib.animation import FuncAnimation
+
+    fig = plt.figure(figsize=(11, 4.6), constrained_layout=True)
+    grid = fig.add_gridspec(1, 2, width_ratios=[1.25, 1])
+    shape_ax, theta_ax = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])
+    t, theta = np.asarray(series["t"]), np.asarray(series["theta"])
+    theta_ax.plot(t, theta, color="0.8", lw=1)
+    trace, = theta_ax.plot([], [], color="k", lw=1.2)
+    marker, = theta_ax.plot([], [], "o", color="tab:red")
+    theta_ax.set_xlabel("t")
+    theta_ax.set_ylabel(r"inclination $\theta$ [rad]")
+    snap_t = np.asarray(snapshots["t"])
+    norm = matplotlib.colors.Normalize(0.0, 1.0)
+    fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=PSI_CMAP), ax=shape_ax, shrink=0.8,
+                 label=r"$\psi$ (1 = soft)")
+    if title:
+        fig.suptitle(title)
+
+    def draw(i):
+        shape_ax.clear()
+        shape_strip(shape_ax, {k: v for k, v in snapshots.items()}, [i], spacing=2 * extent, label_times=False,
+                    physics=physics)
+        shape_ax.set_xlim(-extent, extent)
+        shape_ax.set_ylim(-0.62 * extent / 0.75, 0.62 * extent / 0.75)
+        shape_ax.set_title(f"t = {snap_t[i]:.4g}", fontsize=11)
+        upto = t <= snap_t[i]
+        trace.set_data(t[upto], theta[upto])
+        if np.any(upto):
+            marker.set_data([t[upto][-1]], [theta[upto][-1]])
+        return ()
+
+    return FuncAnimation(fig, draw, frames=snap_t.size, blit=False)

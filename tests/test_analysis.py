@@ -150,3 +150,42 @@ def test_error_bars_say_which_part_dominates_and_tumbling_gets_none():
     assert np.isnan(accuracy.inclination_error(0.1, 1e-2, flips=True))
     assert np.isnan(accuracy.period_error(0.1, None))                       # a fixed step: none
     assert accuracy.error_bar({"period_err": 1e-6, "period_dt_err": np.nan}, "period") == (1e-6, "stat, dt n/e")
+
+
+def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tmp_path):
+    from PIL import Image
+
+    from hpcves import figures
+    from hpcves.plots import plt
+
+    def hpcves(*args):
+        return subprocess.run([sys.executable, "-m", "hpcves.cli", *map(str, args)], capture_output=True, text=True)
+
+    chosen = figures.choose(campaign, where={"psi_bar": 0.3})
+    assert [c.parameters["shear_rate"] for c in chosen] == [40.0, 80.0]
+    fig = figures.shape_sequence_figure(chosen, n_shapes=4)
+    try:
+        assert fig._suptitle.get_text() == r"$\bar\psi$ = 0.3, $\Delta$ = 0.194, $B_2$ = 0.1"
+        titles = [ax.get_title(loc="left") for ax in fig.axes if ax.get_title(loc="left")]
+        assert titles[0].startswith("S = 40: ") and titles[1].startswith("S = 80: ")
+    finally:
+        plt.close(fig)
+    result = hpcves("shapes", campaign, "--where", "psi_bar=0.3", "--out", tmp_path / "s.png", "--shapes", "3")
+    assert result.returncode == 0, result.stderr
+    assert "2 rows" in result.stdout and Image.open(tmp_path / "s.png").size[0] > 500
+    movie = tmp_path / "m.gif"
+    result = hpcves("animate", campaign, "--case", "0001", "--out", movie, "--no-streamlines", "--fps", "5")
+    assert result.returncode == 0, result.stderr
+    assert Image.open(movie).n_frames == 21 and not (tmp_path / "m.gif.partial.gif").exists()
+    for args, words in ((("shapes", campaign, "--case", "9999"), "no case 9999"),
+                        (("shapes", campaign, "--where", "psi=0.3"), "PARAMETER one of"),
+                        (("shapes", campaign), "choose the cases"),
+                        (("shapes", campaign, "--where", "psi_bar=0.7"), "no case has psi_bar = 0.7"),
+                        (("animate", campaign), "name the case with --case"),
+                        (("animate", campaign, "--case", "0001", "--out", tmp_path / "m.avi"), ".mp4 (ffmpeg) or")):
+        result = hpcves(*args)
+        assert result.returncode == 2 and words in result.stderr and "Traceback" not in result.stderr, result.stderr
+    from matplotlib import animation
+    if not animation.writers.is_available("ffmpeg"):
+        result = hpcves("animate", campaign, "--case", "0001", "--out", tmp_path / "m.mp4")
+        assert result.returncode == 2 and "needs ffmpeg" in result.stderr
