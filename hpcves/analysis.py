@@ -405,6 +405,13 @@ def facet_suffix(fixed: dict) -> str:
     return "".join(f"_{LABELS.get(k, k)}{v:g}" for k, v in fixed.items())
 
 
+def shared_parameters(rows: list[dict], axes=()) -> dict:
+    """The parameters (other than ``axes``) that every row has the same value of: what a figure
+    over ``rows`` holds fixed, for its title."""
+    return {k: rows[0][k] for k in PARAMETERS
+            if k not in axes and rows and k in rows[0] and len({r[k] for r in rows}) == 1}
+
+
 def facet_label(fixed: dict) -> str:
     """``B2 = 0.3``: the fixed values in a heading or a title."""
     return ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in fixed.items())
@@ -498,8 +505,8 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
         varied = [k for k in source.sweep_keys if k != "shear_rate" and len({r[k] for r in searches}) > 1]
         if varied:
             for fixed, subset in facets(searches, varied[1:]):
-                fig = plots.critical_shear_figure(subset, varied[0], title=f"{source.name}" + (
-                    f" ({facet_label(fixed)})" if fixed else ""))
+                fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
+                    shared_parameters(subset, (varied[0], "shear_rate"))))
                 written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
     if source.kind == "campaign" and len(rows) > 1 and source.mode != "search":
         tables = period_tables(rows, y_key, x_key, others)
@@ -517,11 +524,11 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
     if source.kind == "campaign" and len(rows) > 1:
         for fixed, subset in facets(rows, others):
             suffix = facet_suffix(fixed)
-            title = f"{source.name}" + (f" ({facet_label(fixed)})" if fixed else "")
+            title = plots.parameter_text(shared_parameters(subset, (x_key, y_key)))
             fig = plots.phase_diagram(subset, x_key, y_key, title=title, annotate_periods=not searches)
-            if searches and x_key == "shear_rate":
+            if searches and "shear_rate" in (x_key, y_key):
                 plots.mark_critical(fig.axes[0], [r for r in searches if all(r[k] == v for k, v in fixed.items())],
-                                    y_key)
+                                    y_key if x_key == "shear_rate" else x_key, s_on_x=x_key == "shear_rate")
             written += _save(fig, out / f"phase_diagram{suffix}")
             if not searches:
                 written += _save(plots.period_figure(subset, y_key, x_key, title=title), out / f"periods{suffix}")

@@ -94,12 +94,11 @@ def row_label(chosen: Chosen, varying: list[str]) -> str:
 def fixed_text(chosen: list[Chosen]) -> tuple[str, list[str]]:
     """(``psi_bar = 0.5, Delta = 0.94, B2 = 0.1``: the parameters all chosen cases share, the
     names of those that vary) -- a figure's title and its rows' labels."""
-    from .plots import SHORT_NAMES
+    from .analysis import shared_parameters
+    from .plots import parameter_text
 
-    same = [k for k in PARAMETERS if len({c.parameters[k] for c in chosen}) == 1]
-    varying = [k for k in PARAMETERS if k not in same]
-    text = ", ".join(f"{SHORT_NAMES.get(k, k)} = {chosen[0].parameters[k]:g}" for k in same)
-    return text, varying
+    same = shared_parameters([c.parameters for c in chosen])
+    return parameter_text(same), [k for k in PARAMETERS if k not in same]
 
 
 def shape_sequence_figure(chosen: list[Chosen], n_shapes: int = 6, streamlines: bool = True):

@@ -13,6 +13,7 @@ import math
 import matplotlib
 import matplotlib.cm
 import matplotlib.colors
+import matplotlib.lines
 import matplotlib.ticker
 
 matplotlib.use("Agg")
@@ -262,6 +263,11 @@ REGIME_STYLE = {            # colour, marker, label
     "failed": ("k", "X", "failed"),
 }
 SHORT_NAMES = {"shear_rate": "S", "psi_bar": r"$\bar\psi$", "excess_length": r"$\Delta$", "B2": r"$B_2$"}
+def parameter_text(fixed: dict) -> str:
+    """``$\\bar\\psi$ = 0.48, $B_2$ = 0.1``: fixed parameters in a figure's title."""
+    return ", ".join(f"{SHORT_NAMES.get(k, k)} = {v:g}" for k, v in fixed.items())
+
+
 AXIS_LABELS = {"shear_rate": "shear rate $S$", "psi_bar": r"mean composition $\bar\psi$",
                "excess_length": r"excess length $\Delta$", "B2": r"bending rigidity $B_2$"}
 
@@ -297,13 +303,79 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
             if len(values) <= MAX_SWEEP_TICKS:          # ticks at the swept values, not at powers of ten
                 axis.set_ticks(values, [f"{v:g}" for v in values])
                 axis.set_minor_locator(matplotlib.ticker.NullLocator())
+            else:                                       # 10 and 100, not 10^1 and 10^2
+                axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)
+    shade_regions(ax, rows, x_key, y_key)
     _legend_outside(ax)
     if title:
         ax.set_title(title, fontsize=13)
     return fig
+
+
+#: regimes whose regions are shaded (the others -- undecided, model limit, failed -- stay white)
+SHADED = ("TT", "PT", "TU")
+SHADE_ALPHA = 0.16
+
+
+def region_map(rows: list[dict], x_key: str, y_key: str, x_grid: np.ndarray, y_grid: np.ndarray,
+               x_log: bool, y_log: bool) -> np.ndarray:
+    """Index into SHADED of the case each point of the grid falls to (-1 where that case is not
+    TT, PT or TU), shape (y_grid.size, x_grid.size): the nearest row of cases (rows along the
+    parameter with fewer distinct values), then the nearest case within it, each on the axis's
+    own scale (log values on a log axis). On a regular sweep the edges lie half-way between the
+    points; on a search's rows each row keeps its own brackets."""
+    xs = np.array([r[x_key] for r in rows], dtype=float)
+    ys = np.array([r[y_key] for r in rows], dtype=float)
+    code = np.array([SHADED.index(r["regime"]) if r["regime"] in SHADED else -1 for r in rows])
+    by_rows = np.unique(ys).size <= np.unique(xs).size          # rows of constant y (else columns)
+    along, across = (xs, ys) if by_rows else (ys, xs)
+    along_grid, across_grid = (x_grid, y_grid) if by_rows else (y_grid, x_grid)
+    along_log, across_log = (x_log, y_log) if by_rows else (y_log, x_log)
+
+    def scale(values, log):
+        return np.log(values) if log else np.asarray(values, dtype=float)
+
+    levels = np.unique(across)
+    row_of = _nearest(scale(levels, across_log), scale(across_grid, across_log))
+    out = np.empty((across_grid.size, along_grid.size), dtype=int)
+    for k, level in enumerate(levels):
+        members = np.flatnonzero(across == level)
+        order = members[np.argsort(along[members])]
+        nearest = order[_nearest(scale(along[order], along_log), scale(along_grid, along_log))]
+        out[row_of == k] = code[nearest]
+    return out if by_rows else out.T
+
+
+def _nearest(sorted_values: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Index of the nearest of ``sorted_values`` to each of ``points`` (1-D)."""
+    right = np.clip(np.searchsorted(sorted_values, points), 1, max(sorted_values.size - 1, 1))
+    if sorted_values.size == 1:
+        return np.zeros(points.size, dtype=int)
+    left = right - 1
+    return np.where(np.abs(points - sorted_values[left]) <= np.abs(points - sorted_values[right]), left, right)
+
+
+def shade_regions(ax, rows: list[dict], x_key: str, y_key: str, resolution: int = 300) -> None:
+    """Shade the axes by the regime of the nearest case (region_map): a guide to the eye between
+    the sampled points, not a located boundary."""
+    if sum(1 for r in rows if r["regime"] in SHADED) == 0 or len(rows) < 2:
+        return
+    ax.autoscale_view()
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    x_log, y_log = ax.get_xscale() == "log", ax.get_yscale() == "log"
+    edges = [np.geomspace(a, b, resolution + 1) if log else np.linspace(a, b, resolution + 1)
+             for a, b, log in ((x0, x1, x_log), (y0, y1, y_log))]
+    centres = [np.sqrt(e[:-1] * e[1:]) if log else 0.5 * (e[:-1] + e[1:]) for e, log in zip(edges, (x_log, y_log))]
+    codes = region_map(rows, x_key, y_key, centres[0], centres[1], x_log, y_log)
+    colours = matplotlib.colors.ListedColormap([matplotlib.colors.to_rgba(REGIME_STYLE[r][0], SHADE_ALPHA)
+                                                for r in SHADED])
+    ax.pcolormesh(edges[0], edges[1], np.ma.masked_less(codes, 0), cmap=colours, vmin=-0.5,
+                  vmax=len(SHADED) - 0.5, shading="flat", zorder=0, rasterized=True, edgecolors="none")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
 
 
 #: a log axis gets ticks at the swept values when there are at most this many
@@ -350,18 +422,33 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
     return fig
 
 
-def mark_critical(ax, searches: list[dict], y_key: str) -> None:
-    """On a phase diagram with S along x: each search's bracket [low, high] as a bar at its
-    ``y_key`` value, S_C as a diamond (rows of critical_shear.csv)."""
-    label = "S$_C$ bracket"
-    for r in searches:
+def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True) -> None:
+    """On a phase diagram with S along one axis: each search's bracket [low, high] as a bar at its
+    ``other_key`` value, S_C as a diamond, and the S_C curve through the converged ones in order of
+    ``other_key`` (rows of critical_shear.csv)."""
+    def xy(s_values, others):
+        return (s_values, others) if s_on_x else (others, s_values)
+
+    label, curve_label = "S$_C$ bracket", "S$_C$"
+    runs, run = [], []                # the curve breaks where a search did not converge
+    for r in sorted(searches, key=lambda r: r[other_key]):
         low, high = r["bracket_low"], r["bracket_high"]
         if np.isfinite(low) and np.isfinite(high):
-            ax.plot([low, high], [r[y_key]] * 2, color="k", lw=3, solid_capstyle="butt", zorder=4, label=label)
-            if np.isfinite(r["S_C"]):
-                ax.plot(r["S_C"], r[y_key], "D", color="gold", mec="k", ms=9, zorder=5)
+            ax.plot(*xy([low, high], [r[other_key]] * 2), color="k", lw=3, solid_capstyle="butt", zorder=4,
+                    label=label)
             label = None
-    if label is None:
+        if np.isfinite(r["S_C"]):
+            run.append((r["S_C"], r[other_key]))
+        elif run:
+            runs.append(run)
+            run = []
+    runs += [run] if run else []
+    for run in runs:
+        s_values, others = zip(*run)
+        ax.plot(*xy(s_values, others), "D-", color="goldenrod", mfc="gold", mec="k", ms=9, lw=2, zorder=5,
+                label=curve_label)
+        curve_label = None
+    if label is None or curve_label is None:
         _legend_outside(ax)
 
 
@@ -390,6 +477,20 @@ def critical_shear_figure(searches: list[dict], x_key: str, title: str = ""):
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key), fontsize=13)
     ax.set_ylabel("critical shear rate $S_C$", fontsize=13)
     ax.grid(alpha=0.3, which="both")
+    gaps = [r for r in searches if np.isfinite(r.get("bending_gap", math.nan))]
+    if gaps:                                      # Delta E_b of the PT case at each bracket top, beside S_C
+        twin = ax.twinx()
+        xs = [r[x_key] for r in searches]
+        dodge = 0.015 * (max(xs) - min(xs))           # beside its diamond, not on it
+        twin.errorbar([r[x_key] + dodge for r in gaps], [r["bending_gap"] for r in gaps],
+                      yerr=[np.nan_to_num(r["bending_gap_err"]) for r in gaps], fmt="o", color="tab:orange",
+                      mec="k", ms=7, capsize=3, label=r"$\Delta E_b$ (right)")
+        twin.set_ylabel(r"bending-energy gap $\Delta E_b$ at the bracket top", color="tab:orange", fontsize=12)
+        twin.set_ylim(bottom=0.0, top=1.15 * max(r["bending_gap"] + np.nan_to_num(r["bending_gap_err"])
+                                                  for r in gaps))
+        handles = [matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k", label="$S_C$ (left)"),
+                   twin.get_legend_handles_labels()[0][0]]
+        ax.legend(handles=handles, frameon=False, fontsize=10, loc="upper center")
     if title:
         ax.set_title(title, fontsize=13)
     return fig

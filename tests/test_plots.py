@@ -91,3 +91,51 @@ def test_a_case_page_shows_the_settled_window_streamlines_and_short_titles():
         assert len(warnings) == 2 and "per period 0.7" in warnings[0]
     finally:
         plt.close(fig)
+
+
+def test_regions_fall_to_the_nearest_case_on_each_axis_scale():
+    rows = [_row(regime, S, psi) for S, regime in ((5.0, "TT"), (20.0, "PT"), (80.0, "PT"))
+            for psi in (0.3, 0.5)]
+    rows[1] = _row("undecided", 5.0, 0.5)
+    S = np.array([6.0, 9.9, 10.1, 39.0, 41.0])          # log axis: the 5 | 20 edge is at 10, 20 | 80 at 40
+    psi = np.array([0.35, 0.45])
+    codes = plots.region_map(rows, "shear_rate", "psi_bar", S, psi, x_log=True, y_log=False)
+    tt, pt = plots.SHADED.index("TT"), plots.SHADED.index("PT")
+    assert codes.tolist() == [[tt, tt, pt, pt, pt], [-1, -1, pt, pt, pt]]
+    # a search's rows keep their own edges: S_C = 12 at psi = 0.3, 50 at psi = 0.5
+    search = [_row("TT", 11.0, 0.3), _row("PT", 13.0, 0.3), _row("TT", 45.0, 0.5), _row("PT", 55.0, 0.5),
+              _row("TT", 4.0, 0.5)]
+    codes = plots.region_map(search, "shear_rate", "psi_bar", np.array([11.5, 12.5, 30.0, 49.0, 51.0]),
+                             np.array([0.32, 0.48]), x_log=True, y_log=False)
+    assert codes.tolist() == [[tt, pt, pt, pt, pt], [tt, tt, tt, tt, pt]]
+
+
+def test_the_critical_curve_breaks_where_a_search_did_not_converge():
+    def search(psi, S_C, low, high):
+        return {"psi_bar": psi, "S_C": S_C, "bracket_low": low, "bracket_high": high}
+    searches = [search(0.25, 17.7, 17.5, 17.9), search(0.35, 11.9, 11.8, 12.0), search(0.45, math.nan, math.nan, 4.0),
+                search(0.55, 4.6, 4.5, 4.7), search(0.65, 11.9, 11.8, 12.0)]
+    fig, ax = plt.subplots()
+    try:
+        plots.mark_critical(ax, searches, "psi_bar")
+        curves = [line for line in ax.get_lines() if line.get_marker() == "D"]
+        assert [list(line.get_ydata()) for line in curves] == [[0.25, 0.35], [0.55, 0.65]]
+        assert [t.get_text() for t in ax.get_legend().get_texts()] == ["S$_C$ bracket", "S$_C$"]
+    finally:
+        plt.close(fig)
+
+
+def test_the_critical_shear_figure_shows_the_bending_energy_gap_beside_s_c():
+    searches = [{"B2": b2, "S_C": s_c, "bracket_low": s_c * 0.99, "bracket_high": s_c * 1.01, "status": "converged",
+                 "bending_gap": gap, "bending_gap_err": 0.01} for b2, s_c, gap in ((0.1, 70.6, 2.27), (0.7, 22.7, 0.74))]
+    searches.append({"B2": 0.9, "S_C": math.nan, "bracket_low": math.nan, "bracket_high": 4.0, "status": "below",
+                     "bending_gap": math.nan, "bending_gap_err": math.nan})
+    fig = plots.critical_shear_figure(searches, "B2", title=plots.parameter_text({"psi_bar": 0.3}))
+    try:
+        left, right = fig.axes
+        assert left.get_title() == r"$\bar\psi$ = 0.3" and "Delta E_b" in right.get_ylabel()
+        gap_points = [line for line in right.get_lines() if line.get_marker() == "o"][0]
+        assert np.allclose(gap_points.get_ydata(), [2.27, 0.74])
+        assert np.all(np.abs(gap_points.get_xdata() - [0.1, 0.7]) < 0.02)     # dodged beside the diamonds
+    finally:
+        plt.close(fig)
