@@ -6,7 +6,7 @@ A case file has up to three tables, each optional, each key optional
     [physics]
     shear_rate = 80.0
     psi_bar = 0.3
-    excess_length = 0.194
+    excess_length = 0.19385328260599     # the 1/2 : 1/3 ellipse (the default)
 
     [numerics]
     N = 128

@@ -3,18 +3,23 @@ import pytest
 from scipy import integrate
 
 from hpcves import geometry
-from hpcves.params import REFERENCE_LENGTH, ConfigError
+from hpcves.params import REFERENCE_EXCESS_LENGTH, REFERENCE_LENGTH, ConfigError, Physics
 from hpcves.spectral import Spectral
 
 
 def test_the_reference_ellipse_has_the_published_excess_length():
-    # the 1/2 : 1/3 ellipse has perimeter 2.6442 and excess length 0.194 (SPEC section 1)
+    # the 1/2 : 1/3 ellipse has perimeter 2.6442 and excess length 0.19385... ("0.194", SPEC section 1)
     assert geometry.ellipse_perimeter(0.5, 1 / 3) == pytest.approx(REFERENCE_LENGTH, abs=5e-5)
-    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 0.194)
-    assert b / a == pytest.approx(2 / 3, rel=2e-3)
+    assert REFERENCE_EXCESS_LENGTH == pytest.approx(geometry.excess_length_of_ellipse(2 / 3), rel=1e-14, abs=0)
+    assert Physics().excess_length == REFERENCE_EXCESS_LENGTH                   # the default
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, REFERENCE_EXCESS_LENGTH)
+    assert b / a == pytest.approx(2 / 3, rel=1e-12)
     assert geometry.ellipse_perimeter(a, b) == pytest.approx(REFERENCE_LENGTH, rel=1e-13)
-    area = np.pi * a * b
-    assert geometry.excess_length(area, REFERENCE_LENGTH) == pytest.approx(0.194, abs=1e-12)
+    assert geometry.excess_length(np.pi * a * b, REFERENCE_LENGTH) == pytest.approx(REFERENCE_EXCESS_LENGTH,
+                                                                                    abs=1e-13)
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 0.194)          # the rounded value: its own shape
+    assert b / a == pytest.approx(0.666564, rel=1e-6)
+    assert geometry.excess_length(np.pi * a * b, REFERENCE_LENGTH) == pytest.approx(0.194, abs=1e-12)
 
 
 @pytest.mark.parametrize("delta", [0.0, 0.94, 2.30])
