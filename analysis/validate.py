@@ -96,8 +96,8 @@ def homogeneous(lines):
     rounded, _, _ = run_case("homogeneous_S10_delta0.194", case(10.0, 0.0, dt=1e-3, t_end=2.0, sample=1e-3,
                                                                  delta=0.194))
     late = rounded["t"] >= 1.6
-    lines += [f"With the rounded Delta = 0.194 (S = 10) the settled angle is {rounded['theta'][late].mean():.5f} rad: "
-              f"{rows[1][1] - rounded['theta'][late].mean():+.2e} rad from the 1/2 : 1/3 ellipse's -- why the "
+    lines += [f"With the rounded Delta = 0.194 (S = 10) the settled angle is {rounded['theta'][late].mean():.5f} rad, "
+              f"{rounded['theta'][late].mean() - rows[1][1]:+.2e} rad from the 1/2 : 1/3 ellipse's: why the "
               "exact reference is the default.", ""]
 
 

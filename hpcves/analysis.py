@@ -21,8 +21,8 @@ from . import __version__, accuracy, faults
 from .atomic import StorageError, copy_for_change, publish, remove_partial, size_text
 from .campaign_file import DAMAGED, CampaignFile
 from .campaign_file import FORMAT as CAMPAIGN_FORMAT
-from .checkpoint import FAILED, FINISHED, HDF5_ERRORS, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, attr_text, \
-    open_file, reading
+from .checkpoint import (FAILED, FINISHED, HDF5_ERRORS, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError,
+                         attr_text, open_file, reading)
 from .checkpoint import FORMAT as CASE_FORMAT
 from .lock import CampaignLock, real_path
 from .params import ConfigError

@@ -21,8 +21,8 @@ from . import bending
 #: Perimeter of the 1/2 : 1/3 ellipse, the published reference shape.
 REFERENCE_LENGTH = 2.6442
 #: Delta = L / R - 2 pi of the publication's 1/2 : 1/3 ellipse (geometry.excess_length_of_ellipse(2/3),
-#: checked in tests/test_geometry.py); the default. The rounded 0.194 tilts a homogeneous vesicle by
-#: 6.5e-5 rad more and is still accepted as a value of its own
+#: checked in tests/test_geometry.py); the default. The rounded 0.194, a shape of its own (still
+#: accepted), settles a homogeneous vesicle 6.5e-5 rad lower (VALIDATION.md, section 1)
 REFERENCE_EXCESS_LENGTH = 0.19385328260599
 
 #: More time steps than this for one case is surely a mistake (at the fastest step measured,

@@ -16,7 +16,7 @@ the same in every run.
   ``hi / lo - 1 <= rel_tol``; then S_C = sqrt(lo hi), bracket [lo, hi].
 * Stop without S_C, saying why, when: the range does not bracket a
   transition (TT everywhere: S_C > high; PT at ``low`` already: S_C < low);
-  a case inside the bracket is undecided or failed; TT is found above a PT
+  a case inside the bracket is undecided, failed or at the model's limit; TT is found above a PT
   case (no single transition); or ``max_cases`` cases were spent.
 """
 from __future__ import annotations
@@ -105,7 +105,7 @@ def start_rates(settings: SearchSettings) -> tuple:
 def step(settings: SearchSettings, results: dict) -> SearchState:
     """The state of one search given ``results`` = {shear rate: regime} of its finished cases.
 
-    A regime other than TT, PT or TU (undecided, failed) is never taken as either side.
+    A regime other than TT, PT or TU (undecided, failed, model limit) is never taken as either side.
     """
     nan = float("nan")
     missing = tuple(s for s in start_rates(settings) if s not in results)

@@ -127,7 +127,8 @@ def test_the_critical_curve_breaks_where_a_search_did_not_converge():
 
 def test_the_critical_shear_figure_shows_the_bending_energy_gap_beside_s_c():
     searches = [{"B2": b2, "S_C": s_c, "bracket_low": s_c * 0.99, "bracket_high": s_c * 1.01, "status": "converged",
-                 "bending_gap": gap, "bending_gap_err": 0.01} for b2, s_c, gap in ((0.1, 70.6, 2.27), (0.7, 22.7, 0.74))]
+                 "bending_gap": gap, "bending_gap_err": 0.01}
+                for b2, s_c, gap in ((0.1, 70.6, 2.27), (0.7, 22.7, 0.74))]
     searches.append({"B2": 0.9, "S_C": math.nan, "bracket_low": math.nan, "bracket_high": 4.0, "status": "below",
                      "bending_gap": math.nan, "bending_gap_err": math.nan})
     fig = plots.critical_shear_figure(searches, "B2", title=plots.parameter_text({"psi_bar": 0.3}))
