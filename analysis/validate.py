@@ -106,8 +106,11 @@ def two_phase(lines):
               "SPEC 6.5: low S tank-treads, high S phase-treads. N = 128, dt = 5e-4, t_end = 3.", ""]
     results = {}
     for S in (40.0, 80.0):
-        series, snaps, attrs = run_case(f"two_phase_S{S:g}", case(S, 0.3, t_end=3.0))
-        fig = case_figure(series, snaps, title=case_title(attrs))
+        c = case(S, 0.3, t_end=3.0)
+        series, snaps, attrs = run_case(f"two_phase_S{S:g}", c)
+        found = classify(series)
+        fig = case_figure(series, snaps, title=case_title(attrs) + f" -- {found.regime}", kymographs=True,
+                          t_settle=found.t_settle, period=found.period, physics=c.physics)
         fig.savefig(FIGURES / f"two_phase_S{S:g}.png", dpi=100)
         plt.close(fig)
         t, theta = series["t"], series["theta"]

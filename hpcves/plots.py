@@ -101,7 +101,7 @@ def cadence_warning(snapshot_interval: float, fastest: float) -> str:
     if per_period >= SMOOTH_SNAPSHOTS_PER_PERIOD:
         return ""
     what = "aliased" if per_period < 2 else "coarse"
-    return (f"{what}: snapshots every {snapshot_interval:.3g}, {per_period:.2g} per period {fastest:.3g}; "
+    return (f"{what}: snapshots every {snapshot_interval:.3g}, {per_period:.2g} per period {fastest:.3g};\n"
             f"run.snapshot_interval <= {fastest / SMOOTH_SNAPSHOTS_PER_PERIOD:.2g} resolves it")
 
 
@@ -134,23 +134,27 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     ax.plot(tw, shown, color="k", lw=1)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("inclination " + label)
-    if settled:                                 # the whole record, the window shaded
-        inset = ax.inset_axes([0.7, 0.62, 0.28, 0.34])
+    if settled and tw[0] - t[0] > 0.1 * (t[-1] - t[0]):    # the whole record, the window shaded, above the data
+        low, high = ax.get_ylim()
+        ax.set_ylim(low, high + 0.7 * (high - low))
+        inset = ax.inset_axes([0.7, 0.64, 0.28, 0.3])
         inset.plot(t, series["theta"], color="0.3", lw=0.7)
         inset.axvspan(tw[0], tw[-1], color="tab:green", alpha=0.2, lw=0)
         inset.tick_params(labelsize=7)
         inset.set_title("whole run", fontsize=7, pad=2)
 
-    ax = fig.add_subplot(grid[0, 1])
-    shown, label = _about_mean(np.asarray(series["E_bending"])[window], "$E_b$")
-    line_b, = ax.plot(tw, shown, color="tab:blue", label=r"$E_b$ (left)")
-    ax.set_ylabel("bending energy " + label, color="tab:blue")
-    twin = ax.twinx()                           # each energy on its own scale: neither flattens the other
-    shown, label = _about_mean(np.asarray(series["E_phase"])[window], r"$E_\psi$")
-    line_p, = twin.plot(tw, shown, color="tab:orange", ls="--", label=r"$E_\psi$ (right)")
-    twin.set_ylabel("line energy " + label, color="tab:orange")
-    ax.legend(handles=[line_b, line_p], frameon=False, fontsize=9, loc="upper left")
-    ax.set_xlabel(xlabel)
+    energy = grid[0, 1].subgridspec(2, 1, hspace=0.0)   # each energy on its own axes: neither hides the other
+    ax_b = fig.add_subplot(energy[0])
+    ax_p = fig.add_subplot(energy[1], sharex=ax_b)
+    for axis, key, name, colour in ((ax_b, "E_bending", "$E_b$", "tab:blue"),
+                                    (ax_p, "E_phase", r"$E_\psi$", "tab:orange")):
+        shown, label = _about_mean(np.asarray(series[key])[window], name)
+        axis.plot(tw, shown, color=colour, lw=1)
+        axis.set_ylabel(label, color=colour, fontsize=9)
+        axis.tick_params(labelsize=8)
+    ax_b.tick_params(labelbottom=False)
+    ax_b.set_title("bending and line energy", fontsize=9)
+    ax_p.set_xlabel(xlabel)
 
     ax = fig.add_subplot(grid[1, 0])
     ax.fill_between(tw, np.asarray(series["tension_min"])[window], np.asarray(series["tension_max"])[window],
@@ -158,7 +162,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     ax.plot(tw, np.asarray(series["tension_mean"])[window], label="mean")
     ax.set_xlabel(xlabel)
     ax.set_ylabel(r"tension $\Lambda$")
-    ax.legend(frameon=False, fontsize=9)
+    ax.legend(frameon=False, fontsize=9, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2)
 
     ax = fig.add_subplot(grid[1, 1])
     v_psi, v_l = np.asarray(series["V_psi"])[window], np.asarray(series["V_L"])[window]
@@ -167,7 +171,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     ax.plot(tw, v_l, color="tab:orange", lw=1.2, ls="--", label=r"$V_L$ (material vs long axis)")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("velocity along the membrane")
-    ax.legend(frameon=False, fontsize=8)
+    ax.legend(frameon=False, fontsize=8, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3)
 
     ax = fig.add_subplot(grid[2, :])
     snap_t = np.asarray(snapshots["t"])
