@@ -459,7 +459,7 @@ def parse_overrides(items) -> dict:
 
 
 def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file: bool = True,
-            case_figures: bool = True, axes=None, progress=None) -> Report:
+            case_figures: bool = True, axes=None, progress=None, streamlines: bool = True) -> Report:
     """Classify every case of ``path``; write the tables and figures to ``out_dir`` (default:
     ``<file>_analysis`` next to it) and the results back into the file."""
 
@@ -471,7 +471,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                           (lambda i, n: progress(f"classified {i}/{n} cases")))
     out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
     try:
-        written, searches = _write_outputs(source, rows, out, axes, case_figures, progress)
+        written, searches = _write_outputs(source, rows, out, axes, case_figures, progress, streamlines)
     except OSError as exc:
         where = exc.filename or out
         raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
@@ -482,7 +482,8 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                   f"results not written into the file: {note}" if note else "", tuple(searches))
 
 
-def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures: bool, progress):
+def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures: bool, progress,
+                   streamlines: bool = True):
     """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows)."""
     from . import plots
 
@@ -544,7 +545,8 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
                 title = (f"case {case.case_id}: " if source.kind == "campaign" else "") \
                     + plots.case_title(dict(group.attrs)) + f" -- {row['regime']}"
                 fig = plots.case_figure(case.series, store.snapshots(), title=title, kymographs=True,
-                                        t_settle=row["t_settle"], period=row["period"], physics=store.case.physics,
+                                        t_settle=row["t_settle"], period=row["period"],
+                                        physics=store.case.physics if streamlines else None,
                                         subtitle=_brief(row["reason"]))
                 fig.savefig(directory / f"{case.case_id}.png", dpi=90)
                 plots.plt.close(fig)

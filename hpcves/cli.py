@@ -517,8 +517,10 @@ def status_command(campaign_file, check):
 @click.option("--axes", help="The two parameters of the phase diagrams, e.g. shear_rate,psi_bar.")
 @click.option("--no-write-back", is_flag=True, help="Do not store the results in the file's analysis/ group.")
 @click.option("--no-case-figures", is_flag=True, help="Skip the one-page figure of every case.")
+@click.option("--no-streamlines", is_flag=True,
+              help="Case figures without the streamlines around the shapes (about 2 s a case less).")
 @clean_errors
-def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures):
+def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, no_streamlines):
     """Regimes (TT / PT / TU / undecided), periods, tables and figures of a campaign or run file.
 
     Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
@@ -537,7 +539,7 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures):
     line = _StatusLine()
     try:
         report = analyze(file, out, overrides=parse_overrides(overrides), write_to_file=not no_write_back,
-                         case_figures=not no_case_figures, axes=axes_pair,
+                         case_figures=not no_case_figures, axes=axes_pair, streamlines=not no_streamlines,
                          progress=lambda text: line.due(0.2) and line.show(text))
     finally:
         line.close()
