@@ -1,0 +1,144 @@
+"""Boundary tracing by refinement (hpcves/refine.py) on synthetic regime maps with known boundaries."""
+import math
+
+import pytest
+
+from hpcves import refine
+from hpcves.params import ConfigError
+from hpcves.refine import Axis, RefineSettings
+
+S_AXIS = Axis("shear_rate", (1.0, 5.0, 20.0, 80.0, 350.0), tolerance=math.log(1.1), log=True)
+PSI_AXIS = Axis("psi_bar", (0.25, 0.5, 0.75), tolerance=0.05)
+
+
+def trace(settings, truth, max_stages=40):
+    """Run a refinement against ``truth(S, psi) -> outcome``; (results, final state, stages)."""
+    results = {}
+    for stage in range(max_stages):
+        state = refine.step(settings, results)
+        if state.status != refine.RUNNING:
+            return results, state, stage
+        assert not set(state.next_points) & set(results)           # never asks twice
+        results.update({p: truth(*p) for p in state.next_points})
+    raise AssertionError("no end after {max_stages} stages")
+
+
+def s_c_of(psi):
+    return 10.0 + 400.0 * (psi - 0.5) ** 2            # a curved boundary: 10 at psi = 0.5, 35 at 0.25 and 0.75
+
+
+def curved(S, psi):
+    return "PT" if S > s_c_of(psi) else "TT"
+
+
+def assert_brackets(crossings):
+    """Every crossing is bracketed to the tolerances: 10 % in S, 0.05 in psi_bar."""
+    for c in crossings:
+        assert c.x_high / c.x_low <= 1.1 * (1 + 1e-9) and c.y_high - c.y_low <= 0.05 + 1e-12, c
+
+
+def assert_covered(settings, cells, curve):
+    """Every point of the true boundary lies in one of the finest mixed cells, all within the tolerances."""
+    assert all(not any(cell.splits(settings)) for cell in cells)
+    for S, psi in curve:
+        u, v = math.log(S), psi
+        assert any(c.x0 - 1e-12 <= u <= c.x1 + 1e-12 and c.y0 - 1e-12 <= v <= c.y1 + 1e-12 for c in cells), (S, psi)
+
+
+PSI_SAMPLES = [0.25 + 0.005 * k for k in range(101)]
+
+
+def test_a_straight_boundary_is_bracketed_to_the_tolerance_with_a_fraction_of_the_full_grid():
+    settings = RefineSettings(S_AXIS, PSI_AXIS, max_cases=400)
+    results, state, stages = trace(settings, lambda S, psi: "PT" if S > 20.0 * (1 + 0.6 * (psi - 0.5)) else "TT")
+    assert state.status == refine.CONVERGED
+    crossings = refine.boundary(settings, results, state.cells)
+    assert crossings and all(c.pair == "PT|TT" and not c.blurry for c in crossings)
+    assert_brackets(crossings)
+    assert_covered(settings, state.cells, [(20.0 * (1 + 0.6 * (psi - 0.5)), psi) for psi in PSI_SAMPLES])
+    full = settings.full_grid_cases()
+    assert full == 17 * (1 + 32 + 16 + 16 + 16)              # psi every 0.03125, S within 10 % in each interval
+    assert len(results) < 0.1 * full, (len(results), full)       # measured 105 of 1377
+    lines = refine.polylines(settings, results, state.cells)
+    assert len(lines) == 1 and len(lines[0][1]) == len(crossings)
+
+
+def test_a_curved_boundary_is_followed():
+    settings = RefineSettings(S_AXIS, PSI_AXIS, max_cases=600)
+    results, state, _ = trace(settings, curved)
+    assert state.status == refine.CONVERGED
+    crossings = refine.boundary(settings, results, state.cells)
+    assert_brackets(crossings)
+    assert_covered(settings, state.cells, [(s_c_of(psi), psi) for psi in PSI_SAMPLES])
+    for c in crossings:
+        if c.y_low == c.y_high:                                  # an edge along S: S_C inside its bracket
+            assert c.x_low <= s_c_of(c.y) <= c.x_high, c
+    assert len(results) < 0.15 * settings.full_grid_cases()      # measured 158 of 1377
+    (pair, line), = refine.polylines(settings, results, state.cells)  # one line, from psi = 0.25 to 0.75
+    assert pair == "PT|TT" and {line[0].y, line[-1].y} == {0.25, 0.75} and len(line) == len(crossings)
+
+
+def test_a_region_that_closes_is_enclosed():
+    # a TU island around S = 20, psi = 0.5 that one coarse point hits, in a sea of TT
+    def island(S, psi):
+        return "TU" if (math.log(S / 20.0) / 0.8) ** 2 + ((psi - 0.5) / 0.15) ** 2 < 1 else "TT"
+    settings = RefineSettings(S_AXIS, PSI_AXIS, max_cases=600)
+    results, state, _ = trace(settings, island)
+    assert state.status == refine.CONVERGED
+    crossings = refine.boundary(settings, results, state.cells)
+    assert {c.pair for c in crossings} == {"TT|TU"}
+    for c in crossings:                          # the bracket straddles the ellipse
+        inside = [island(x, y) == "TU" for x in (c.x_low, c.x_high) for y in (c.y_low, c.y_high)]
+        assert any(inside) and not all(inside), c
+    lines = refine.polylines(settings, results, state.cells)
+    assert len(lines) == 1
+    ends = lines[0][1][0], lines[0][1][-1]                      # a closed loop: its ends meet
+    assert math.hypot(math.log(ends[0].x / ends[1].x) / S_AXIS.tolerance,
+                      (ends[0].y - ends[1].y) / PSI_AXIS.tolerance) < 3.0
+    low_s = min(c.x for c in crossings), max(c.x for c in crossings)
+    assert low_s[0] == pytest.approx(20 * math.exp(-0.8), rel=0.1) and low_s[1] == pytest.approx(20 * math.exp(0.8),
+                                                                                                   rel=0.1)
+
+
+def test_a_blurry_boundary_ends_and_says_so():
+    # undecided within 15 % of S_C, on both sides: the refinement still ends, and says where it is blurry
+    def blurry(S, psi):
+        ratio = S / s_c_of(psi)
+        return "undecided" if 1 / 1.15 < ratio < 1.15 else curved(S, psi)
+    settings = RefineSettings(S_AXIS, PSI_AXIS, max_cases=2000)
+    results, state, _ = trace(settings, blurry)
+    assert state.status == refine.CONVERGED
+    crossings = refine.boundary(settings, results, state.cells)
+    assert {c.pair for c in crossings} == {"TT|undecided", "PT|undecided"}
+    assert all(c.blurry for c in crossings)
+    lines = refine.polylines(settings, results, state.cells)       # the band's two edges
+    assert sorted(pair for pair, _ in lines) == ["PT|undecided", "TT|undecided"]
+    for c in crossings:
+        if c.y_low == c.y_high:
+            edge = 1 / 1.15 if c.pair == "TT|undecided" else 1.15
+            assert c.x_low <= edge * s_c_of(c.y) <= c.x_high, c
+
+
+def test_the_budget_goes_to_the_widest_brackets_and_is_never_exceeded():
+    settings = RefineSettings(S_AXIS, PSI_AXIS, max_cases=40)
+    results, state, _ = trace(settings, curved)
+    assert state.status == refine.BUDGET and len(results) <= 40
+    assert "max_cases = 40" in state.reason
+
+
+def test_a_refinement_is_a_function_of_its_results_alone():
+    settings = RefineSettings(S_AXIS, PSI_AXIS, max_cases=600)
+    results, _, _ = trace(settings, curved)
+    shuffled = dict(sorted(results.items(), key=lambda kv: (kv[0][1], -kv[0][0])))
+    assert refine.step(settings, shuffled) == refine.step(settings, results)
+    partial = dict(list(results.items())[: len(results) // 2])
+    assert refine.step(settings, partial) == refine.step(settings, dict(reversed(list(partial.items()))))
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(ConfigError, match="two increasing values"):
+        Axis("psi_bar", (0.5,), 0.05)
+    with pytest.raises(ConfigError, match="positive values"):
+        Axis("shear_rate", (0.0, 5.0), 0.1, log=True)
+    with pytest.raises(ConfigError, match="fewer than the 15 points"):
+        RefineSettings(S_AXIS, PSI_AXIS, max_cases=10)
