@@ -179,9 +179,9 @@ def run_command(case_file, out, resume, overwrite, quiet):
             h5.close()
             raise
         if store.status in (FINISHED, MODEL_LIMIT):
-            t_done = store.progress[0]
+            t_done, ended = store.progress[0], STATUS_NAMES[store.status]
             h5.close()
-            click.echo(f"{path}: {STATUS_NAMES[store.status]} already (t = {t_done:.6g}); nothing to do.")
+            click.echo(f"{path}: {ended} already (t = {t_done:.6g}); nothing to do.")
             return
     else:
         case = load_case(case_file)

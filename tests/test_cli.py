@@ -204,6 +204,17 @@ def test_a_diverging_run_stops_with_a_message_and_keeps_its_checkpoint(tmp_path)
         assert np.all(np.isfinite(state.theta))
 
 
+def test_a_run_at_the_model_limit_exits_0_and_is_not_resumed(tmp_path):
+    from test_stepcontrol import DEFLATED                       # the linear law: psi 1.08 at t = 2.92
+
+    out = tmp_path / "limit.h5"
+    result = hpcves("run", write(tmp_path, DEFLATED), "--out", out, "--quiet")
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.startswith(f"{out}: model limit at t = 2.92") and "model limit: psi in [" in result.stdout
+    again = hpcves("run", "--resume", out)
+    assert again.returncode == 0 and "model limit already (t = 2.92); nothing to do" in again.stdout, again.stderr
+
+
 def test_the_start_up_of_a_deflated_vesicle_is_not_taken_for_divergence():
     """Delta = 0.94 at dt = 1e-3: the area projection undoes ~5e-3 of the area in the first steps
     (the initial ellipse relaxes fast), then < 1e-7 per step; that is not a divergence."""
