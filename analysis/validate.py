@@ -248,7 +248,8 @@ def deflated(lines):
                 if status == FAILED or (status == MODEL_LIMIT and law != "linear"):
                     failures.append(f"Delta = {delta:g}, S = {S:g}, {law}: {message}")
                 regime = found.regime if status == FINISHED else STATUS_NAMES[status]
-                reason = found.reason if status == FINISHED else message.split("; the run stopped")[0]
+                reason = found.reason if status == FINISHED else (runner.model_limit_cause(message)
+                                                                  if status == MODEL_LIMIT else message)
                 lines.append(f"| {S:g} | {law} | {STATUS_NAMES[status]} | {series['t'][-1]:.3g} | "
                              f"{series['psi_max'].max():.4f} | {regime} | {reason[:160]} |")
                 if law == "saturating":

@@ -27,6 +27,7 @@ from .checkpoint import FORMAT as CASE_FORMAT
 from .lock import CampaignLock, real_path
 from .params import ConfigError
 from .decision import REGIMES_BY_CODE
+from .runner import MODEL_LIMIT_PREFIX
 from .regimes import FAILED as FAILED_OUTCOME
 from .regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
 from .regimes import OUTCOMES, UNDECIDED, AnalysisSettings, Classification, classify
@@ -146,7 +147,7 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     if case.status in unclassified or n == 0:
         first = case.message.splitlines()[0] if case.message else ""
         regime, prefix = unclassified.get(case.status, (UNDECIDED, "not run yet"))
-        reason = prefix + first.removeprefix("model limit: ") if case.status in unclassified else prefix
+        reason = prefix + first.removeprefix(MODEL_LIMIT_PREFIX) if case.status in unclassified else prefix
         empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
         return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
     found = classify(case.series, settings)

@@ -321,9 +321,8 @@ class Master:
             print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) failed on rank "
                   f"{result.rank}: {first}", file=sys.stderr)
         elif result.status == MODEL_LIMIT:
-            why = result.message.removeprefix("model limit: ").split("; the run stopped")[0]
             print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) reached the model's "
-                  f"limit at t = {result.t:.4g}: {why}", file=sys.stderr)
+                  f"limit at t = {result.t:.4g}: {runner.model_limit_cause(result.message)}", file=sys.stderr)
         if result.status == INTERRUPTED and not self.stopping:
             self.begin_stop(f"rank {result.rank} was stopped")
 

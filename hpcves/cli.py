@@ -617,7 +617,7 @@ def animate_command(file, case_id, out, fps, no_streamlines):
     from .figures import choose, default_movie, write_animation
 
     check_output_path(file)
-    chosen = choose(file, (case_id,))[0] if case_id else _only_case(file)
+    chosen = choose(file, (case_id,) if case_id else (), one=True)[0]
     target = Path(out) if out else default_movie(Path(file), chosen.case_id)
     line = _StatusLine()
     try:
@@ -629,17 +629,6 @@ def animate_command(file, case_id, out, fps, no_streamlines):
     if frames < 2 * fps:
         click.echo(f"  one frame per snapshot: a smoother movie needs a smaller run.snapshot_interval "
                    f"(this case has {frames} snapshots)", err=True)
-
-
-def _only_case(file):
-    """The case of a single-run file (a campaign file needs --case)."""
-    from .analysis import read_source
-    from .figures import choose
-
-    source = read_source(file)
-    if source.kind != "case":
-        raise ConfigError(f"{file}: a campaign file; name the case with --case ID (hpcves status lists them)")
-    return choose(file)[0]
 
 
 if __name__ == "__main__":     # pragma: no cover

@@ -42,11 +42,14 @@ def parse_where(items) -> dict:
     return out
 
 
-def choose(path, case_ids=(), where: dict | None = None) -> list[Chosen]:
+def choose(path, case_ids=(), where: dict | None = None, one: bool = False) -> list[Chosen]:
     """The cases of ``path`` named in ``case_ids`` (in that order), or all those whose parameters
     match ``where`` (to 1e-9 relative), sorted by shear rate then the other parameters; a
-    single-run file is its one case. Damaged cases are refused by name; none chosen is an error."""
+    single-run file is its one case. Damaged cases are refused by name; none chosen is an error.
+    ``one``: a single case is wanted, so a campaign file must name it."""
     source = read_source(path)
+    if one and not case_ids and source.kind != "case":
+        raise ConfigError(f"{path}: a campaign file; name the case with --case ID (hpcves status lists them)")
     by_id = {case.case_id: case for case in source.cases}
     if case_ids:
         unknown = [c for c in case_ids if c not in by_id]
@@ -142,7 +145,8 @@ def write_animation(chosen: Chosen, out: Path, fps: int = 12, streamlines: bool 
     title, _ = fixed_text([chosen])
     regime = chosen.row["regime"]
     fig_title = f"case {chosen.case_id}: {title} -- {regime}"
-    movie = plots.animation(chosen.series, chosen.snapshots, chosen.physics if streamlines else None, fig_title)
+    fig, movie = plots.animation(chosen.series, chosen.snapshots, chosen.physics if streamlines else None,
+                                 fig_title)
     frames = len(chosen.snapshots["t"])
     callback = None if progress is None else (lambda i, n: progress(i + 1, n))
     partial = out.with_name(out.name + ".partial" + out.suffix)
@@ -150,7 +154,7 @@ def write_animation(chosen: Chosen, out: Path, fps: int = 12, streamlines: bool 
         movie.save(partial, writer=writer, progress_callback=callback)
         partial.replace(out)                  # a kill leaves no half-written movie under the name
     finally:
-        plots.plt.close(movie._fig)
+        plots.plt.close(fig)
         if partial.exists():
             partial.unlink()
     return frames

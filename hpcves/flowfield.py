@@ -63,7 +63,7 @@ def traction(z: np.ndarray, psi: np.ndarray, tension: np.ndarray, curvature: np.
     """
     z = np.asarray(z, dtype=complex)
     N = z.size
-    dz = np.fft.ifft(2j * np.pi * np.fft.fftfreq(N, 1.0 / N) * _without_nyquist(np.fft.fft(z)))
+    dz = _per_alpha(N).ds_complex(z)
     length = float(np.sum(np.abs(dz)) / N)
     sp = Spectral(N, length, backend="numpy")
     tangent = dz / np.abs(dz)
@@ -114,7 +114,7 @@ def _along_normal(fine, x, alpha, point, normal, distance, on_membrane, D):
     steps = np.arange(1, CLOSE_POINTS + 1) * D
     probes = point[:, None] + (side * normal)[:, None] * steps[None, :]
     values = np.empty((x.size, CLOSE_POINTS + 1), dtype=complex)
-    values[:, 0] = _fourier_at(on_membrane, alpha)
+    values[:, 0] = _per_alpha(on_membrane.size).interpolate(on_membrane, alpha)
     values[:, 1:] = fine.single_layer(probes.ravel()).reshape(probes.shape)
     nodes = np.concatenate([[0.0], steps])
     return np.sum(_lagrange_weights(nodes, distance) * values, axis=1)
@@ -130,22 +130,9 @@ def _lagrange_weights(nodes: np.ndarray, t: np.ndarray) -> np.ndarray:
     return w
 
 
-def _without_nyquist(c: np.ndarray) -> np.ndarray:
-    c = c.copy()
-    c[c.size // 2] = 0.0
-    return c
-
-
-def _fourier_at(samples: np.ndarray, alpha: np.ndarray, derivative: int = 0) -> np.ndarray:
-    """The trigonometric interpolant of N periodic samples (at j/N) or its alpha-derivative, at alpha."""
-    N = samples.size
-    c = np.fft.fft(samples) / N
-    m = np.fft.fftfreq(N, 1.0 / N)
-    c[N // 2] *= 0.5                                     # the Nyquist mode split between +-N/2
-    m = np.concatenate([m, [N // 2]])
-    c = np.concatenate([c, [c[N // 2]]])
-    phase = np.exp(2j * np.pi * np.outer(alpha, m))
-    return phase @ (c * (2j * np.pi * m) ** derivative)
+def _per_alpha(n: int) -> Spectral:
+    """Calculus in the curve parameter alpha in [0, 1) of n samples (a length of 1: d/ds is d/d alpha)."""
+    return Spectral(n, 1.0, backend="numpy")
 
 
 class _Curve:
@@ -154,7 +141,7 @@ class _Curve:
     def __init__(self, z: np.ndarray, force: np.ndarray):
         self.z, self.force = z, force
         n = z.size
-        self.dz = np.fft.ifft(2j * np.pi * np.fft.fftfreq(n, 1.0 / n) * _without_nyquist(np.fft.fft(z)))
+        self.dz = _per_alpha(n).ds_complex(z)
         self.weight = np.abs(self.dz) / n                  # ds = |z'(alpha)| d alpha, trapezoid
         self.length = float(np.sum(self.weight))
         self.orientation = 1.0 if np.sum(np.imag(np.conj(z) * self.dz)) > 0 else -1.0   # +1: counterclockwise
@@ -183,8 +170,10 @@ class _Curve:
         for start in range(0, x.size, rows):
             index[start:start + rows] = np.argmin(np.abs(x[start:start + rows, None] - self.z[None, :]), axis=1)
         alpha = index / n
+        sp = _per_alpha(n)
+        levels = np.stack([self.z, self.dz, sp.ds_complex(self.dz)])       # z and its alpha-derivatives
         for _ in range(MAX_NEWTON):
-            p, dp, d2p = (_fourier_at(self.z, alpha, k) for k in range(3))
+            p, dp, d2p = sp.interpolate(levels, alpha)
             gap = p - x
             slope = np.real(np.conj(gap) * dp)
             curve = np.abs(dp) ** 2 + np.real(np.conj(gap) * d2p)
@@ -192,7 +181,7 @@ class _Curve:
             alpha = alpha - step
             if np.max(np.abs(step)) < 1e-14:
                 break
-        p, dp = _fourier_at(self.z, alpha), _fourier_at(self.z, alpha, 1)
+        p, dp = sp.interpolate(levels[:2], alpha)
         normal = -1j * self.orientation * dp / np.abs(dp)
         return alpha % 1.0, p, normal, np.abs(x - p)
 

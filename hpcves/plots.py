@@ -578,8 +578,8 @@ def shape_sequences(rows: list[tuple], title: str = "", n_shapes: int = 6, strea
 
 
 def animation(series: dict, snapshots: dict, physics=None, title: str = "", extent: float = 0.75):
-    """matplotlib FuncAnimation of a case, one frame per snapshot: the shape coloured by psi with
-    the streamlines around it (with ``physics``) beside theta(t) up to the frame's time."""
+    """(figure, matplotlib FuncAnimation) of a case, one frame per snapshot: the shape coloured by
+    psi with the streamlines around it (with ``physics``) beside theta(t) up to the frame's time."""
     from matplotlib.animation import FuncAnimation
 
     fig = plt.figure(figsize=(11, 4.6), constrained_layout=True)
@@ -600,7 +600,7 @@ def animation(series: dict, snapshots: dict, physics=None, title: str = "", exte
 
     def draw(i):
         shape_ax.clear()
-        shape_strip(shape_ax, {k: v for k, v in snapshots.items()}, [i], spacing=2 * extent, label_times=False,
+        shape_strip(shape_ax, snapshots, [i], spacing=2 * extent, label_times=False,
                     physics=physics)
         shape_ax.set_xlim(-extent, extent)
         shape_ax.set_ylim(-0.62 * extent / 0.75, 0.62 * extent / 0.75)
@@ -611,4 +611,4 @@ def animation(series: dict, snapshots: dict, physics=None, title: str = "", exte
             marker.set_data([t[upto][-1]], [theta[upto][-1]])
         return ()
 
-    return FuncAnimation(fig, draw, frames=snap_t.size, blit=False)
+    return fig, FuncAnimation(fig, draw, frames=snap_t.size, blit=False)

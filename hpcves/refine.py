@@ -187,7 +187,7 @@ def _mixed(outcomes: set) -> bool:
 def _mixed_leaves(settings: RefineSettings, results: dict):
     """(the finest mixed cells, [(size, cell, its split's points)] for the mixed cells still too wide
     whose split has points not yet run)."""
-    known = [(settings.x.u(x), settings.y.u(y), regime) for (x, y), regime in results.items()]
+    known = [(ux, uy, results[p]) for ux, uy, p in _coordinates(settings, results)]
     xs = [settings.x.u(v) for v in settings.x.values]
     ys = [settings.y.u(v) for v in settings.y.values]
     todo = [Cell(a, b, c, d) for a, b in zip(xs, xs[1:]) for c, d in zip(ys, ys[1:])]
@@ -235,12 +235,13 @@ def _crossings(settings, results, cells):
     """({edge: Crossing}, [the edges with a crossing, per cell]) of the finest mixed cells."""
     if cells is None:
         cells, _ = _mixed_leaves(settings, results)
+    known = _coordinates(settings, results)
     found, per_cell = {}, []
     for cell in cells:
         mine = []
         for (ax, ay), (bx, by) in (((cell.x0, cell.y0), (cell.x1, cell.y0)), ((cell.x0, cell.y1), (cell.x1, cell.y1)),
                                    ((cell.x0, cell.y0), (cell.x0, cell.y1)), ((cell.x1, cell.y0), (cell.x1, cell.y1))):
-            for a, b in _edge_pieces(settings, results, (ax, ay), (bx, by)):
+            for a, b in _edge_pieces(settings, known, (ax, ay), (bx, by)):
                 ra, rb = results[a], results[b]
                 if ra == rb:
                     continue
@@ -256,14 +257,19 @@ def _crossings(settings, results, cells):
     return found, per_cell
 
 
-def _edge_pieces(settings, results, a, b):
-    """The consecutive known points along the edge from a to b (u coordinates), as pairs of points
-    (a point's u, from its value rounded to 12 digits, is within 1e-9 tolerances of the lattice's)."""
+def _coordinates(settings: RefineSettings, results: dict) -> list:
+    """(u_x, u_y, point) of every known point."""
+    return [(settings.x.u(p[0]), settings.y.u(p[1]), p) for p in results]
+
+
+def _edge_pieces(settings, known, a, b):
+    """The consecutive ``known`` points (_coordinates) along the edge from a to b (u coordinates), as
+    pairs of points (a point's u, from its value rounded to 12 digits, is within 1e-9 tolerances of
+    the lattice's)."""
     eps_x, eps_y = 1e-9 * settings.x.tolerance, 1e-9 * settings.y.tolerance
     horizontal = a[1] == b[1]
     on_edge = []
-    for p in results:
-        ux, uy = settings.x.u(p[0]), settings.y.u(p[1])
+    for ux, uy, p in known:
         if horizontal and abs(uy - a[1]) <= eps_y and a[0] - eps_x <= ux <= b[0] + eps_x:
             on_edge.append((ux, p))
         elif not horizontal and abs(ux - a[0]) <= eps_x and a[1] - eps_y <= uy <= b[1] + eps_y:

@@ -59,6 +59,15 @@ class UnderResolved(Diverged):
     """N is too small for the shape or the phase field (the spectral tail watch)."""
 
 
+#: how a model-limit stop's message begins, and what follows its cause (model_limit_cause)
+MODEL_LIMIT_PREFIX, STOPPED_BY = "model limit: ", "; the run stopped "
+
+
+def model_limit_cause(message: str) -> str:
+    """Why a case reached the model's limit (its message without the prefix and the failure it caused)."""
+    return message.removeprefix(MODEL_LIMIT_PREFIX).split(STOPPED_BY)[0]
+
+
 def beyond_model(state: State, bending_law: str = "linear") -> str:
     """Why a run that gives out has reached the limit of its model, or "" if it has not.
 
@@ -211,5 +220,5 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"
         limit = "" if case.physics.homogeneous else beyond_model(state, case.physics.bending_law)
         if limit:
-            return finish(MODEL_LIMIT, f"model limit: {limit}; the run stopped {what}: {reason} ({kept})", state)
+            return finish(MODEL_LIMIT, f"{MODEL_LIMIT_PREFIX}{limit}{STOPPED_BY}{what}: {reason} ({kept})", state)
         return finish(FAILED, f"{what}: {reason} ({kept})", state)
