@@ -67,7 +67,7 @@ class Source:
     sweep_keys: tuple
     settings: AnalysisSettings
     cases: tuple
-    mode: str = "grid"         # campaigns: "grid" or "search"
+    mode: str = "grid"         # campaigns: "grid", "search" or "refine"
     toml: str = ""             # campaigns: the campaign file's text
 
 
@@ -435,6 +435,7 @@ class Report:
     wrote_back: bool
     note: str                  # why the results were not written back, if they were not
     searches: tuple = ()       # search files: the rows of critical_shear.csv
+    refinements: tuple = ()    # refine files: the rows of refinement.csv
 
     def counts(self) -> dict:
         return regime_counts(self.rows)
@@ -472,7 +473,8 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                           (lambda i, n: progress(f"classified {i}/{n} cases")))
     out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
     try:
-        written, searches = _write_outputs(source, rows, out, axes, case_figures, progress, streamlines)
+        written, searches, refinements = _write_outputs(source, rows, out, axes, case_figures, progress,
+                                                        streamlines)
     except OSError as exc:
         where = exc.filename or out
         raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
@@ -480,12 +482,14 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     note = write_back(source, rows, settings, progress) if write_to_file else ""
     wrote_back = write_to_file and not note
     return Report(source, tuple(rows), tuple(written), wrote_back,
-                  f"results not written into the file: {note}" if note else "", tuple(searches))
+                  f"results not written into the file: {note}" if note else "", tuple(searches),
+                  tuple(refinements))
 
 
 def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures: bool, progress,
                    streamlines: bool = True):
-    """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows)."""
+    """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows,
+    refinement rows)."""
     from . import plots
 
     out.mkdir(parents=True, exist_ok=True)
@@ -495,6 +499,17 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
     (out / "regimes.md").write_text(regimes_markdown(source, rows))
     written += [out / "regimes.csv", out / "regimes.md"]
 
+    refined, lines = None, []
+    if source.mode == "refine":
+        from . import refine_campaign as rc
+
+        study, refined = rc.source_outcomes(source, rows)
+        lines = rc.boundary_rows(study, refined)
+        rc.write_rows([o.row() for o in refined], rc.refinement_columns(study), out / "refinement.csv")
+        rc.write_rows(lines, rc.boundary_columns(study), out / "boundaries.csv")
+        (out / "refinement.md").write_text(rc.refinement_markdown(source.name, study, refined, rows, source.cases))
+        written += [out / "refinement.csv", out / "boundaries.csv", out / "refinement.md"]
+        axes = axes or tuple(sorted(study.refine.axes, key=lambda k: k != "shear_rate"))
     x_key, y_key, others = grid_axes(source, rows, axes)
     searches = []
     if source.mode == "search":
@@ -510,7 +525,7 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
                 fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
                     shared_parameters(subset, (varied[0], "shear_rate"))))
                 written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
-    if source.kind == "campaign" and len(rows) > 1 and source.mode != "search":
+    if source.kind == "campaign" and len(rows) > 1 and source.mode == "grid":
         tables = period_tables(rows, y_key, x_key, others)
         text = [f"# Periods of {source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
                 "phase-treads (PT) or tumbles (TU); otherwise its regime. The uncertainty is the statistical "
@@ -527,12 +542,17 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
         for fixed, subset in facets(rows, others):
             suffix = facet_suffix(fixed)
             title = plots.parameter_text(shared_parameters(subset, (x_key, y_key)))
-            fig = plots.phase_diagram(subset, x_key, y_key, title=title, annotate_periods=not searches)
+            fig = plots.phase_diagram(subset, x_key, y_key, title=title, annotate_periods=source.mode == "grid",
+                                      nearest="point" if refined else "row",
+                                      log_keys=study.refine_settings.log_keys() if refined else None)
             if searches and "shear_rate" in (x_key, y_key):
                 plots.mark_critical(fig.axes[0], [r for r in searches if all(r[k] == v for k, v in fixed.items())],
                                     y_key if x_key == "shear_rate" else x_key, s_on_x=x_key == "shear_rate")
+            if refined and {x_key, y_key} == set(study.refine.axes):
+                plots.mark_boundaries(fig.axes[0], [r for r in lines if all(r[k] == v for k, v in fixed.items())],
+                                      x_key, y_key)
             written += _save(fig, out / f"phase_diagram{suffix}")
-            if not searches:
+            if source.mode == "grid":
                 written += _save(plots.period_figure(subset, y_key, x_key, title=title), out / f"periods{suffix}")
     if case_figures:
         directory = out / "cases"
@@ -555,7 +575,7 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
                     progress(f"case figures {i + 1}/{len(rows)}")
         written.append(directory / f"<case>.png ({len(rows)})")
 
-    return written, searches
+    return written, searches, [o.row() for o in refined or ()]
 
 
 def _save(fig, stem: Path) -> list[Path]:

@@ -26,7 +26,7 @@ With several ranks and an h5py built with MPI every rank opens it with the
 temporary name that is renamed to the file's once complete (atomic.py), after
 which each case is written only by the rank running it (independent raw-data
 writes to preallocated datasets, which reach the file in program order -- the
-order the checkpoint protocol needs). A search stage's new cases are added
+order the checkpoint protocol needs). A search or refine stage's new cases are added
 the same way, to a copy that replaces the file. Without MPI in h5py (or with
 ``io="relay"``) only rank 0 opens the file and applies the other ranks'
 writes, which they send it in order (relay.py).
@@ -60,7 +60,8 @@ from .lock import CampaignLock, LockError, real_path
 from .params import ConfigError
 from .regimes import AnalysisSettings
 from .relay import Relay, RemoteCampaign
-from .search_campaign import SearchDriver, cases_from_file
+from .refine_campaign import RefineDriver
+from .search_campaign import SearchDriver
 from .study import Study
 
 log = logging.getLogger(__name__)
@@ -95,7 +96,8 @@ class Summary:
     counts: dict                    # status name -> number of cases in the file
     failed: tuple                   # (case_id, message) of every failed case in the file
     wall: float
-    searches: tuple = ()            # search studies: SearchOutcome of every search (empty if stopped)
+    searches: tuple = ()            # search (refine) studies: SearchOutcome (RefineOutcome) of every search
+                                    # (refinement); empty if stopped
     not_written: str = ""           # why the campaign stopped when the file system refused a write
 
     @property
@@ -425,11 +427,12 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     h5py's MPI driver; "relay" -- only rank 0 opens it and applies the other
     ranks' writes (relay.py); "auto" -- mpio where h5py has MPI, else relay.
 
-    A search study (``study.search``) runs in stages (search_campaign.py):
-    after each, rank 0 classifies the finished cases, the searches choose
-    their next shear rates, and the file is replaced by a copy holding those
-    cases before the next stage runs them. Rank 0 calls ``on_stage(outcomes)``
-    with the state of every search after each stage.
+    A search or refine study (``study.staged``) runs in stages
+    (search_campaign.py, refine_campaign.py): after each, rank 0 classifies
+    the finished cases, the searches (refinements) choose their next shear
+    rates (points), and the file is replaced by a copy holding those cases
+    before the next stage runs them. Rank 0 calls ``on_stage(outcomes)`` with
+    the state of every search (refinement) after each stage.
 
     Rank 0 calls ``announce(text, None, n_finished)`` with the campaign's
     first line, ``announce(text, n_cases, n_finished_before)`` once the work
@@ -490,17 +493,17 @@ def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, dis
     try:
         results, outcomes = [], []
         driver = None
-        if rank == 0 and study.search is not None:
-            driver = SearchDriver(study)
+        if rank == 0 and study.staged:
+            driver = (SearchDriver if study.search else RefineDriver)(study)
             if mode_seen == "continue":
-                study = cases_from_file(study, campaign)
+                study = driver.cases_from_file(study, campaign)
         stage = 0
         while True:
             ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, io, mode_seen, stage,
                                                retry_failed and stage == 0, stop_flag, display, announce)
             results += ran
             not_written = not_written or refused
-            if study.search is None:
+            if not study.staged:
                 break
             if io == "mpio":
                 # Rank 0 is about to read the cases the others wrote: MPI-IO makes their writes
@@ -563,7 +566,7 @@ def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed
         finished = sum(1 for s in statuses.values() if s == FINISHED)
         if stage == 0:
             announce(_announcement(study, path, statuses, size, mode, io), None, finished)
-        if todo or study.search is None:
+        if todo or not study.staged:
             announce(_stage_line(study, statuses, todo, stage), len(statuses), finished)
         relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
         master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display, relay)
@@ -735,7 +738,13 @@ def _announcement(study, path, statuses, size, mode, io) -> str:
     """The first line of a campaign: what, where, on how many ranks."""
     access = {"serial": "serial HDF5", "mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}[io]
     verb = "new file" if mode == "create" else "continuing"
-    if study.search is None:
+    if study.refine:
+        x, y = study.refine_settings.x, study.refine_settings.y
+        n = len(study.refinements)
+        what = (f"{n} refinement{'s' * (n != 1)} of the regime boundaries over {x.key} x {y.key} from a "
+                f"{len(x.values)} x {len(y.values)} grid (at most {study.refine.max_cases} cases each), "
+                f"{len(statuses)} cases so far")
+    elif study.search is None:
         what = f"{len(study.cases)} cases"
     else:
         n = len(study.searches)
@@ -761,8 +770,9 @@ def _stage_line(study, statuses, todo, stage) -> str:
     limited = sum(1 for s in statuses.values() if s == MODEL_LIMIT)
     if limited:
         parts.append(f"{limited} at the model's limit before")
-    if study.search is not None and stage > 0:
-        searches = len({study.by_id(case_id).search for case_id, _ in todo})
-        parts[0] = f"stage {stage}: {len(todo)} new case{'s' * (len(todo) != 1)} for {searches} " \
-                   f"search{'es' * (searches != 1)}"
+    if study.staged and stage > 0:
+        groups = len({study.by_id(case_id).search for case_id, _ in todo})
+        kind = "search" if study.search else "refinement"
+        parts[0] = f"stage {stage}: {len(todo)} new case{'s' * (len(todo) != 1)} for {groups} " \
+                   f"{kind}{('es' if study.search else 's') * (groups != 1)}"
     return ", ".join(parts)

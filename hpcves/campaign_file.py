@@ -3,11 +3,12 @@
     attrs      format = "hpcves-campaign", format_version, hpcves_version, name,
                fingerprint (Study.fingerprint), campaign_toml (the campaign
                file's text), sweep_keys, n_cases
-               mode ("grid" or "search")
+               mode ("grid", "search" or "refine")
     index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
-               search (n,) int (the search of each case; -1 in a grid) -- all
-               resizable: a search adds its cases stage by stage
+               search (n,) int (the search -- or refinement -- of each case; -1 in a grid) --
+               all resizable: a search or refinement adds its cases stage by stage
     searches/  search files: one (n_searches,) dataset per swept key
+    refinements/  refine files: one (n_refinements,) dataset per swept key that is not an axis
     cases/<id>/  one case, laid out exactly as a single run (checkpoint.CaseStore):
                parameters as attributes, status, message, traceback, progress,
                timeseries/ (preallocated, with a length counter), snapshots/,
@@ -40,6 +41,8 @@ class BeingCreated(FileFormatError):
     """The campaign file does not exist yet: a running campaign is laying it out."""
 
 FORMAT = "hpcves-campaign"
+#: the modes whose cases come stage by stage (a stage may be half-added when a crash cut it short)
+STAGED_MODES = ("search", "refine")
 FORMAT_VERSION = 1
 
 
@@ -61,7 +64,7 @@ class CampaignFile:
         a["name"] = study.name
         a["fingerprint"] = study.fingerprint
         a["campaign_toml"] = study.source
-        a["mode"] = "search" if study.search else "grid"
+        a["mode"] = study.mode
         a["sweep_keys"] = ",".join(study.sweep_keys)
         a["n_cases"] = 0
         index = h5.create_group("index")
@@ -75,6 +78,10 @@ class CampaignFile:
             searches = h5.create_group("searches")
             for key in study.sweep:
                 searches.create_dataset(key, data=np.array([p[key] for p in study.searches], dtype="f8"))
+        if study.refine:
+            refinements = h5.create_group("refinements")
+            for key in study.refinements[0]:
+                refinements.create_dataset(key, data=np.array([p[key] for p in study.refinements], dtype="f8"))
         h5.create_group("cases")
         campaign = cls(h5)
         campaign.add_cases(study.cases)
@@ -138,8 +145,8 @@ class CampaignFile:
         if missing:
             raise FileFormatError(f"{where}: incomplete campaign file, missing {', '.join(missing)}")
         n = int(h5.attrs.get("n_cases", -1))
-        search = attr_text(h5.attrs.get("mode", "grid")) == "search"
-        if len(h5["cases"]) != n and not (search and len(h5["cases"]) > n):   # a search's half-added stage
+        staged = attr_text(h5.attrs.get("mode", "grid")) in STAGED_MODES
+        if len(h5["cases"]) != n and not (staged and len(h5["cases"]) > n):   # a half-added stage
             raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
                                   "(creation was interrupted?)")
         keys = [k for k in attr_text(h5.attrs.get("sweep_keys", "")).split(",") if k]
@@ -170,11 +177,12 @@ class CampaignFile:
 
     @property
     def mode(self) -> str:
-        """"grid" (every case known up front) or "search" (critical-shear searches, cases added by stage)."""
+        """"grid" (every case known up front), "search" (critical-shear searches) or "refine" (regime
+        boundaries refined): the last two add their cases stage by stage."""
         return attr_text(self.h5.attrs.get("mode", "grid"))
 
     def searches_of_cases(self) -> list[int]:
-        """The search each case belongs to (-1 in a grid study), in id order."""
+        """The search (or refinement) each case belongs to (-1 in a grid study), in id order."""
         index = self.h5["index"]
         n = int(self.h5.attrs["n_cases"])
         return [int(v) for v in index["search"][:n]] if "search" in index else [-1] * n

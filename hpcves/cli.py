@@ -379,6 +379,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
     display = None
 
     critical_csv = path.with_name(path.stem + "_critical_shear.csv")
+    refine_csv = path.with_name(path.stem + "_refinement.csv")
 
     def announce(text, n_cases, finished_before):
         nonlocal display
@@ -396,6 +397,16 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
     def on_stage(outcomes):
         from .search_campaign import write_critical_csv
 
+        if study.refine:
+            from .refine_campaign import refinement_columns, write_rows
+
+            write_rows([o.row() for o in outcomes], refinement_columns(study), refine_csv)
+            if not any(o.regimes for o in outcomes):          # a new refinement: nothing found yet
+                return
+            ended = sum(1 for o in outcomes if o.state.status != "running")
+            detail = "; ".join(o.brief() for o in outcomes) if len(outcomes) <= 8 else f"see {refine_csv}"
+            announce(f"refinements: {ended} of {len(outcomes)} ended; {detail}", None, 0)
+            return
         write_critical_csv([o.row() for o in outcomes], critical_csv)
         if not any(o.regimes for o in outcomes):          # a new search: nothing found yet
             return
@@ -417,7 +428,9 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
             display.close()
     if rank == 0:
         _print_summary(summary, path)
-        if summary.searches:
+        if summary.searches and study.refine:
+            _print_refinements(study, summary.searches, refine_csv)
+        elif summary.searches:
             _print_searches(summary.searches, critical_csv)
         if summary.not_written:
             click.echo(f"Error: {summary.not_written}; the campaign stopped and every case keeps its last "
@@ -441,6 +454,17 @@ def _print_searches(outcomes, critical_csv) -> None:
 
     click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys))
     click.echo(f"critical shear rates: {critical_csv}")
+
+
+def _print_refinements(study, outcomes, refine_csv) -> None:
+    from .analysis import markdown_table
+    from .refine_campaign import refinement_columns
+
+    columns = refinement_columns(study)
+    click.echo(markdown_table(list(columns), [[f"{v:g}" if isinstance(v, float) else str(v)
+                                               for v in (o.row()[c] for c in columns)] for o in outcomes],
+                              left=(len(columns) - 6, len(columns) - 1)))
+    click.echo(f"refinements: {refine_csv}; hpcves analyze draws the boundaries")
 
 
 def _print_summary(summary, path) -> None:
@@ -525,7 +549,8 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, 
 
     Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
     tables (PNG and PDF) and cases/<id>.png -- for a [search] campaign,
-    critical_shear.csv/.md and S_C figures instead of the period tables; the
+    critical_shear.csv/.md and S_C figures instead of the period tables, for a
+    [refine] campaign boundaries.csv (the polylines) and refinement.md; the
     results also go into the file's analysis/ group. The file may belong to a running campaign (then
     nothing is written into it).
     """
@@ -556,6 +581,12 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, 
         where = f"psi_bar = {s['psi_bar']:g}, Delta = {s['excess_length']:g}, B2 = {s['B2']:g}"
         value = f"S_C = {s['S_C']:.4g}" if s["S_C"] == s["S_C"] else s["status"]
         click.echo(f"search {where}: {value}  ({s['reason']})")
+    from .refine_campaign import REFINEMENT_FIELDS
+
+    for r in report.refinements:
+        where = ", ".join(f"{k} = {r[k]:g}" for k in r if k not in REFINEMENT_FIELDS)
+        click.echo(f"refinement{' ' + where if where else ''}: {r['status']}, {r['cases']} cases "
+                   f"({r['crossings']} crossings, {r['blurry']} blurry)  ({r['reason']})")
     if report.wrote_back:
         click.echo(f"results stored in {report.source.path} (group analysis/)")
     elif report.note:

@@ -282,16 +282,20 @@ def _log_scale(values) -> bool:
 
 
 @plt.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
-def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True):
+def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True,
+                  nearest: str = "row", log_keys=None):
     """Regimes over two swept parameters: one marker per case, coloured by regime;
     undecided cases are grey crosses, model-limit ones purple diamonds, failed ones black crosses;
-    PT/TU points carry their period; the legend beside the axes."""
+    PT/TU points carry their period; the legend beside the axes. The regions are shaded by the
+    nearest case (region_map: ``nearest`` "row" for grids and searches, "point" for refined maps).
+    ``log_keys``: the parameters drawn on a log axis (default: those swept over a factor of 20 or more)."""
     fig, ax = plt.subplots(figsize=(10, 6), constrained_layout=True)
+    size = 140 if len(rows) <= 60 else 50                      # a refined map has hundreds of points
     for regime, (colour, marker, label) in REGIME_STYLE.items():
         chosen = [r for r in rows if r["regime"] == regime]
         if not chosen:
             continue
-        ax.scatter([r[x_key] for r in chosen], [r[y_key] for r in chosen], s=140, c=colour, marker=marker,
+        ax.scatter([r[x_key] for r in chosen], [r[y_key] for r in chosen], s=size, c=colour, marker=marker,
                    label=f"{label} ({len(chosen)})", edgecolors="k" if marker not in "xX" else None,
                    linewidths=0.6,
                    zorder=3)
@@ -302,17 +306,18 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
                                 xytext=(0, 9), ha="center", fontsize=9)
     for axis, key in ((ax.xaxis, x_key), (ax.yaxis, y_key)):
         values = sorted({r[key] for r in rows})
-        if _log_scale(values):
+        if (key in log_keys) if log_keys is not None else _log_scale(values):
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
-            if len(values) <= MAX_SWEEP_TICKS:          # ticks at the swept values, not at powers of ten
+            if log_keys is None and len(values) <= MAX_SWEEP_TICKS:   # ticks at the swept values
                 axis.set_ticks(values, [f"{v:g}" for v in values])
-                axis.set_minor_locator(matplotlib.ticker.NullLocator())
-            else:                                       # 10 and 100, not 10^1 and 10^2
+            else:                                       # 1, 2, 5, 10, 20, ..., not 10^1 and 10^2
+                axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
                 axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)
-    shade_regions(ax, rows, x_key, y_key)
+    shade_regions(ax, rows, x_key, y_key, nearest=nearest)
     _legend_outside(ax)
     if title:
         ax.set_title(title, fontsize=13)
@@ -325,15 +330,19 @@ SHADE_ALPHA = 0.16
 
 
 def region_map(rows: list[dict], x_key: str, y_key: str, x_grid: np.ndarray, y_grid: np.ndarray,
-               x_log: bool, y_log: bool) -> np.ndarray:
+               x_log: bool, y_log: bool, nearest: str = "row") -> np.ndarray:
     """Index into SHADED of the case each point of the grid falls to (-1 where that case is not
-    TT, PT or TU), shape (y_grid.size, x_grid.size): the nearest row of cases (rows along the
-    parameter with fewer distinct values), then the nearest case within it, each on the axis's
-    own scale (log values on a log axis). On a regular sweep the edges lie half-way between the
-    points; on a search's rows each row keeps its own brackets."""
+    TT, PT or TU), shape (y_grid.size, x_grid.size), on each axis's own scale (log values on a
+    log axis). ``nearest="row"``: the nearest row of cases (rows along the parameter with fewer
+    distinct values), then the nearest case within it -- on a regular sweep the edges lie half-way
+    between the points, on a search's rows each row keeps its own brackets. ``nearest="point"``:
+    the nearest case, each axis scaled to its range (a refined map, whose points cluster along
+    the boundaries)."""
     xs = np.array([r[x_key] for r in rows], dtype=float)
     ys = np.array([r[y_key] for r in rows], dtype=float)
     code = np.array([SHADED.index(r["regime"]) if r["regime"] in SHADED else -1 for r in rows])
+    if nearest == "point":
+        return _nearest_point(xs, ys, code, x_grid, y_grid, x_log, y_log)
     by_rows = np.unique(ys).size <= np.unique(xs).size          # rows of constant y (else columns)
     along, across = (xs, ys) if by_rows else (ys, xs)
     along_grid, across_grid = (x_grid, y_grid) if by_rows else (y_grid, x_grid)
@@ -353,6 +362,21 @@ def region_map(rows: list[dict], x_key: str, y_key: str, x_grid: np.ndarray, y_g
     return out if by_rows else out.T
 
 
+def _nearest_point(xs, ys, code, x_grid, y_grid, x_log, y_log) -> np.ndarray:
+    """region_map's ``nearest="point"``: the code of the nearest case (scipy's k-d tree)."""
+    from scipy.spatial import cKDTree
+
+    def scaled(values, log, reference):
+        values = np.log(values) if log else np.asarray(values, dtype=float)
+        low, high = (np.log(reference) if log else reference).min(), (np.log(reference) if log else reference).max()
+        return (values - low) / (high - low if high > low else 1.0)
+
+    tree = cKDTree(np.column_stack([scaled(xs, x_log, xs), scaled(ys, y_log, ys)]))
+    gx, gy = np.meshgrid(scaled(x_grid, x_log, xs), scaled(y_grid, y_log, ys))
+    _, index = tree.query(np.column_stack([gx.ravel(), gy.ravel()]))
+    return code[index].reshape(y_grid.size, x_grid.size)
+
+
 def _nearest(sorted_values: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Index of the nearest of ``sorted_values`` to each of ``points`` (1-D)."""
     right = np.clip(np.searchsorted(sorted_values, points), 1, max(sorted_values.size - 1, 1))
@@ -362,7 +386,8 @@ def _nearest(sorted_values: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.where(np.abs(points - sorted_values[left]) <= np.abs(points - sorted_values[right]), left, right)
 
 
-def shade_regions(ax, rows: list[dict], x_key: str, y_key: str, resolution: int = 300) -> None:
+def shade_regions(ax, rows: list[dict], x_key: str, y_key: str, resolution: int = 300,
+                  nearest: str = "row") -> None:
     """Shade the axes by the regime of the nearest case (region_map): a guide to the eye between
     the sampled points, not a located boundary."""
     if sum(1 for r in rows if r["regime"] in SHADED) == 0 or len(rows) < 2:
@@ -373,7 +398,7 @@ def shade_regions(ax, rows: list[dict], x_key: str, y_key: str, resolution: int 
     edges = [np.geomspace(a, b, resolution + 1) if log else np.linspace(a, b, resolution + 1)
              for a, b, log in ((x0, x1, x_log), (y0, y1, y_log))]
     centres = [np.sqrt(e[:-1] * e[1:]) if log else 0.5 * (e[:-1] + e[1:]) for e, log in zip(edges, (x_log, y_log))]
-    codes = region_map(rows, x_key, y_key, centres[0], centres[1], x_log, y_log)
+    codes = region_map(rows, x_key, y_key, centres[0], centres[1], x_log, y_log, nearest)
     colours = matplotlib.colors.ListedColormap([matplotlib.colors.to_rgba(REGIME_STYLE[r][0], SHADE_ALPHA)
                                                 for r in SHADED])
     ax.pcolormesh(edges[0], edges[1], np.ma.masked_less(codes, 0), cmap=colours, vmin=-0.5,
@@ -453,6 +478,26 @@ def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True)
                 label=curve_label)
         curve_label = None
     if label is None or curve_label is None:
+        _legend_outside(ax)
+
+
+def mark_boundaries(ax, lines: list[dict], x_key: str, y_key: str) -> None:
+    """The located regime boundaries (rows of boundaries.csv) on a phase diagram: each polyline
+    through its crossings, solid between decided cases, dashed where one side is undecided,
+    failed or at the model's limit (blurry)."""
+    by_line = {}
+    for r in lines:
+        by_line.setdefault(r["line"], []).append(r)
+    labels = {}
+    for points in by_line.values():
+        points.sort(key=lambda r: r["order"])
+        blurry = any(r["blurry"] for r in points)
+        label = "boundary (blurry: one side undecided)" if blurry else "boundary"
+        xs, ys = [r[x_key] for r in points], [r[y_key] for r in points]
+        ax.plot(xs, ys, color="0.45" if blurry else "k", ls="--" if blurry else "-", lw=2.2, marker=".", ms=5,
+                zorder=4, label=None if label in labels else label)
+        labels[label] = True
+    if labels:
         _legend_outside(ax)
 
 

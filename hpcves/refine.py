@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .config import check_type
 from .params import ConfigError
 from .regimes import PT, TT, TU
 
@@ -95,6 +96,10 @@ class RefineSettings:
             raise ConfigError(f"refine.max_cases = {self.max_cases}: fewer than the {coarse} points of the "
                               "coarse grid")
 
+    def log_keys(self) -> tuple:
+        """The parameters of the plane on a log scale."""
+        return tuple(a.key for a in (self.x, self.y) if a.log)
+
     def full_grid_cases(self) -> int:
         """Cases of the regular grid that brackets every boundary to the tolerances everywhere."""
         return self.x.full_grid_points() * self.y.full_grid_points()
@@ -127,6 +132,84 @@ class Cell:
     def size(self, settings: RefineSettings) -> float:
         """Its width in tolerances along the wider axis: how far it is from done."""
         return max((self.x1 - self.x0) / settings.x.tolerance, (self.y1 - self.y0) / settings.y.tolerance)
+
+
+#: default tolerances of ``[refine]``: relative on S (10 %), absolute on the others
+DEFAULT_TOLERANCE = {"shear_rate": 0.1, "psi_bar": 0.05, "excess_length": 0.05, "B2": 0.05}
+#: the parameters refined on a log scale (S spans decades); the others are linear
+LOG_KEYS = ("shear_rate",)
+
+
+@dataclass(frozen=True)
+class RefinePlan:
+    """``[refine]`` of a campaign file: the plane, the tolerances, the budget of each refinement::
+
+        [refine]
+        axes = ["shear_rate", "psi_bar"]               # default: the first two swept keys
+        tolerance = { shear_rate = 0.1, psi_bar = 0.05 }   # relative on S, absolute otherwise
+        max_cases = 150                                # per refinement (coarse grid included)
+
+    The coarse grid is the ``[sweep]`` values of the two axes; every combination of the
+    other swept keys gets a refinement of its own.
+    """
+
+    axes: tuple               # (x key, y key)
+    tolerance: tuple          # ((key, tolerance), ...) for the two axes, in the user's terms
+    max_cases: int = 200
+
+    def settings(self, sweep: dict) -> RefineSettings:
+        """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
+        tolerance = dict(self.tolerance)
+
+        def axis(key):
+            log = key in LOG_KEYS
+            return Axis(key, tuple(sorted(sweep[key])), math.log1p(tolerance[key]) if log else tolerance[key], log)
+
+        return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases)
+
+    @classmethod
+    def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
+        """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
+        known = ("axes", "tolerance", "max_cases")
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
+                              f"(known: {', '.join(known)})")
+        swept = [k for k, v in sweep.items() if len(v) > 1]
+        axes = values.get("axes", swept[:2])
+        if (not isinstance(axes, list | tuple) or len(axes) != 2
+                or not all(isinstance(a, str) for a in axes)):
+            raise ConfigError(f"{where}: axes = {axes!r}: give the two swept parameters of the plane, "
+                              'e.g. axes = ["shear_rate", "psi_bar"]')
+        for key in axes:
+            if key not in sweep:
+                raise ConfigError(f"{where}: axis {key} is not in [sweep] (its values there are the coarse grid)")
+            if len(sweep[key]) < 2:
+                raise ConfigError(f"{where}: axis {key} has {len(sweep[key])} value in [sweep]; the coarse "
+                                  "grid needs at least two")
+        if axes[0] == axes[1]:
+            raise ConfigError(f"{where}: the two axes are both {axes[0]}")
+        given = values.get("tolerance", {})
+        if not isinstance(given, dict):
+            raise ConfigError(f"{where}: tolerance = {given!r}: must be a table, e.g. "
+                              "{ shear_rate = 0.1, psi_bar = 0.05 }")
+        extra = sorted(set(given) - set(axes))
+        if extra:
+            raise ConfigError(f"{where}: tolerance for {', '.join(extra)}, which is not an axis ({', '.join(axes)})")
+        tolerance = []
+        for key in axes:
+            value = check_type(f"refine.tolerance.{key}", given.get(key, DEFAULT_TOLERANCE[key]), float)
+            if not value > 0:
+                raise ConfigError(f"{where}: tolerance.{key} = {value}: must be > 0"
+                                  + (" (relative: 0.1 brackets S to 10 %)" if key in LOG_KEYS else ""))
+            tolerance.append((key, value))
+        max_cases = check_type("refine.max_cases", values.get("max_cases", 200), int)
+        plan = cls(tuple(axes), tuple(tolerance), max_cases)
+        try:
+            plan.settings(sweep)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {str(exc).removeprefix('refine: ')}") from None
+        return plan
 
 
 def point(settings: RefineSettings, ux: float, uy: float) -> tuple[float, float]:

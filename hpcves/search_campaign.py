@@ -90,6 +90,8 @@ class SearchDriver:
         self.points = search_points(study)
         self._regimes: dict[str, str] = {}      # case id -> regime (finished and failed cases only)
 
+    cases_from_file = staticmethod(cases_from_file)
+
     def regime(self, campaign, case_id: str) -> str | None:
         """The regime of one case, or None while it is not finished (or failed)."""
         if case_id not in self._regimes:

@@ -38,6 +38,19 @@ Then ``[sweep]`` may hold only ``psi_bar``, ``excess_length`` and ``B2``: one
 search per point of that grid. The cases are made stage by stage as the
 searches ask for them (numbered in that order); the ends of every search's
 range are validated up front.
+
+A ``[refine]`` table makes it a refinement of the regime boundaries over two
+swept parameters (refine.py, docs/analysis.md)::
+
+    [refine]
+    axes = ["shear_rate", "psi_bar"]                  # default: the first two swept keys
+    tolerance = { shear_rate = 0.1, psi_bar = 0.05 }  # relative on S, absolute on the others
+    max_cases = 150                                   # per refinement
+
+The ``[sweep]`` values of the two axes are the coarse grid; every combination
+of the other swept keys is a refinement of its own. Cases are made stage by
+stage as the refinements ask for them; every point of the coarse grids is
+validated up front.
 """
 from __future__ import annotations
 
@@ -55,6 +68,7 @@ import numpy as np
 from .config import case_from_dict, check_type, read_text
 from .params import Case, ConfigError
 from .regimes import AnalysisSettings
+from .refine import RefinePlan, RefineSettings
 from .search import SearchSettings
 
 SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
@@ -72,7 +86,7 @@ class StudyCase:
     case_id: str
     case: Case
     swept: dict                    # {"shear_rate": 80.0, ...} in sweep order
-    search: int = -1               # search studies: which search the case belongs to
+    search: int = -1               # search (refine) studies: which search (refinement) the case belongs to
 
     @property
     def cost(self) -> float:
@@ -103,6 +117,23 @@ class Study:
     times: TimeRules = field(default_factory=lambda: TimeRules())
     search: SearchSettings | None = None
     searches: tuple = ()           # search studies: the swept values of each search, in sweep order
+    refine: RefinePlan | None = None
+    refinements: tuple = ()        # refine studies: the values of the other swept keys of each refinement
+
+    @property
+    def mode(self) -> str:
+        """"grid" (every case known up front), "search" or "refine" (cases added stage by stage)."""
+        return "search" if self.search else "refine" if self.refine else "grid"
+
+    @property
+    def staged(self) -> bool:
+        """Whether the study gains its cases stage by stage (a search or a refinement)."""
+        return self.mode != "grid"
+
+    @property
+    def refine_settings(self) -> RefineSettings:
+        """The plane, tolerances and budget shared by every refinement of a refine study."""
+        return self.refine.settings(self.sweep)
 
     @property
     def fingerprint(self) -> str:
@@ -114,7 +145,11 @@ class Study:
         the classification thresholds (which decide where the search goes next).
         A grid study's covers the thresholds when its cases run until decided.
         """
-        if self.search is None:
+        if self.refine is not None:
+            payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
+                       "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
+                       "refine": dataclasses.asdict(self.refine), "analysis": dataclasses.asdict(self.analysis)}
+        elif self.search is None:
             payload = {"name": self.name,
                        "cases": [[c.case_id, c.case.significant()] for c in self.cases]}
             if self.base.run.until_decided:          # the thresholds decide when its cases stop
@@ -134,7 +169,9 @@ class Study:
 
     @property
     def most_cases(self) -> int:
-        """Every case the study can have: the grid, or max_cases for every search."""
+        """Every case the study can have: the grid, or max_cases for every search or refinement."""
+        if self.refine:
+            return len(self.refinements) * self.refine.max_cases
         points = math.prod(len(v) for v in self.sweep.values())
         return points * (self.search.max_cases if self.search else 1)
 
@@ -160,6 +197,13 @@ class Study:
     def search_case(self, search: int, shear_rate: float, case_id: str) -> StudyCase:
         """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
         return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
+
+    def refine_case(self, refinement: int, x: float, y: float, case_id: str) -> StudyCase:
+        """Case ``case_id`` of refinement number ``refinement``, at the point (x, y) of its plane."""
+        x_key, y_key = self.refine.axes
+        fixed = self.refinements[refinement]
+        swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
+        return self.make_case(case_id, swept, refinement)
 
     def with_cases(self, new) -> "Study":
         """This study with ``new`` cases appended (their ids must continue the numbering)."""
@@ -246,8 +290,10 @@ def load_study(path: str | Path) -> Study:
 
 def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     data = dict(data)
-    is_search = "search" in data
-    tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search")}
+    is_search, is_refine = "search" in data, "refine" in data
+    if is_search and is_refine:
+        raise ConfigError("[search] and [refine] are two kinds of campaign: give one")
+    tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search", "refine")}
     for table, value in tables.items():
         if not isinstance(value, dict):
             raise ConfigError(f"[{table}] must be a table")
@@ -282,10 +328,20 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
                               "(the search range is [search] low and high)")
         raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
     sweep = {key: sweep_values(key, spec) for key, spec in sweep_spec.items()}
+    refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
+    others = [k for k in sweep if refine and k not in refine.axes]
+    refinements = tuple(dict(zip(others, values)) for values in itertools.product(*(sweep[k] for k in others)))
     study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
-                  analysis=analysis, base=base, times=times, search=search)
+                  analysis=analysis, base=base, times=times, search=search, refine=refine,
+                  refinements=refinements if refine else ())
     if study.most_cases > MAX_CASES:
         raise ConfigError(f"the sweep has {study.most_cases} cases; more than {MAX_CASES} is surely a mistake")
+    if refine is not None:          # validate every point of every coarse grid
+        for i in range(len(refinements)):
+            for x in sweep[refine.axes[0]]:
+                for y in sweep[refine.axes[1]]:
+                    study.refine_case(i, x, y, f"of refinement {i}")
+        return study
     points = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())]
     if search is None:
         width = study.id_width

@@ -1,0 +1,187 @@
+"""The [refine] campaign mode: regime boundaries refined by the campaign runner, end to end.
+
+Tiny real cases (N = 32, t_end = 1.5) over S in [30, 120] x psi_bar in [0, 0.3]
+at Delta = 0.194: the homogeneous vesicle tank-treads everywhere, psi_bar = 0.3
+goes from TT to PT between S = 60 and 85 (test_search_campaign.py finds S_C
+there), so the coarse 2 x 2 grid has one mixed cell. Two refinements (B2 = 0.1, 0.2).
+"""
+import csv
+import os
+import signal
+
+import h5py
+import pytest
+
+from hpcves.analysis import analyze
+from hpcves.campaign import run_campaign
+from hpcves.checkpoint import FINISHED
+from hpcves.params import ConfigError
+from hpcves.refine import CONVERGED, polylines
+from hpcves.study import study_from_toml
+
+from jobs import assert_same_results, hpcves, job_pids, start_job, wait_until
+from test_campaign import TINY_RUN, needs_mpi, statuses
+
+REFINE = """
+[campaign]
+name = "refine"
+output = "{output}"
+t_end = 1.5
+""" + TINY_RUN + """[sweep]
+shear_rate = [30.0, 120.0]
+psi_bar = [0.0, 0.3]
+B2 = [0.1, 0.2]
+[refine]
+tolerance = {{ shear_rate = 0.5, psi_bar = 0.15 }}
+max_cases = 30
+"""
+
+
+def write_refine(tmp_path, checkpoint=0.5):
+    output = tmp_path / "refine.h5"
+    path = tmp_path / "refine.toml"
+    path.write_text(REFINE.format(output=output, checkpoint=checkpoint))
+    return path, output
+
+
+@pytest.fixture(scope="module")
+def refined(tmp_path_factory):
+    """The tiny refinement run serially in this process: (study, file, summary, outcomes of every stage)."""
+    path, output = write_refine(tmp_path_factory.mktemp("refine"))
+    study = study_from_toml(path.read_text())
+    stages = []
+    summary = run_campaign(study, output, on_stage=stages.append)
+    assert summary.exit_status == 0
+    return study, output, summary, stages
+
+
+def test_a_refine_study_has_one_refinement_per_other_swept_value():
+    study = study_from_toml(REFINE.format(output="x.h5", checkpoint=0.5))
+    assert study.mode == "refine" and study.staged and study.cases == ()
+    assert study.refine.axes == ("shear_rate", "psi_bar")
+    assert study.refinements == ({"B2": 0.1}, {"B2": 0.2})
+    settings = study.refine_settings
+    assert settings.x.log and not settings.y.log and settings.max_cases == 30
+    case = study.refine_case(1, 60.0, 0.15, "0007")
+    assert case.swept == {"shear_rate": 60.0, "psi_bar": 0.15, "B2": 0.2} and case.search == 1
+    assert case.case.physics.B2 == 0.2 and case.case.run.t_end == 1.5
+    # the fingerprint covers what decides the cases: a tolerance changes it, a comment does not
+    same = study_from_toml("# a comment\n" + REFINE.format(output="x.h5", checkpoint=0.5))
+    other = study_from_toml(REFINE.format(output="x.h5", checkpoint=0.5).replace("psi_bar = 0.15", "psi_bar = 0.1"))
+    assert same.fingerprint == study.fingerprint != other.fingerprint
+
+
+def test_the_refinements_bracket_the_transition_to_the_tolerances(refined):
+    study, output, summary, stages = refined
+    assert len(summary.searches) == 2
+    for outcome in summary.searches:
+        assert outcome.state.status == CONVERGED, outcome.state.reason
+        regimes = outcome.regimes
+        assert set(regimes[(s, 0.0)] for s in (30.0, 120.0)) == {"TT"}         # homogeneous: TT everywhere
+        assert regimes[(30.0, 0.3)] == "TT" and regimes[(120.0, 0.3)] == "PT"
+        assert len(regimes) < outcome.settings.full_grid_cases()
+        lines = polylines(outcome.settings, regimes, outcome.state.cells)
+        assert [pair for pair, _ in lines] == ["PT|TT"]
+        for crossing in lines[0][1]:             # each crossing between a TT and a PT case, within the tolerances
+            ends = {regimes[(crossing.x_low, crossing.y_low)], regimes[(crossing.x_high, crossing.y_high)]}
+            assert ends == {"TT", "PT"} and not crossing.blurry
+            assert crossing.x_high / crossing.x_low <= 1.5 + 1e-9 and crossing.y_high - crossing.y_low <= 0.15 + 1e-9
+    # B2 = 0.1 at psi_bar = 0.3: TT at 60, PT at 84.85 (the search's S_C lies in between)
+    first = summary.searches[0].regimes
+    assert first[(60.0, 0.3)] == "TT" and first[(84.8528137424, 0.3)] == "PT"
+    assert summary.searches == tuple(stages[-1])
+    assert [sum(len(o.regimes) for o in s) for s in stages][:2] == [0, 8]   # the two coarse grids first
+
+
+def test_the_file_holds_every_case_with_its_refinement(refined):
+    study, output, summary, _ = refined
+    n = sum(len(o.regimes) for o in summary.searches)
+    with h5py.File(output, "r") as f:
+        assert f.attrs["mode"] == "refine" and f.attrs["n_cases"] == n == len(f["cases"])
+        assert list(f["refinements/B2"][:]) == [0.1, 0.2]
+        assert list(f["index/search"][:8]) == [0, 0, 0, 0, 1, 1, 1, 1]
+        for i, refinement in enumerate(f["index/search"][:]):
+            g = f[f"cases/{i:04d}"]
+            assert g.attrs["physics.B2"] == [0.1, 0.2][refinement]
+            assert g.attrs["physics.shear_rate"] == f["index/shear_rate"][i]
+            assert g.attrs["physics.psi_bar"] == f["index/psi_bar"][i]
+    assert set(statuses(output).values()) == {FINISHED}
+
+
+def test_a_finished_refinement_resumed_runs_nothing_and_replays_the_same_verdicts(refined, tmp_path):
+    study, output, summary, _ = refined
+    again = run_campaign(study, output, resume=True)
+    assert again.ran == () and again.exit_status == 0
+    assert [(o.state.status, o.regimes) for o in again.searches] == \
+        [(o.state.status, o.regimes) for o in summary.searches]
+
+
+def test_analyze_writes_the_boundaries_as_polylines_on_the_phase_diagram(refined, tmp_path):
+    study, output, summary, _ = refined
+    report = analyze(output, tmp_path, write_to_file=False, case_figures=False)
+    with open(tmp_path / "boundaries.csv") as f:
+        lines = list(csv.DictReader(f))
+    assert list(lines[0]) == ["B2", "line", "pair", "order", "shear_rate", "psi_bar", "shear_rate_low",
+                              "shear_rate_high", "psi_bar_low", "psi_bar_high", "blurry"]
+    for outcome in summary.searches:
+        mine = [r for r in lines if float(r["B2"]) == outcome.point["B2"]]
+        expected = polylines(outcome.settings, outcome.regimes, outcome.state.cells)
+        assert len(mine) == sum(len(c) for _, c in expected)
+        assert {r["pair"] for r in mine} == {"PT|TT"} and {r["blurry"] for r in mine} == {"0"}
+        for r in mine:
+            assert float(r["shear_rate_low"]) <= float(r["shear_rate"]) <= float(r["shear_rate_high"])
+    with open(tmp_path / "refinement.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [r["status"] for r in table] == ["converged", "converged"]
+    assert [int(r["cases"]) for r in table] == [len(o.regimes) for o in summary.searches]
+    assert [r["status"] for r in report.refinements] == ["converged", "converged"]
+    assert "Regime boundaries of 'refine'" in (tmp_path / "refinement.md").read_text()
+    for b2 in ("0.1", "0.2"):
+        assert (tmp_path / f"phase_diagram_B2{b2}.png").stat().st_size > 1000
+    assert not (tmp_path / "periods.md").exists()            # irregular points: no period table
+
+
+@pytest.mark.parametrize("table, message", [
+    ("[refine]\naxes = [\"shear_rate\", \"B2\"]\n", "axis B2 is not in \\[sweep\\]"),
+    ("[refine]\naxes = [\"shear_rate\"]\n", "give the two swept parameters"),
+    ("[refine]\ntolerance = { shear_rate = -0.1 }\n", "tolerance.shear_rate = -0.1: must be > 0"),
+    ("[refine]\ntolerance = { B2 = 0.1 }\n", "tolerance for B2, which is not an axis"),
+    ("[refine]\nmax_cases = 3\n", "fewer than the 4 points of the coarse grid"),
+    ("[refine]\nbudget = 3\n", "unknown key budget"),
+    ("[refine]\n[search]\nlow = 1.0\nhigh = 2.0\n", "give one"),
+])
+def test_bad_refine_tables_are_refused(table, message):
+    with pytest.raises(ConfigError, match=message):
+        study_from_toml("[sweep]\nshear_rate = [10.0, 100.0]\npsi_bar = [0.3, 0.5]\n" + table)
+
+
+def test_a_refine_axis_with_one_value_is_refused():
+    with pytest.raises(ConfigError, match="axis psi_bar has 1 value"):
+        study_from_toml("[sweep]\nshear_rate = [10.0, 100.0]\npsi_bar = 0.3\nB2 = [0.1, 0.2]\n"
+                        "[refine]\naxes = [\"shear_rate\", \"psi_bar\"]\n")
+
+
+@needs_mpi
+def test_mpi_refinement_killed_in_a_later_stage_resumes_to_the_serial_result(refined, tmp_path):
+    """SIGKILL once the second stage runs, resume on two ranks: every case bitwise as in the serial run."""
+    _, reference, summary, _ = refined
+    path, output = write_refine(tmp_path, checkpoint=0.05)
+    job = start_job(2, "campaign", path, "--quiet")
+
+    def second_stage_runs():            # the file is always whole (atomic.py): read it as it is
+        assert job.poll() is None, job.communicate()
+        if not output.exists():
+            return False
+        with h5py.File(output, "r", locking=False) as f:
+            return f.attrs["n_cases"] > 8 and any(int(g["status"][()]) == 1 for g in f["cases"].values())
+    wait_until(second_stage_runs, "the refinement's second stage runs")
+    for pid in job_pids(job.pid):
+        os.kill(pid, signal.SIGKILL)
+    job.communicate()
+    result = hpcves("campaign", path, "--resume", n=2)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(output, reference, attrs=False)        # checkpointed 10 times as often
+    with open(tmp_path / "refine_refinement.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["cases"]) for r in rows] == [len(o.regimes) for o in summary.searches]
+    assert "converged" in result.stdout
