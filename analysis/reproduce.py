@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import math
 import platform
 import shlex
@@ -26,7 +27,8 @@ from hpcves.campaign_file import read_table
 from hpcves.search_campaign import critical_table
 from hpcves.study import load_study
 
-COARSE = ("periods", "sc_psi", "sc_b2", "psi048_delta_S", "delta094_S_psi", "delta230_S_psi")
+COARSE = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_delta_S", "delta094_S_psi",
+          "delta230_S_psi")
 FULL = {"periods": "jobs/reproduce/full/periods.toml", "sc_psi": "jobs/reproduce/full/sc_psi.toml",
         "sc_b2": "jobs/reproduce/full/sc_b2.toml", "psi048_delta_S": "jobs/psi048_delta_S.toml",
         "delta094_S_psi": "jobs/delta094_S_psi.toml", "delta230_S_psi": "jobs/delta230_S_psi.toml"}
@@ -34,19 +36,34 @@ FIGURES = {"coarse": Path("docs/reproduction"), "full": Path("docs/reproduction/
 MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 
 
-def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str) -> dict:
-    """Run (or continue) every campaign; return its wall time in seconds (0 if it was complete)."""
+def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: Path) -> dict:
+    """Run (or continue) every campaign; return its wall time in seconds in this call (0 if it was
+    complete). The wall times of every call are added up in ``ledger`` (JSON), so that an interrupted
+    and resumed reproduction still reports what all of it took."""
     walls = {}
     for name, toml in jobs.items():
         start = time.monotonic()
         command = mpirun + ["-n", str(np_), hpcves, "campaign", toml, "--resume", "--quiet"]
         print(f"[{name}] {' '.join(command[-6:])}", flush=True)
-        result = subprocess.run(command)
-        walls[name] = time.monotonic() - start
+        try:
+            result = subprocess.run(command)
+        finally:
+            walls[name] = time.monotonic() - start
+            _add_walls(ledger, {name: walls[name]})
         if result.returncode not in (0, 1):        # 1: some case failed -- reported in REPRODUCTION.md
             sys.exit(f"campaign {toml} stopped with exit status {result.returncode}; rerun make reproduce "
                      "to continue it")
     return walls
+
+
+def _add_walls(ledger: Path, walls: dict) -> dict:
+    """Add ``walls`` (seconds per campaign) to the totals kept in ``ledger``; the totals."""
+    totals = json.loads(ledger.read_text()) if ledger.exists() else {}
+    for name, wall in walls.items():
+        totals[name] = totals.get(name, 0.0) + wall
+    ledger.parent.mkdir(parents=True, exist_ok=True)
+    ledger.write_text(json.dumps(totals, indent=1))
+    return totals
 
 
 def analyse(jobs: dict, out: Path) -> dict:
@@ -189,7 +206,8 @@ def main(argv=None):
     hpcves = str(Path(sys.executable).with_name("hpcves"))
     walls = {name: 0.0 for name in jobs}
     if not args.analyze_only:
-        walls = run_campaigns(jobs, shlex.split(args.mpirun), args.np_, hpcves)
+        walls = run_campaigns(jobs, shlex.split(args.mpirun), args.np_, hpcves,
+                              Path("out/reproduce") / args.grid / "walls.json")
     for name, toml in jobs.items():       # a clear message if a campaign is missing
         read_source(load_study(toml).output)
     reports = analyse(jobs, Path("out/reproduce") / args.grid)

@@ -143,7 +143,9 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
         inset.tick_params(labelsize=7)
         inset.set_title("whole run", fontsize=7, pad=2)
 
-    energy = grid[0, 1].subgridspec(2, 1, hspace=0.0)   # each energy on its own axes: neither hides the other
+    centroid = np.asarray(series["centroid"]) if "centroid" in series else None
+    parts = 3 if centroid is not None and centroid.ndim == 2 and len(centroid) == len(t) else 2
+    energy = grid[0, 1].subgridspec(parts, 1, hspace=0.0)   # each on its own axes: none hides another
     ax_b = fig.add_subplot(energy[0])
     ax_p = fig.add_subplot(energy[1], sharex=ax_b)
     for axis, key, name, colour in ((ax_b, "E_bending", "$E_b$", "tab:blue"),
@@ -153,8 +155,17 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
         axis.set_ylabel(label, color=colour, fontsize=9)
         axis.tick_params(labelsize=8)
     ax_b.tick_params(labelbottom=False)
-    ax_b.set_title("bending and line energy", fontsize=9)
-    ax_p.set_xlabel(xlabel)
+    ax_b.set_title("bending and line energy" + (", centroid" if parts == 3 else ""), fontsize=9)
+    last = ax_p
+    if parts == 3:                   # the centroid (x_c, y_c): it stays put in simple shear, up to numerics
+        ax_p.tick_params(labelbottom=False)
+        last = fig.add_subplot(energy[2], sharex=ax_b)
+        for k, (name, colour) in enumerate((("$x_c$", "tab:green"), ("$y_c$", "tab:purple"))):
+            last.plot(tw, centroid[window, k], color=colour, lw=1, label=name)
+        last.set_ylabel("centroid", fontsize=9)
+        last.tick_params(labelsize=8)
+        last.legend(frameon=False, fontsize=8, ncol=2, loc="best")
+    last.set_xlabel(xlabel)
 
     ax = fig.add_subplot(grid[1, 0])
     ax.fill_between(tw, np.asarray(series["tension_min"])[window], np.asarray(series["tension_max"])[window],
