@@ -46,10 +46,11 @@ KILLS   ?= 40
 faults: setup
 	$(PY) tests/faults.py --kills $(KILLS) --out FAULTS.md
 
-# the published studies on coarse grids (~4 min on 2 cores; GRID=full for the full grids, NP ranks)
+# every result of the publication (REPRODUCTION.md; resumable: run it again to continue);
+# GRID=fine: tighter tolerances for a cluster (REPRODUCTION-fine.md), NP ranks
 reproduce: setup
 	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" \
-	    --out $(if $(filter full,$(GRID)),REPRODUCTION-full.md,REPRODUCTION.md)
+	    --out $(if $(filter fine,$(GRID)),REPRODUCTION-fine.md,REPRODUCTION.md)
 
 clean:
 	rm -rf out .pytest_cache

@@ -1,11 +1,15 @@
 """The reproduction study -> REPRODUCTION.md and docs/reproduction/ (``make reproduce``).
 
-Runs the campaigns of jobs/reproduce/ (coarse grids, ~1 h on 2 cores) or the
-full grids (``--grid full``) with ``mpirun -n NP hpcves campaign --resume``,
-so an interrupted reproduction continues where it stopped; analyzes each with
-``hpcves analyze``; and writes REPRODUCTION.md: the PT period table at
-Delta = 0.194, S_C against psi_bar and against B2, the three phase diagrams,
-and a list of everything that looks unconverged.
+Runs the campaigns of jobs/reproduce/ (``--grid coarse``: a laptop, 2 cores) or
+jobs/reproduce/fine/ (``--grid fine``: tighter tolerances, for a cluster) with
+``mpirun -n NP hpcves campaign --resume``, so an interrupted reproduction
+continues where it stopped; analyzes each with ``hpcves analyze``; and writes
+REPRODUCTION.md with every result of the publication's results sections:
+theta(t) of the homogeneous vesicle and of psi_bar = 0.3, 0.5, 0.7; the TT and
+PT case pages; the period table; S_C against B2 and, with the bending-energy
+gap, against psi_bar; the refined phase diagrams (Delta x S at psi_bar = 0.48,
+S x psi_bar at Delta = 0.94 and 2.3) with their boundaries, case pages and
+shape sequences; and a list of everything that looks unconverged.
 """
 from __future__ import annotations
 
@@ -27,12 +31,13 @@ from hpcves.campaign_file import read_table
 from hpcves.search_campaign import critical_table
 from hpcves.study import load_study
 
-COARSE = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_delta_S", "delta094_S_psi",
-          "delta230_S_psi")
-FULL = {"periods": "jobs/reproduce/full/periods.toml", "sc_psi": "jobs/reproduce/full/sc_psi.toml",
-        "sc_b2": "jobs/reproduce/full/sc_b2.toml", "psi048_delta_S": "jobs/psi048_delta_S.toml",
-        "delta094_S_psi": "jobs/delta094_S_psi.toml", "delta230_S_psi": "jobs/delta230_S_psi.toml"}
-FIGURES = {"coarse": Path("docs/reproduction"), "full": Path("docs/reproduction/full")}
+STUDIES = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_delta_S", "delta094_S_psi",
+           "delta230_S_psi")
+JOBS = {"coarse": Path("jobs/reproduce"), "fine": Path("jobs/reproduce/fine")}
+FIGURES = {"coarse": Path("docs/reproduction"), "fine": Path("docs/reproduction/fine")}
+#: the studies whose case pages draw streamlines (~2 s a case): those whose pages REPRODUCTION.md shows
+STREAMLINES = ("periods", "psi048_cases")
+TARGET_HOURS = 2.0           # the wall time make reproduce (coarse) should take on 2 cores
 MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 
 
@@ -71,7 +76,7 @@ def analyse(jobs: dict, out: Path) -> dict:
     for name, toml in jobs.items():
         study = load_study(toml)
         print(f"[{name}] analyze {study.output}", flush=True)
-        reports[name] = analyze(study.output, out / name)
+        reports[name] = analyze(study.output, out / name, streamlines=name in STREAMLINES)
     return reports
 
 
@@ -94,17 +99,25 @@ def _fmt(value, spec=".4g") -> str:
     return format(value, spec) if isinstance(value, float) and math.isfinite(value) else ""
 
 
-def period_table(report) -> str:
+def _find(report, **values):
+    """The regimes.csv row of ``report`` with these parameter values (None if there is none)."""
+    for r in report.rows:
+        if all(math.isclose(r[k], v, rel_tol=1e-9) for k, v in values.items()):
+            return r
+    return None
+
+
+def period_table(report, rates=(80.0, 160.0, 320.0)) -> str:
     rows = report.rows
     psis = sorted({r["psi_bar"] for r in rows})
-    rates = sorted({r["shear_rate"] for r in rows})
-    cells = {(r["psi_bar"], r["shear_rate"]): r for r in rows}
     body = []
     for psi in psis:
         line = [f"{psi:g}"]
         for s in rates:
-            r = cells[(psi, s)]
-            if r["regime"] in ("PT", "TU"):
+            r = _find(report, psi_bar=psi, shear_rate=s)
+            if r is None:
+                line.append("")
+            elif r["regime"] in ("PT", "TU"):
                 error, dominant = accuracy.error_bar(r, "period")
                 line.append(f"{r['period']:.4g} +- {error:.1g} [{dominant}] (S T = {s * r['period']:.3g})"
                             + (" TU" if r["regime"] == "TU" else ""))
@@ -112,6 +125,67 @@ def period_table(report) -> str:
                 line.append(r["regime"])
         body.append(line)
     return markdown_table(["psi_bar \\ S"] + [f"{s:g}" for s in rates], body)
+
+
+def theta_table(report) -> str:
+    """S, regime and the settled inclination of every case (the homogeneous vesicle)."""
+    body = []
+    for r in sorted(report.rows, key=lambda r: r["shear_rate"]):
+        error, dominant = accuracy.error_bar(r, "theta_mean")
+        body.append([f"{r['shear_rate']:g}", r["regime"], _fmt(r["theta_mean"]),
+                     f"{error:.1g} [{dominant}]" if math.isfinite(error) else "", _fmt(r["t_settle"])])
+    return markdown_table(["S", "regime", "mean theta [rad]", "+-", "settled from t ="], body)
+
+
+def theta_figure(report, directory: Path, name: str, group: str | None, title: str) -> Path:
+    """theta(t) against S t for every case of ``report``, one panel per value of ``group``."""
+    from hpcves import plots
+
+    cases = [c for c in report.source.cases if c.status != "damaged"]
+    values = sorted({c.parameters[group] for c in cases}) if group else [None]
+    panels = []
+    for value in values:
+        chosen = [c for c in cases if group is None or c.parameters[group] == value]
+        label = title if group is None else f"{title}, {plots.parameter_text({group: value})}"
+        panels.append((label, [(c.parameters["shear_rate"], c.series["t"], c.series["theta"]) for c in chosen]))
+    fig = plots.theta_curves(panels)
+    path = directory / f"{name}_theta.png"
+    fig.savefig(path, dpi=110)
+    plots.plt.close(fig)
+    return path
+
+
+def copy_case_page(report, out: Path, directory: Path, name: str, **values) -> tuple[Path | None, dict | None]:
+    """Copy the case page of the case with ``values`` into ``directory``: (its path, its row)."""
+    row = _find(report, **values)
+    if row is None:
+        return None, None
+    target = directory / f"{name}_case_{'_'.join(f'{k}{v:g}' for k, v in values.items())}.png"
+    shutil.copyfile(out / name / "cases" / f"{row['case']}.png", target)
+    return target, row
+
+
+def shape_sequence(study_output: Path, directory: Path, name: str, rates=(1.0, 5.0, 20.0, 80.0)) -> Path | None:
+    """Shapes over one settled period at psi_bar = 0.5 for the coarse shear rates of a refinement."""
+    from hpcves import plots
+    from hpcves.figures import choose, shape_sequence_figure
+
+    chosen = [c for c in choose(study_output, where={"psi_bar": 0.5})
+              if any(math.isclose(c.parameters["shear_rate"], s, rel_tol=1e-9) for s in rates)]
+    if not chosen:
+        return None
+    fig = shape_sequence_figure(chosen)
+    path = directory / f"{name}_shapes_psi0.5.png"
+    fig.savefig(path, dpi=100)
+    plots.plt.close(fig)
+    return path
+
+
+def refinement_text(out: Path, name: str) -> list[str]:
+    """refinement.md of an analysed [refine] campaign, its headings moved down two levels."""
+    text = (out / name / "refinement.md").read_text().strip().splitlines()
+    return [("###" + line) if line.startswith("#") and not line.startswith("# ") else line
+            for line in text[1:]]
 
 
 def doubts(reports: dict) -> list[str]:
@@ -133,6 +207,9 @@ def doubts(reports: dict) -> list[str]:
             if s["status"] != "converged":
                 lines.append(f"{name}: search psi_bar = {s['psi_bar']:g}, B2 = {s['B2']:g}: {s['status']} -- "
                              f"{s['reason']}")
+        for r in report.refinements:
+            if r["status"] != "converged":
+                lines.append(f"{name}: refinement {r['status']} -- {r['reason']}")
     return lines
 
 
@@ -147,72 +224,135 @@ def numerics_line(toml: str) -> str:
                 if rule.samples_per_shear_time is not None else f"samples every {base.run.sample_interval:g}")
     num = base.numerics
     step = f"adaptive step, rtol = {num.rtol:g}" if num.adaptive else f"dt = {num.dt:g}"
-    return f"N = {num.N}, {step}, {end}, {sampling}"
+    mode = ""
+    if study.refine:
+        settings = study.refine_settings
+        tol = dict(study.refine.tolerance)
+        mode = (f"; refined over {settings.x.key} x {settings.y.key} from a {len(settings.x.values)} x "
+                f"{len(settings.y.values)} grid to {tol[settings.x.key]:g}" + (" (relative)" if settings.x.log else "")
+                + f" and {tol[settings.y.key]:g}" + (" (relative)" if settings.y.log else "")
+                + f", at most {study.refine.max_cases} cases")
+    elif study.search:
+        mode = (f"; {len(study.searches)} searches over S in [{study.search.low:g}, {study.search.high:g}] to "
+                f"{study.search.rel_tol:g}")
+    return f"N = {num.N}, {step}, {end}, {sampling}{mode}"
 
 
-def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict, walls: dict, np_: int) -> None:
-    total = sum(walls.values())
+def _images(paths) -> list[str]:
+    return [f"![{p.stem}]({p.as_posix()})" for p in paths if p is not None] + [""]
+
+
+def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict, walls: dict, totals: dict,
+                 np_: int, out: Path) -> None:
+    directory = FIGURES[grid]
+    total = sum(totals.get(n, 0.0) for n in jobs)
     lines = [
         "# Reproduction of the published studies (`make reproduce`)", "",
         f"Written by `analysis/reproduce.py --grid {grid}` on {datetime.date.today()} "
         f"({platform.node()}, {platform.processor() or platform.machine()}, {np_} MPI ranks). "
-        f"Wall time of the campaigns in this call: {total / 60:.0f} min "
-        + ", ".join(f"{n} {w / 60:.1f}" for n, w in walls.items()) + " (0 where they were complete already).",
-        "", "Every campaign and its numerics:", ""]
+        f"**Wall time of the campaigns: {total / 3600:.2f} h in all** (every call that advanced them added up; "
+        f"target for the coarse set on 2 cores: {TARGET_HOURS:g} h): "
+        + ", ".join(f"{n} {totals.get(n, 0.0) / 60:.1f} min" for n in jobs)
+        + f". In this call: {sum(walls.values()) / 60:.0f} min. The analysis (tables, figures, case pages) "
+        "comes on top.", "", "Every campaign and its numerics:", ""]
     compute = {name: sum(row["wall"] for row in read_table(load_study(toml).output).rows)
                for name, toml in jobs.items()}
     lines += [f"* `{toml}` ({name}): {numerics_line(toml)}; {len(reports[name].rows)} cases, "
               f"{compute[name] / 60:.1f} core-minutes" for name, toml in jobs.items()]
     lines += ["", f"In all {sum(compute.values()) / 3600:.2f} core-hours of cases (summed over every call that "
-              f"advanced them), that is {sum(compute.values()) / np_ / 3600:.2f} h on {np_} cores."]
-    lines += ["", "Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
-              f"the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`.", ""]
+              f"advanced them), that is {sum(compute.values()) / np_ / 3600:.2f} h on {np_} cores.",
+              "", "Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
+              f"the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`. Error bars: the "
+              "statistical uncertainty plus the discretisation error of the time step (docs/error_rule.md); "
+              "in brackets the part that dominates.", ""]
 
+    hom = reports["homogeneous"]
+    lines += ["## The homogeneous vesicle: theta(t) for S from 2 to 350 (Delta = 0.194)", "",
+              "psi_bar = 0: one phase everywhere. theta(t) against the shear time S t, and the settled "
+              "inclination:", ""]
+    lines += _images([theta_figure(hom, directory, "homogeneous", None, r"$\bar\psi$ = 0")])
+    lines += [theta_table(hom), ""]
+
+    periods = reports["periods"]
+    lines += ["## theta(t) for psi_bar = 0.3, 0.5, 0.7 (Delta = 0.194)", ""]
+    lines += _images([theta_figure(periods, directory, "periods", "psi_bar", r"$\Delta$ = 0.194")])
+    lines += ["## A tank-treading and a phase-treading case (psi_bar = 0.3, S = 40 and 80)", "",
+              "Full case pages: theta, the energies and the centroid, the tension (min / mean / max), the "
+              "phase velocities V_psi, V_L and V_psi + V_L over the settled window, the shapes coloured by psi "
+              "with the streamlines around them (frame moving with the vesicle), tension and curvature "
+              "kymographs.", ""]
+    for shear in (40.0, 80.0):
+        page, row = copy_case_page(periods, out, directory, "periods", psi_bar=0.3, shear_rate=shear)
+        if row is not None:
+            lines += [f"S = {shear:g}: {row['regime']} -- {row['reason']}", ""] + _images([page])
     lines += ["## PT period at Delta = 0.194", "",
-              "Period of theta +- its uncertainty (statistical + time-step discretisation; in brackets the part "
-              "that dominates); S T is the period in shear times (a 1/S law makes it constant).", "",
-              period_table(reports["periods"]), ""]
+              "Period of theta +- its uncertainty; S T is the period in shear times (a 1/S law makes it "
+              "constant).", "", period_table(periods), ""]
+    lines += _images([p for p in figures["periods"] if "periods" in p.name and "theta" not in p.name])
+
     lines += ["## Critical shear rate at Delta = 0.194", "",
-              "S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU].", "",
-              "### Against psi_bar (B2 = 0.1)", "", critical_table(list(reports["sc_psi"].searches), ["psi_bar"]), "",
+              "S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU]; Delta E_b is "
+              "the bending-energy gap (max - min of E_b over a period) of the PT case at the bracket's top.", "",
               "### Against B2 at psi_bar = 0.3", "", critical_table(list(reports["sc_b2"].searches), ["B2"]), ""]
-    for name in ("sc_psi", "sc_b2"):
-        lines += [f"![{name}]({p.as_posix()})" for p in figures[name]] + [""]
-    lines += ["## Phase diagrams", ""]
-    for name, title in (("psi048_delta_S", "Delta x S at psi_bar = 0.48"),
-                        ("delta094_S_psi", "S x psi_bar at Delta = 0.94"),
-                        ("delta230_S_psi", "S x psi_bar at Delta = 2.30")):
-        counts = ", ".join(f"{n} {r}" for r, n in reports[name].counts().items())
-        lines += [f"### {title}", "", f"{counts}.", ""]
-        lines += [f"![{name}]({p.as_posix()})" for p in figures[name] if "phase_diagram" in p.name] + [""]
+    lines += _images([p for p in figures["sc_b2"] if "critical" in p.name])
+    lines += ["### Against psi_bar, with the bending-energy gap, at B2 = 0.1 and 0.8", "",
+              critical_table(list(reports["sc_psi"].searches), ["psi_bar", "B2"]), ""]
+    lines += _images([p for p in figures["sc_psi"] if "critical" in p.name])
+
+    lines += ["## Phase diagram Delta x S at psi_bar = 0.48 (refined)", ""]
+    lines += _phase_section(reports["psi048_delta_S"], figures["psi048_delta_S"], out, "psi048_delta_S")
+    cases = reports["psi048_cases"]
+    lines += ["### The cases Delta = 0.94, S = 4 and Delta = 2.3, S = 28 (psi_bar = 0.48)", "",
+              "Run until decided (at most 1000 shear times), snapshots every 0.02; case pages with kymographs.", ""]
+    for delta, shear in ((0.94, 4.0), (2.3, 28.0)):
+        page, row = copy_case_page(cases, out, directory, "psi048_cases", excess_length=delta, shear_rate=shear)
+        if row is not None:
+            lines += [f"Delta = {delta:g}, S = {shear:g}: {row['regime']} at t = {row['t']:.4g} -- "
+                      f"{row['reason']}", ""] + _images([page])
+    for name, delta in (("delta094_S_psi", "0.94"), ("delta230_S_psi", "2.30")):
+        lines += [f"## Phase diagram S x psi_bar at Delta = {delta} (refined)", ""]
+        lines += _phase_section(reports[name], figures[name], out, name)
+        lines += ["Shapes over one settled period at psi_bar = 0.5 (the coarse shear rates):", ""]
+        lines += _images([shape_sequence(load_study(jobs[name]).output, directory, name)])
+
     found = doubts(reports)
     lines += ["## What looks unconverged", ""]
     lines += [f"* {line}" for line in found] if found else ["Nothing was flagged."]
     lines += ["", "Flagged: unfinished or failed cases, undecided cases, PT/TU cases with fewer than "
-              f"{MIN_GOOD_CYCLES} settled periods or a period uncertain by more than 0.5 %, and searches that "
-              "did not converge.", ""]
+              f"{MIN_GOOD_CYCLES} settled periods or a period uncertain by more than 0.5 %, searches and "
+              "refinements that did not converge.", ""]
     path.write_text("\n".join(lines) + "\n")
+
+
+def _phase_section(report, figures, out: Path, name: str) -> list[str]:
+    counts = ", ".join(f"{n} {r}" for r, n in report.counts().items())
+    lines = [f"{len(report.rows)} cases: {counts}.", ""]
+    lines += _images([p for p in figures if "phase_diagram" in p.name])
+    lines += refinement_text(out, name) + [""]
+    return lines
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--grid", choices=("coarse", "full"), default="coarse")
+    parser.add_argument("--grid", choices=tuple(JOBS), default="coarse")
     parser.add_argument("--np", dest="np_", type=int, default=2, help="MPI ranks")
     parser.add_argument("--mpirun", default="mpirun", help="the mpirun command (with its environment)")
     parser.add_argument("--out", default="REPRODUCTION.md")
     parser.add_argument("--analyze-only", action="store_true", help="only analyze the existing campaign files")
     args = parser.parse_args(argv)
-    jobs = {name: f"jobs/reproduce/{name}.toml" for name in COARSE} if args.grid == "coarse" else dict(FULL)
+    jobs = {name: (JOBS[args.grid] / f"{name}.toml").as_posix() for name in STUDIES}
     hpcves = str(Path(sys.executable).with_name("hpcves"))
+    out = Path("out/reproduce") / args.grid
+    ledger = out / "walls.json"
     walls = {name: 0.0 for name in jobs}
     if not args.analyze_only:
-        walls = run_campaigns(jobs, shlex.split(args.mpirun), args.np_, hpcves,
-                              Path("out/reproduce") / args.grid / "walls.json")
+        walls = run_campaigns(jobs, shlex.split(args.mpirun), args.np_, hpcves, ledger)
+    totals = json.loads(ledger.read_text()) if ledger.exists() else {}
     for name, toml in jobs.items():       # a clear message if a campaign is missing
         read_source(load_study(toml).output)
-    reports = analyse(jobs, Path("out/reproduce") / args.grid)
+    reports = analyse(jobs, out)
     figures = copy_figures(reports, FIGURES[args.grid])
-    write_report(Path(args.out), args.grid, jobs, reports, figures, walls, args.np_)
+    write_report(Path(args.out), args.grid, jobs, reports, figures, walls, totals, args.np_, out)
     print(f"wrote {args.out}")
 
 

@@ -492,6 +492,28 @@ def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True)
         _legend_outside(ax)
 
 
+@plt.rc_context({"font.size": 13})
+def theta_curves(panels: list[tuple[str, list[tuple[float, np.ndarray, np.ndarray]]]], shear_times: float = 40.0):
+    """theta(t) of several cases against the shear time S t, one panel per entry of ``panels``
+    = (title, [(S, t, theta), ...]); a colour per S (log scale), the first ``shear_times``."""
+    rates = sorted({s for _, curves in panels for s, _, _ in curves})
+    cmap = plt.get_cmap("viridis")
+    norm = matplotlib.colors.LogNorm(min(rates), max(rates)) if len(rates) > 1 else None
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels) + 1.5, 4.4), squeeze=False,
+                             constrained_layout=True, sharey=True)
+    for ax, (title, curves) in zip(axes[0], panels):
+        for s, t, theta in sorted(curves, key=lambda c: c[0]):
+            shown = s * np.asarray(t) <= shear_times
+            ax.plot(s * np.asarray(t)[shown], np.asarray(theta)[shown], lw=1.3,
+                    color=cmap(norm(s)) if norm else "k", label=f"S = {s:g}")
+        ax.set_xlabel("shear times $S t$")
+        ax.set_title(title, fontsize=12)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(r"inclination $\theta$ [rad]")
+    axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
+    return fig
+
+
 def mark_boundaries(ax, lines: list[dict], x_key: str, y_key: str) -> None:
     """The located regime boundaries (rows of boundaries.csv) on a phase diagram: each polyline
     through its crossings, solid between decided cases, dashed where one side is undecided,

@@ -25,14 +25,20 @@ from .stepcontrol import StepControl, advance
 
 #: two event times closer than this fraction of an interval are the same event
 COINCIDENT = 1e-9
-#: ... unless that is more than this fraction of the time itself: a step lands on an event to
-#: round-off, and steps far below 1e-9 of an interval are taken (the spinodal start-up at t ~ 0)
+#: ... unless that is more than this (in intervals, near t = 0) or RELATIVE of x = t / interval:
+#: a step lands on an event to round-off, and steps far below 1e-9 of an interval are taken
+#: (the spinodal start-up at t ~ 0)
 ROUNDOFF = 1e-13
+#: intervals are rounded to 12 significant digits (study.TimeRules), so the grid times of two
+#: cadences that should coincide differ by up to ~1e-12 of the time: 28 samples of 0.00357142857143
+#: (1/280) end at 0.10000000000004, 4e-14 after the fifth snapshot of 0.02. Taken as two events,
+#: they asked for a step of 4e-14, below the controller's floor, and the case failed.
+RELATIVE = 1e-11
 
 
 def _slack(x: float) -> float:
     """How far x = t / interval may lie from a whole number j and still be j (in intervals)."""
-    return min(COINCIDENT, ROUNDOFF * max(abs(x), 1.0))
+    return min(COINCIDENT, max(ROUNDOFF, RELATIVE * abs(x)))
 
 
 class FixedClock:
