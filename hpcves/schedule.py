@@ -25,20 +25,22 @@ from .stepcontrol import StepControl, advance
 
 #: two event times closer than this fraction of an interval are the same event
 COINCIDENT = 1e-9
-#: ... unless that is more than this (in intervals, near t = 0) or RELATIVE of x = t / interval:
-#: a step lands on an event to round-off, and steps far below 1e-9 of an interval are taken
-#: (the spinodal start-up at t ~ 0)
+#: How far x = t / interval may lie from a whole number j and still be j: ROUNDOFF intervals near
+#: t = 0 (a step lands on an event to round-off, and steps far below 1e-9 of an interval are taken:
+#: the spinodal start-up), RELATIVE of x beyond. Intervals are rounded to 12 significant digits
+#: (study.TimeRules), so the grid times of two cadences that should coincide drift apart by up to
+#: ~1e-12 of the time: 28 samples of 0.00357142857143 (1/280) end at 0.10000000000004, 4e-14 after
+#: the 5th snapshot of 0.02 (as two events: a step of 4e-14, below the controller's floor, and the
+#: case failed); 2520 of them end 3.6e-12 after the 450th, 1e-9 of a sample interval (a slack capped
+#: there took them as two events, and each was on the snapshot grid: three snapshots at t = 9, and
+#: the snapshots overflowed their capacity).
 ROUNDOFF = 1e-13
-#: intervals are rounded to 12 significant digits (study.TimeRules), so the grid times of two
-#: cadences that should coincide differ by up to ~1e-12 of the time: 28 samples of 0.00357142857143
-#: (1/280) end at 0.10000000000004, 4e-14 after the fifth snapshot of 0.02. Taken as two events,
-#: they asked for a step of 4e-14, below the controller's floor, and the case failed.
 RELATIVE = 1e-11
 
 
 def _slack(x: float) -> float:
     """How far x = t / interval may lie from a whole number j and still be j (in intervals)."""
-    return min(COINCIDENT, max(ROUNDOFF, RELATIVE * abs(x)))
+    return max(ROUNDOFF, RELATIVE * abs(x))
 
 
 class FixedClock:

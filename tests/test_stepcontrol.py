@@ -359,18 +359,25 @@ def test_start_up_steps_far_below_an_interval_are_not_on_its_first_event():
 
 def test_cadences_rounded_to_12_digits_that_should_coincide_are_one_event():
     """S = 28 with 10 samples per shear time: samples every 0.00357142857143 (1/280 rounded), snapshots
-    every 0.02. The 28th sample time is 0.10000000000004, 4e-14 after the 5th snapshot: taken as two
-    events the step between them fell below the controller's floor (StepSizeError at t = 0.1)."""
+    every 0.02, t_end = 1000 shear times. The 28th sample time is 0.10000000000004, 4e-14 after the
+    5th snapshot (a step below the controller's floor: StepSizeError at t = 0.1); the 2520th is
+    3.6e-12 after the 450th, 1e-9 sample intervals (three snapshots at t = 9, then an IndexError past
+    the snapshots' capacity). Every pair is one event; the snapshots fit their capacity."""
     case = Case(Physics(shear_rate=28.0), Numerics(N=32, rtol=1e-2),
-                RunControl(t_end=0.2, sample_interval=0.00357142857143, snapshot_interval=0.02,
-                           checkpoint_interval=0.2))
+                RunControl(t_end=35.7142857143, sample_interval=0.00357142857143, snapshot_interval=0.02,
+                           checkpoint_interval=2.0))
     clock = schedule.clock(case)
-    at = lambda t: dataclasses.replace(Solver(case).initial_state(), t=t)   # noqa: E731
-    landed, gaps = 0.0, []
-    while landed < 0.2 * (1 - 1e-9):
+    state = Solver(case).initial_state()
+    at = lambda t: dataclasses.replace(state, t=t)   # noqa: E731
+    landed, gaps, samples, snapshots = 0.0, [], 1, 1
+    while not clock.done(at(landed)):
         following = clock.next_event(landed)
         gaps.append(following - landed)
         landed = following
-        if abs(landed - 0.1) < 1e-9:
-            assert clock.sample_due(at(landed)) and clock.snapshot_due(at(landed))
-    assert min(gaps) > 1e-6                  # (the two events were 4e-14 apart)
+        samples += clock.sample_due(at(landed))
+        snapshots += clock.snapshot_due(at(landed))
+        if abs(landed - 0.1) < 1e-9 or abs(landed - 9.0) < 1e-9:
+            assert clock.sample_due(at(landed)) and clock.snapshot_due(at(landed)), landed
+    assert min(gaps) > 1e-6                  # (the pairs were 4e-14 and 3.6e-12 apart)
+    assert (samples, snapshots) == clock.finished_counts() == (10001, 1786)
+    assert snapshots < clock.capacities()[1]

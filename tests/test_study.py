@@ -110,6 +110,35 @@ def test_every_study_in_jobs_is_valid():
         load_case(path)
 
 
+def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tighter():
+    from pathlib import Path
+
+    from hpcves.study import load_study
+
+    jobs = Path(__file__).resolve().parent.parent / "jobs" / "reproduce"
+    coarse = sorted(jobs.glob("*.toml"))
+    assert {p.stem for p in coarse} == {"homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi",
+                                       "psi048_delta_S", "delta094_S_psi", "delta230_S_psi"}
+    for path in coarse:
+        study, fine = load_study(path), load_study(jobs / "fine" / path.name)
+        assert fine.mode == study.mode and fine.output != study.output, path
+        assert fine.base.numerics.N >= study.base.numerics.N, path
+        if study.refine:
+            assert fine.refine.axes == study.refine.axes and fine.refinements == study.refinements
+            assert all(f <= c for (_, f), (_, c) in zip(fine.refine.tolerance, study.refine.tolerance)), path
+            assert {k: fine.sweep[k] for k in fine.refine.axes} == {k: study.sweep[k] for k in study.refine.axes}
+        if study.search:
+            assert fine.search.rel_tol <= study.search.rel_tol and len(fine.searches) >= len(study.searches)
+    # the plane of each refined diagram spans what the publication shows, low S included
+    delta_s = load_study(jobs / "psi048_delta_S.toml")
+    assert min(delta_s.sweep["shear_rate"]) == 1.0 and max(delta_s.sweep["shear_rate"]) == 350.0
+    assert min(delta_s.sweep["excess_length"]) < 0.2 and max(delta_s.sweep["excess_length"]) == 3.0
+    for name in ("delta094_S_psi", "delta230_S_psi"):
+        study = load_study(jobs / f"{name}.toml")
+        assert (min(study.sweep["psi_bar"]), max(study.sweep["psi_bar"])) == (0.25, 0.75)
+        assert (min(study.sweep["shear_rate"]), max(study.sweep["shear_rate"])) == (1.0, 350.0)
+
+
 SEARCH_TOML = """
 [campaign]
 name = "fp"
