@@ -8,7 +8,11 @@ membrane's tank-treading velocity V (all recorded by diagnostics.py).
   lab frame: |<V_psi + V_L>| <= pattern_tol |<V>| (for psi = 0, or a mixture
   that never separates -- psi_max - psi_min < MIXED = 0.5 over the settled
   part, as for psi_bar = 0.1, outside the spinodal -- there is no pattern and
-  theta alone decides).
+  theta alone decides; so too where the pattern has no position: the
+  psi-weighted circular mean of alpha vanishes for a pattern with two-fold
+  symmetry, as the soft phase gathered at both tips of a deflated vesicle, and
+  V_psi is then undefined or noise -- NaN in over UNDEFINED of the settled
+  samples, or a spread over NOISY times the tank-treading speed).
 * **PT**: the pattern moves in the lab frame and theta oscillates with a
   period (checked two ways, periodicity.py), at least ``min_cycles`` settled
   periods long, with min theta >= 0.
@@ -45,6 +49,12 @@ OUTCOMES = (*REGIMES, MODEL_LIMIT, FAILED)
 #: contrast of ~0.03, and the velocity of its vanishing first mode is meaningless.
 #: A constant, not an [analysis] setting: search files fingerprint those settings.
 MIXED = 0.5
+#: the pattern's velocity means nothing when it is NaN (no first circular moment) in more than this
+#: share of the settled samples ...
+UNDEFINED = 0.1
+#: ... or when its spread exceeds this many tank-treading speeds (a moment of round-off size: Delta = 2.3,
+#: psi_bar = 0.48, S = 28 had a spread of 31 of them, theta steady to 1e-6 and E_b to 2e-5)
+NOISY = 3.0
 
 
 @dataclass(frozen=True)
@@ -148,8 +158,20 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
             lab = None          # a mixture that did not separate (e.g. psi_bar outside the spinodal):
                                 # the velocity of its decaying first mode means nothing
     tt = series.get("tank_treading_velocity")
-    v_lab = _settled_mean(t, lab, t_settle)
     v_tt = abs(_settled_mean(t, None if tt is None else np.asarray(tt, dtype=float), t_settle))
+    no_position = ""
+    if lab is not None and v_tt > 0:
+        settled = lab[t >= t_settle]
+        undefined = float(np.mean(~np.isfinite(settled))) if settled.size else 0.0
+        spread = float(np.std(settled[np.isfinite(settled)])) / v_tt if np.isfinite(settled).sum() > 1 else 0.0
+        if undefined > UNDEFINED or spread > NOISY:
+            if np.isfinite(contrast):      # psi separated (else: no pattern at all, e.g. psi = 0)
+                no_position = ("the pattern has no position (the psi-weighted circular mean of alpha vanishes: "
+                               "a two-fold symmetric pattern; its velocity is "
+                               + (f"undefined in {undefined:.0%} of the samples)" if undefined > UNDEFINED
+                                  else f"noise, spread {spread:.3g} tank-treading speeds)"))
+            lab = None
+    v_lab = _settled_mean(t, lab, t_settle)
     speed = abs(v_lab) / v_tt if np.isfinite(v_lab) and v_tt > 0 else float("nan")
 
     def cycles() -> float:
@@ -178,7 +200,7 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
             return verdict(UNDECIDED, f"theta steady at {a.mean:.4f} but the pattern {pattern}")
         return verdict(TT, f"theta steady at {a.mean:.4f} rad (within {a.tolerance:.1e}) from "
                            f"t = {a.t_settle:.4g}; " + (f"the pattern {pattern}" if np.isfinite(speed)
-                                                        else _no_pattern(contrast)))
+                                                        else no_position or _no_pattern(contrast)))
     band = max(a.tolerance, settings.rel_tol * 2 * a.amplitude)
     if abs(a.drift) > band:
         return verdict(UNDECIDED, f"theta still drifting: its one-period mean moves by {a.drift:.2g} rad "
@@ -204,7 +226,8 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
             gap, gap_err = bending_gap(t, series["E_bending"], p.period, a.t_settle)
             found = replace(found, bending_gap=gap, bending_gap_err=gap_err)
         return found
-    what = f"the pattern {pattern}" if np.isfinite(speed) else f"there is {_no_pattern(contrast)}"
+    what = (f"the pattern {pattern}" if np.isfinite(speed) else no_position
+            or f"there is {_no_pattern(contrast)}")
     return verdict(UNDECIDED, f"theta oscillates ({periodic}) but {what}")
 
 

@@ -111,6 +111,28 @@ def test_homogeneous_vesicle_without_a_pattern_is_tank_treading():
     assert c.regime == TT and "no phase pattern" in c.reason and np.isnan(c.pattern_speed)
 
 
+@pytest.mark.parametrize("kind", ["NaN", "noise"])
+def test_a_two_fold_symmetric_pattern_has_no_position_and_theta_decides(kind):
+    """Delta = 2.3, psi_bar = 0.48: the soft phase sits at both tips, psi(alpha + 1/2) = psi(alpha) to
+    1e-8, so the psi-weighted circular mean of alpha (the phase position) vanishes and V_psi is NaN
+    (98 % of the samples at S = 4) or round-off noise (a spread of 25 tank-treading speeds at S = 28).
+    Its few finite values made a "pattern speed" of 10 and 0.7: undecided, though theta and E_b were
+    steady. With psi separated the pattern has no position and theta decides; a real PT stays PT."""
+    rng = np.random.default_rng(1)
+    s = series(0.3 + 0.0 * t)
+    s["psi_min"], s["psi_max"] = np.full(t.size, 0.003), np.full(t.size, 1.02)
+    if kind == "NaN":
+        s["V_psi"] = np.where(rng.random(t.size) < 0.98, np.nan, rng.normal(0, 300.0, t.size))
+    else:
+        s["V_psi"] = rng.normal(0, 250.0, t.size)
+    c = classify(s)
+    assert c.regime == TT and "no position" in c.reason and "two-fold" in c.reason, c.reason
+    pt = series(SIGNALS["noise 10 %"])
+    pt["psi_min"], pt["psi_max"] = np.full(t.size, 0.003), np.full(t.size, 1.02)
+    pt["V_psi"] = pt["V_psi"] + rng.normal(0, 5.0, t.size)          # a spread of 0.5 TT speeds: a measurement
+    assert classify(pt).regime == PT
+
+
 @pytest.mark.parametrize("case, words", [
     ("few samples", "too short"),
     ("two periods", "run longer"),
