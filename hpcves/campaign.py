@@ -523,7 +523,7 @@ def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, dis
             if h5 is not None:
                 h5.close()
                 h5 = None
-            refused = _add_stage(path, comm, io, plan[1], stage + 1)
+            refused = _add_stage(path, comm, io, plan[1], stage + 1, study.source)
             if refused:
                 not_written = refused
                 if rank == 0:
@@ -660,8 +660,9 @@ def _create(study: Study, path: Path, comm, io: str) -> None:
         raise StorageError(failure)
 
 
-def _add_stage(path: Path, comm, io: str, cases, stage: int) -> str:
-    """Add a search stage's cases to a copy of the file that then replaces it; "" or why it could not be."""
+def _add_stage(path: Path, comm, io: str, cases, stage: int, source: str) -> str:
+    """Add a search (refine) stage's cases to a copy of the file that then replaces it, with the
+    campaign file's text ``source`` (a refinement's budget may have been raised); "" or why it could not be."""
     rank = 0 if comm is None else comm.Get_rank()
     size = 1 if comm is None else comm.Get_size()
     partial, refused = None, ""
@@ -680,7 +681,7 @@ def _add_stage(path: Path, comm, io: str, cases, stage: int) -> str:
         try:
             h5 = _open_h5(partial, "r+", comm, io)
             try:
-                CampaignFile(h5).add_cases(cases)
+                CampaignFile(h5).add_cases(cases, source)
             finally:
                 h5.close()
         except (*HDF5_ERRORS, ConfigError) as exc:

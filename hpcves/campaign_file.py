@@ -87,8 +87,10 @@ class CampaignFile:
         campaign.add_cases(study.cases)
         return campaign
 
-    def add_cases(self, cases) -> None:
-        """Lay out new cases and append them to the index (collective under mpio).
+    def add_cases(self, cases, source: str | None = None) -> None:
+        """Lay out new cases and append them to the index (collective under mpio); with ``source``,
+        the campaign file's text replaces the stored one where it differs (a refinement continued
+        with a larger ``max_cases``: the fingerprint leaves the budget out).
 
         Order matters for a crash in the middle: the groups come first, the
         index next, the ``n_cases`` attribute last, so a file whose groups
@@ -113,6 +115,8 @@ class CampaignFile:
             dataset = index[key]
             dataset.resize((stop,))
             dataset[start:stop] = np.array(values, dtype=dataset.dtype)
+        if source is not None and attr_text(self.h5.attrs.get("campaign_toml", "")) != source:
+            self.h5.attrs["campaign_toml"] = source
         self.h5.attrs["n_cases"] = stop
 
     @staticmethod

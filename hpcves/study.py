@@ -143,12 +143,14 @@ class Study:
         A search study's cases are not known up front: its fingerprint covers
         what decides them -- base case, time rules, sweep, search range and
         the classification thresholds (which decide where the search goes next).
-        A grid study's covers the thresholds when its cases run until decided.
+        A grid study's covers the thresholds when its cases run until decided. A refine study's leaves
+        out its budget (max_cases): raised, it continues the refinement where it stopped.
         """
-        if self.refine is not None:
+        if self.refine is not None:          # not max_cases: a refinement continues with a larger budget
+            plan = {k: v for k, v in dataclasses.asdict(self.refine).items() if k != "max_cases"}
             payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
                        "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
-                       "refine": dataclasses.asdict(self.refine), "analysis": dataclasses.asdict(self.analysis)}
+                       "refine": plan, "analysis": dataclasses.asdict(self.analysis)}
         elif self.search is None:
             payload = {"name": self.name,
                        "cases": [[c.case_id, c.case.significant()] for c in self.cases]}
