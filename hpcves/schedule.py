@@ -43,8 +43,18 @@ def _slack(x: float) -> float:
     return max(ROUNDOFF, RELATIVE * abs(x))
 
 
+def _legacy_slack(x: float) -> float:
+    """The slack of hpcves before the coincidence fix: a file it finished may hold one sample or
+    snapshot fewer at t_end (CaseStore.problems accepts either count)."""
+    return min(COINCIDENT, ROUNDOFF * max(abs(x), 1.0))
+
+
 class FixedClock:
     """Cadences in whole steps of numerics.dt."""
+
+    def legacy(self) -> "FixedClock":
+        """The same clock (whole steps have no coincidence rule to change)."""
+        return self
 
     adaptive = False
 
@@ -97,30 +107,44 @@ class AdaptiveClock:
 
     adaptive = True
 
-    def __init__(self, case: Case):
+    def __init__(self, case: Case, slack=_slack):
         run, num = case.run, case.numerics
         self.t_end = run.t_end
         self.intervals = (run.sample_interval, run.snapshot_interval, run.checkpoint_interval)
         self.control = StepControl(rtol=num.rtol, atol=num.atol, dt_max=num.dt_max, initial_dt=num.dt_initial)
+        self._slack = slack
+
+    def legacy(self) -> "AdaptiveClock":
+        """This clock with the coincidence rule of hpcves before the fix (for files it wrote)."""
+        other = object.__new__(type(self))
+        other.__dict__.update(self.__dict__, _slack=_legacy_slack)
+        return other
 
     # -------------------------------------------------------------- the time grid
     def _on_grid(self, t: float, interval: float) -> bool:
         x = t / interval
         j = round(x)
-        return abs(x - j) <= _slack(x) and j * interval <= self.t_end * (1 + COINCIDENT)
+        return abs(x - j) <= self._slack(x) and j * interval <= self.t_end * (1 + COINCIDENT)
 
     def _count_before(self, t: float, interval: float) -> int:
         """Grid times j * interval (up to t_end) before t: ceil(t / interval), coincident times excluded."""
         x = t / interval
-        return min(self._total(interval), max(0, math.ceil(x - _slack(x))))
+        return min(self._last(interval), max(0, math.ceil(x - self._slack(x))))
 
     def _total(self, interval: float) -> int:
+        """Grid times up to t_end by the rule the file's layout was made with (capacity - 1): the
+        layout of files from before the coincidence fix must keep its shape."""
         return math.floor(self.t_end / interval + COINCIDENT) + 1
+
+    def _last(self, interval: float) -> int:
+        """Grid times up to t_end, t_end itself where it coincides with one (at most _total + 1)."""
+        x = self.t_end / interval
+        return math.floor(x + self._slack(x)) + 1
 
     def _next(self, t: float, interval: float) -> float:
         """The first multiple of ``interval`` after t (and not coincident with it)."""
         x = t / interval
-        j = math.floor(x + _slack(x)) + 1
+        j = math.floor(x + self._slack(x)) + 1
         return j * interval
 
     def capacities(self) -> tuple[int, int]:
@@ -136,12 +160,12 @@ class AdaptiveClock:
 
     def finished_counts(self) -> tuple[int, int]:
         sample, snapshot, _ = self.intervals
-        return self._total(sample), self._total(snapshot)
+        return self._last(sample), self._last(snapshot)
 
     def recorded_through(self, step: int, t: float) -> tuple[int, int]:
         """(samples, snapshots) recorded up to and including the state at time t."""
         sample, snapshot, _ = self.intervals
-        return tuple(min(self._total(i), math.floor(t / i + _slack(t / i)) + 1) for i in (sample, snapshot))
+        return tuple(min(self._last(i), math.floor(t / i + self._slack(t / i)) + 1) for i in (sample, snapshot))
 
     # -------------------------------------------------------------- cadences
     def sample_due(self, state) -> bool:

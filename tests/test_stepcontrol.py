@@ -381,3 +381,18 @@ def test_cadences_rounded_to_12_digits_that_should_coincide_are_one_event():
     assert min(gaps) > 1e-6                  # (the pairs were 4e-14 and 3.6e-12 apart)
     assert (samples, snapshots) == clock.finished_counts() == (10001, 1786)
     assert snapshots < clock.capacities()[1]
+
+
+def test_t_end_that_coincides_with_a_sample_to_rounding_is_sampled_and_older_files_still_check():
+    """S = 23.3695641246 (a search's bisection), t_end = 400 / S and samples every 1/(10 S), both
+    rounded to 12 digits: t_end / interval = 3999.99999999986. Coincident by the rule of the fix,
+    t_end is the 4001st sample; the rule before took it for no sample time (4000). Both counts check,
+    and the layout keeps room for the last one."""
+    case = Case(Physics(shear_rate=23.3695641246), Numerics(N=32, rtol=1e-2),
+                RunControl(t_end=17.1162798701, sample_interval=0.00427906996754, snapshot_interval=0.05,
+                           checkpoint_interval=2.0))
+    clock = schedule.clock(case)
+    state = Solver(case).initial_state()
+    assert clock.sample_due(dataclasses.replace(state, t=case.run.t_end))
+    assert clock.finished_counts() == (4001, 343) and clock.legacy().finished_counts() == (4000, 343)
+    assert clock.capacities() == (4001, 344)
