@@ -128,13 +128,13 @@ def test_a_stage_cut_short_while_adding_its_cases_leaves_the_file_as_it_was(sear
     real_add = campaign_file.CampaignFile.add_cases
     calls = []
 
-    def add_then_die(self, cases):
+    def add_then_die(self, cases, source=None):
         calls.append(len(cases))
         if len(calls) == 3:              # (1: the empty creation, 2: stage 1) stage 2: groups made, index not yet
             for c in cases:
                 self._cases.create_group(c.case_id)
             raise KeyboardInterrupt
-        real_add(self, cases)
+        real_add(self, cases, source)
 
     monkeypatch.setattr(campaign_file.CampaignFile, "add_cases", add_then_die)
     with pytest.raises(KeyboardInterrupt):
@@ -159,9 +159,9 @@ def test_a_half_added_stage_of_an_older_version_is_dropped_and_made_again(search
 
     real_add = campaign_module._add_stage
 
-    def old_add(path, comm, io, cases, stage):               # what the old in-place adding could leave
+    def old_add(path, comm, io, cases, stage, source):               # what the old in-place adding could leave
         if stage == 1:
-            return real_add(path, comm, io, cases, stage)
+            return real_add(path, comm, io, cases, stage, source)
         with h5py.File(path, "r+") as h5:
             for c in cases:
                 h5["cases"].create_group(c.case_id)
