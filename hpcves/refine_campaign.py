@@ -13,15 +13,10 @@ This module reads the file and writes the boundaries; the logic is in refine.py.
 """
 from __future__ import annotations
 
-import csv
-import math
 from dataclasses import dataclass
-from pathlib import Path
-
-from .analysis import LABELS, analyse_case, case_data, markdown_table
-from .checkpoint import ENDED
+from .analysis import LABELS, markdown_table
 from .refine import RUNNING, RefineSettings, RefineState, boundary, polylines, step
-from .search_campaign import ENDED_NAMES
+from .search_campaign import ENDED_NAMES, StageDriver, write_rows  # noqa: F401 (write_rows: for analysis, cli)
 from .study import Study, study_from_toml
 
 
@@ -61,12 +56,8 @@ def outcomes(study: Study, found: list[tuple[int, float, float, str]]) -> list[R
             for i, (point, regimes) in enumerate(zip(study.refinements, by_refinement))]
 
 
-class RefineDriver:
+class RefineDriver(StageDriver):
     """Rank 0's side of a refine campaign: classify what ended, ask for the next stage."""
-
-    def __init__(self, study: Study):
-        self.settings = study.analysis
-        self._regimes: dict[str, str] = {}      # case id -> regime (ended cases only)
 
     @staticmethod
     def cases_from_file(study: Study, campaign) -> Study:
@@ -77,14 +68,6 @@ class RefineDriver:
         cases = [study.refine_case(r, float(x), float(y), case_id)
                  for case_id, r, x, y in zip(campaign.case_ids, campaign.searches_of_cases(), xs, ys)]
         return study.with_cases(cases)
-
-    def regime(self, campaign, case_id: str) -> str | None:
-        if case_id not in self._regimes:
-            store = campaign.store(case_id)
-            if store.status not in ENDED:
-                return None
-            self._regimes[case_id] = analyse_case(case_data(store, case_id), self.settings)["regime"]
-        return self._regimes[case_id]
 
     def next_stage(self, study: Study, campaign) -> tuple[list[RefineOutcome], list]:
         """(outcome of every refinement, the new StudyCases to run: none once every one has ended)."""
@@ -149,20 +132,6 @@ def boundary_rows(study: Study, states: list[RefineOutcome]) -> list[dict]:
                             f"{y_key}_high": c.y_high, "blurry": int(c.blurry)})
             line += 1
     return out
-
-
-def write_rows(rows: list[dict], columns: tuple, path: Path) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow([_cell(row[c]) for c in columns])
-
-
-def _cell(value) -> str:
-    if isinstance(value, float):
-        return f"{value:.6g}" if math.isfinite(value) else ""
-    return str(value)
 
 
 def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], rows: list[dict],

@@ -82,15 +82,12 @@ def cases_from_file(study: Study, campaign) -> Study:
     return study.with_cases(cases)
 
 
-class SearchDriver:
-    """Rank 0's side of a search campaign: classify what finished, ask for the next stage."""
+class StageDriver:
+    """Rank 0's side of a staged campaign (search or refine): the regimes of the cases that ended."""
 
     def __init__(self, study: Study):
         self.settings = study.analysis
-        self.points = search_points(study)
         self._regimes: dict[str, str] = {}      # case id -> regime (finished and failed cases only)
-
-    cases_from_file = staticmethod(cases_from_file)
 
     def regime(self, campaign, case_id: str) -> str | None:
         """The regime of one case, or None while it is not finished (or failed)."""
@@ -101,6 +98,16 @@ class SearchDriver:
             row = analyse_case(case_data(store, case_id), self.settings)
             self._regimes[case_id] = row["regime"]
         return self._regimes[case_id]
+
+
+class SearchDriver(StageDriver):
+    """Rank 0's side of a search campaign: classify what finished, ask for the next stage."""
+
+    def __init__(self, study: Study):
+        super().__init__(study)
+        self.points = search_points(study)
+
+    cases_from_file = staticmethod(cases_from_file)
 
     def next_stage(self, study: Study, campaign) -> tuple[list[SearchOutcome], list]:
         """(outcome of every search, the new StudyCases to run: none once every search has ended)."""
@@ -123,11 +130,16 @@ class SearchDriver:
 
 def write_critical_csv(rows: list[dict], path: Path) -> None:
     """critical_shear.csv: one row per search (CRITICAL_COLUMNS)."""
+    write_rows(rows, CRITICAL_COLUMNS, path)
+
+
+def write_rows(rows: list[dict], columns: tuple, path: Path) -> None:
+    """A CSV file of ``rows`` with these ``columns`` (floats to 6 digits, nan as an empty cell)."""
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(CRITICAL_COLUMNS)
+        writer.writerow(columns)
         for row in rows:
-            writer.writerow([_cell(row[c]) for c in CRITICAL_COLUMNS])
+            writer.writerow([_cell(row[c]) for c in columns])
 
 
 def _cell(value) -> str:
