@@ -181,6 +181,26 @@ def _overshoot_context(solver: Solver, state: State) -> str:
             "where the linear B(psi) of the model vanishes")
 
 
+#: above this rtol the step's error estimate has let grid-scale error grow in cases N resolves
+LOOSE_RTOL = 1e-3
+
+
+def _loose_step_hint(numerics) -> str:
+    """The other cause of a growing spectral tail: a loose step tolerance.
+
+    The step's error estimate weighs the few top Fourier modes little, so at
+    rtol = 1e-2 steps that amplify them are accepted: psi_bar = 0.48, S = 5,
+    Delta = 1.6 and 1.95 stop under-resolved at N = 128 (tails 6.2e-3, 4.4e-3,
+    naming N = 288, 368) but run through at rtol = 1e-3 and the same N (tails
+    2.4e-3, 1.2e-3); likewise psi_bar = 0.5, S = 7.93 (docs/numerics.md,
+    "Adaptive time step"). A larger N at the same rtol is then the dearer cure.
+    """
+    if numerics.adaptive and numerics.rtol > LOOSE_RTOL:
+        return (f", unless the step lets grid-scale error grow: at numerics.rtol = {numerics.rtol:g} "
+                f"try rtol = {LOOSE_RTOL:g} at this N first")
+    return ""
+
+
 def health(solver: Solver, state: State, row: dict | None, last_correction: float = 0.0) -> Health:
     """Is the run still sane? NaN, area/length error, psi range (RunControl bounds)."""
     run = solver.case.run
@@ -209,7 +229,8 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
                          else f"more than the initial shape's {initial:.2g}, itself above run.max_spectral_tail")
                 return Health(False, f"the top third of the Fourier modes of {field} holds {row[name]:.2g} of its "
                                      f"variation ({limit}) at t = {row['t']:.6g}: N = {solver.sp.N} does not "
-                                     f"resolve it; N = {needed} would (from the decay of its spectrum)",
+                                     f"resolve it; N = {needed} would (from the decay of its spectrum)"
+                                     + _loose_step_hint(solver.case.numerics),
                               under_resolved=True)
         if abs(row["area_error"]) > run.max_area_error:
             return Health(False, f"relative area error {row['area_error']:.3g} exceeds "

@@ -57,6 +57,19 @@ def test_a_field_with_a_heavy_tail_stops_the_run_as_under_resolved_naming_the_N_
     needed = int(outcome.message.split("N = ")[-1].split()[0])
     assert needed >= 48, outcome.message
     assert "diverged" not in outcome.message
+    # at rtol = 1e-2 a growing tail may be the step's doing: the message says what to try first
+    assert "unless the step lets grid-scale error grow: at numerics.rtol = 0.01 try rtol = 0.001" in outcome.message
+
+
+def test_the_loose_step_hint_is_given_only_where_the_step_tolerance_is_loose():
+    from hpcves.diagnostics import _loose_step_hint
+
+    def numerics(extra):
+        return case_from_toml(CASE.format(N=32).replace("rtol = 1e-2", extra)).numerics
+
+    assert _loose_step_hint(numerics("rtol = 1e-2")).startswith(", unless the step")
+    assert _loose_step_hint(numerics("rtol = 1e-3")) == ""
+    assert _loose_step_hint(numerics("dt = 1e-4")) == ""             # a fixed step: nothing to loosen
 
 
 def test_a_resolved_run_records_small_tails_that_fall_with_N(tmp_path):
