@@ -352,7 +352,8 @@ def main(argv=None):
         if unknown:
             parser.error(f"--only: no campaign {', '.join(unknown)} (there are {', '.join(STUDIES)})")
         run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger)
-        print(f"ran {', '.join(names)}; make reproduce runs the rest and writes {args.out}")
+        print(f"{', '.join(names)}: run as far as this call went (stopped ones continue when rerun); "
+              f"make reproduce runs the rest and writes {args.out}")
         return
     walls = {name: 0.0 for name in jobs}
     if not args.analyze_only:
