@@ -189,10 +189,8 @@ def _loose_step_hint(numerics) -> str:
     """The other cause of a growing spectral tail: a loose step tolerance.
 
     The step's error estimate weighs the few top Fourier modes little, so at
-    rtol = 1e-2 steps that amplify them are accepted: psi_bar = 0.48, S = 5,
-    Delta = 1.6 and 1.95 stop under-resolved at N = 128 (tails 6.2e-3, 4.4e-3,
-    naming N = 288, 368) but run through at rtol = 1e-3 and the same N (tails
-    2.4e-3, 1.2e-3); likewise psi_bar = 0.5, S = 7.93 (docs/numerics.md,
+    rtol = 1e-2 steps that amplify them are accepted, and cases that N resolves
+    at rtol = 1e-3 stop as under-resolved (measured in docs/numerics.md,
     "Adaptive time step"). A larger N at the same rtol is then the dearer cure.
     """
     if numerics.adaptive and numerics.rtol > LOOSE_RTOL:

@@ -40,7 +40,7 @@ def test_conservation_at_S10_with_the_default_scheme():
     assert abs(state.area_correction) < 1e-3                          # what the projection had to do
 
 
-@pytest.mark.slow              # 20000 steps: 40 s alone, 130 s on a loaded machine (make validate runs it)
+@pytest.mark.slow              # 20000 steps: 134 s on a loaded machine (make validate runs it)
 def test_unprojected_scheme_conserves_area_to_1e6_at_S10():
     """Without the area projection the drift is the time stepping's own: the largest
     relative area deviation over t in [0, 1] was 4.1e-6, 9.9e-7 and 2.4e-7 at
