@@ -131,7 +131,7 @@ def test_status_says_a_file_is_being_created(tmp_path):
 @needs_mpi
 def test_a_second_campaign_is_refused_through_every_other_name_of_the_file(tmp_path):
     a, b = tmp_path / "A", tmp_path / "B"
-    path, output = write_study(a, t_end=3.0, checkpoint=0.1)
+    path, output = write_study(a, t_end=1.0, checkpoint=0.1)   # frozen once two cases run: t_end = 1 is long enough
     job = start_job(2, "campaign", path, "--quiet")
     frozen = freeze_when(job, lambda: len(running_cases(output)) == 2, "two cases run")
     try:
@@ -179,7 +179,7 @@ def test_a_rank_that_outlives_rank_0_still_holds_the_lock(tmp_path):
     rank 0 killed. A resume is refused while rank 1 lives, and works once it is gone."""
     from jobs import alive, job_pids
 
-    path, output = write_study(tmp_path / "job", t_end=3.0, checkpoint=0.1)
+    path, output = write_study(tmp_path / "job", t_end=1.0, checkpoint=0.1)
     job = start_job(2, "campaign", path, "--quiet", "--io", "mpio")
     ranks = freeze_when(job, lambda: len(running_cases(output, checkpointed=True)) == 2, "two cases checkpoint")
     os.kill(job.pid, signal.SIGSTOP)                       # mpirun must not notice rank 0's death yet
@@ -567,16 +567,21 @@ def harness_reference(harness_references):
     return harness_references("fixed")
 
 
+# Four moments in `make test`, one of each kind; the other four (same kinds, other rank, mode or
+# stepping) carry the `faults` marker and run in `make faults`, to keep `make test` short.
+more = pytest.mark.faults
+
+
 @needs_mpi
 @pytest.mark.parametrize("fault, n, io, stepping", [
     ("publish", 3, "relay", "fixed"),                # the file complete under .partial, killed before the rename
-    ("case-laid-out:20@0", 2, "relay", "fixed"),     # rank 0 laying the file out alone
+    pytest.param("case-laid-out:20@0", 2, "relay", "fixed", marks=more),   # rank 0 laying the file out alone
     ("checkpoint:7@1", 3, "mpio", "fixed"),          # rank 1 inside a checkpoint write (two points in each)
-    ("checkpoint:12@0", 3, "relay", "fixed"),        # rank 0 applying another rank's checkpoint
-    ("finished:3@0", 2, "mpio", "fixed"),            # rank 0 just after a case recorded that it finished
+    pytest.param("checkpoint:12@0", 3, "relay", "fixed", marks=more),      # rank 0 applying another rank's checkpoint
+    pytest.param("finished:3@0", 2, "mpio", "fixed", marks=more),          # rank 0 just after a case finished
     ("finished:2@2", 3, "relay", "fixed"),           # a worker just after its case finished
-    ("checkpoint:7@1", 3, "mpio", "adaptive"),       # the same with the step controller's state to resume
-    ("checkpoint:12@0", 3, "relay", "adaptive"),
+    pytest.param("checkpoint:7@1", 3, "mpio", "adaptive", marks=more),     # with the step controller's state
+    ("checkpoint:12@0", 3, "relay", "adaptive"),     # rank 0 applying a checkpoint, adaptive stepping
 ])
 def test_a_kill_at_an_exact_moment_resumes_bitwise(tmp_path, harness_references, fault, n, io, stepping):
     import faults as harness
