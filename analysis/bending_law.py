@@ -23,10 +23,10 @@ import time
 
 import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 
-from hpcves import diagnostics
-from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.periodicity import crossing_period, estimate_period
-from hpcves.regimes import flip_period
+from hpcves.run import diagnostics
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.analysis.periodicity import crossing_period, estimate_period
+from hpcves.analysis.regimes import flip_period
 
 LAWS = ("linear", "saturating")
 TABLE = [(psi_bar, S) for psi_bar in (0.3, 0.5, 0.7) for S in (80.0, 160.0, 320.0)]
@@ -57,8 +57,8 @@ def deflated_run(psi_bar: float, delta: float, S: float, N: int, law: str, t_end
     import tempfile
     from pathlib import Path
 
-    from hpcves import runner
-    from hpcves.checkpoint import STATUS_NAMES, CaseStore, open_file
+    from hpcves.run import runner
+    from hpcves.run.store import STATUS_NAMES, CaseStore, open_file
 
     case = Case(Physics(shear_rate=S, psi_bar=psi_bar, excess_length=delta, bending_law=law),
                 Numerics(N=N, rtol=RTOL),
@@ -98,7 +98,7 @@ def render(results: list[dict], seconds: float) -> tuple[list[str], bool]:
     periods = {(r["psi_bar"], r["S"], r["law"]): r for r in results if r["kind"] == "period"}
     lines = ["# The saturating bending law against the linear one", "",
              f"Measured {time.strftime('%Y-%m-%d')} by `analysis/bending_law.py` ({seconds / 60:.0f} min of runs on "
-             f"a shared 2-core machine). rtol = {RTOL:g}; hpcves/bending.py has the law, docs/numerics.md "
+             f"a shared 2-core machine). rtol = {RTOL:g}; hpcves/model/bending.py has the law, docs/numerics.md "
              "(\"Bending law\") the reasoning.", "",
              "## The period table at Delta = 0.194 (N = 128, 640 shear times, period after t_end / 4)", "",
              "| psi_bar | S | psi range (saturating) | period, linear | period, saturating | relative difference |",

@@ -6,13 +6,13 @@ of every period and mean inclination of an adaptive run, by the rule
     |T - T_exact| / T   <=  PERIOD_PER_RTOL * rtol
     |theta - theta_exact| <=  INCLINATION_PER_RTOL * rtol   (rad)
 
-(hpcves/accuracy.py). This script measures the ratios the rule rests on: it
+(hpcves/analysis/accuracy.py). This script measures the ratios the rule rests on: it
 runs TT, PT and TU cases at rtol in {0.1, 0.03, 0.01, 0.003} and at a
 reference rtol = 1e-4 (its error is 1 % of that at 1e-2: the global error
 falls in proportion to rtol, tests/test_stepcontrol.py), each at the sampling
 the job files use and at a sparse one (a sample every 1/(2 S): fewer step cuts,
 so the controller alone sets the step), and reads period and mean of theta
-with the estimator of ``hpcves analyze`` (hpcves.periodicity.analyse) on the
+with the estimator of ``hpcves analyze`` (hpcves.analysis.periodicity.analyse) on the
 same sample times as the reference, so the estimator's own bias cancels.
 
     .venv/bin/python analysis/error_rule.py --out docs/error_rule.md   (~40 min on one core)
@@ -27,10 +27,11 @@ import time
 import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 import numpy as np
 
-from hpcves import accuracy, diagnostics
-from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.periodicity import analyse
-from hpcves.regimes import flip_period
+from hpcves.analysis import accuracy
+from hpcves.run import diagnostics
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.analysis.periodicity import analyse
+from hpcves.analysis.regimes import flip_period
 
 #: (label, regime, psi_bar, Delta, S, N, t_end, sampling of the job files)
 CASES = [
@@ -81,9 +82,9 @@ def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str
     """The Markdown report of the measurement, and whether the rule of accuracy.py covers every run."""
     lines = ["# The discretisation error of periods and inclinations against rtol", "",
              f"Measured {time.strftime('%Y-%m-%d')} by `analysis/error_rule.py` ({seconds / 60:.0f} min of runs, "
-             "one at a time on a shared 2-core machine); hpcves/accuracy.py states the rule these numbers set. "
+             "one at a time on a shared 2-core machine); hpcves/analysis/accuracy.py states the rule these numbers set. "
              f"Each run at rtol is compared with a run at rtol = {REFERENCE_RTOL:g} on the same sample times, "
-             "period and mean theta read by the estimator of `hpcves analyze` (hpcves.periodicity.analyse).", "",
+             "period and mean theta read by the estimator of `hpcves analyze` (hpcves.analysis.periodicity.analyse).", "",
              "Columns: |dT| / T, the relative difference of the periods; stat, what the two estimates' "
              "statistical errors allow together ((sigma_run + sigma_ref) / T); excess / rtol, the part of |dT| "
              "beyond that, per unit rtol: what the discretisation error bar has to cover. |d theta|: the "
@@ -125,7 +126,7 @@ def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str
               "sin 2 theta, as `hpcves analyze` reads a tumbling case):", "", *tumbling, "", TUMBLING_NOTE,
               "", f"PT and TT: largest ratios period excess {worst_period:.4f}, inclination {worst_theta:.4f} rad. "
               "The rule "
-              f"in hpcves/accuracy.py, PERIOD_PER_RTOL = {accuracy.PERIOD_PER_RTOL:g} and INCLINATION_PER_RTOL = "
+              f"in hpcves/analysis/accuracy.py, PERIOD_PER_RTOL = {accuracy.PERIOD_PER_RTOL:g} and INCLINATION_PER_RTOL = "
               f"{accuracy.INCLINATION_PER_RTOL:g}, "
               + ("covers every run above (|dT| <= stat + PERIOD_PER_RTOL rtol T, |d theta| <= INCLINATION_PER_RTOL "
                  "rtol)." if covered else "DOES NOT COVER every run above."), ""]

@@ -9,10 +9,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from hpcves.campaign_file import CampaignFile
-from hpcves.checkpoint import STATUS_NAMES, open_file
-from hpcves.params import ConfigError
-from hpcves.plots import campaign_figure, case_figure, case_title
+from hpcves.campaign.file import CampaignFile
+from hpcves.run.store import STATUS_NAMES, open_file
+from hpcves.model.params import ConfigError
+from hpcves.reports.plots import campaign_figure, case_figure, case_title
 
 
 def main(argv=None):

@@ -25,11 +25,11 @@ import sys
 import time
 from pathlib import Path
 
-from hpcves import accuracy
-from hpcves.analysis import analyze, markdown_table, read_source
-from hpcves.campaign_file import read_table
-from hpcves.search_campaign import critical_table
-from hpcves.study import load_study
+from hpcves.analysis import accuracy
+from hpcves.reports.analyze import analyze, markdown_table, read_source
+from hpcves.campaign.file import read_table
+from hpcves.campaign.search_stages import critical_table
+from hpcves.campaign.study import load_study
 
 STUDIES = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_delta_S", "delta094_S_psi",
            "delta230_S_psi")
@@ -139,7 +139,7 @@ def theta_table(report) -> str:
 
 def theta_figure(report, directory: Path, name: str, group: str | None, title: str) -> Path:
     """theta(t) against S t for every case of ``report``, one panel per value of ``group``."""
-    from hpcves import plots
+    from hpcves.reports import plots
 
     cases = [c for c in report.source.cases if c.status != "damaged"]
     values = sorted({c.parameters[group] for c in cases}) if group else [None]
@@ -167,8 +167,8 @@ def copy_case_page(report, out: Path, directory: Path, name: str, **values) -> t
 
 def shape_sequence(study_output: Path, directory: Path, name: str, rates=(1.0, 5.0, 20.0, 80.0)) -> Path | None:
     """Shapes over one settled period at psi_bar = 0.5 for the coarse shear rates of a refinement."""
-    from hpcves import plots
-    from hpcves.figures import choose, shape_sequence_figure
+    from hpcves.reports import plots
+    from hpcves.reports.figures import choose, shape_sequence_figure
 
     chosen = [c for c in choose(study_output, where={"psi_bar": 0.5})
               if any(math.isclose(c.parameters["shear_rate"], s, rel_tol=1e-9) for s in rates)]

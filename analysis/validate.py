@@ -19,14 +19,14 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hpcves import runner  # noqa: E402
-from hpcves.periodicity import crossing_period  # noqa: E402
-from hpcves.regimes import classify  # noqa: E402
-from hpcves.checkpoint import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402
-from hpcves.params import REFERENCE_EXCESS_LENGTH, Case, Numerics, Physics, RunControl  # noqa: E402
-from hpcves.plots import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
-from hpcves.spectral import Spectral  # noqa: E402
-from hpcves.timestepping import Solver, State  # noqa: E402
+from hpcves.run import runner# noqa: E402
+from hpcves.analysis.periodicity import crossing_period  # noqa: E402
+from hpcves.analysis.regimes import classify  # noqa: E402
+from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402
+from hpcves.model.params import REFERENCE_EXCESS_LENGTH, Case, Numerics, Physics, RunControl  # noqa: E402
+from hpcves.reports.plots import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
+from hpcves.numerics.spectral import Spectral  # noqa: E402
+from hpcves.run.timestepping import Solver, State  # noqa: E402
 
 WORK = Path("out/validation")
 FIGURES = Path("docs/validation")
@@ -118,7 +118,7 @@ def two_phase(lines):
         late = t >= 1.0
         results[S] = (classify(series), theta[late].min(), np.abs(lab[late]).mean())
         lines += [f"![S = {S:g}](docs/validation/two_phase_S{S:g}.png)", ""]
-    lines += ["Regimes by `hpcves analyze`'s classifier (hpcves/regimes.py, docs/analysis.md).", "",
+    lines += ["Regimes by `hpcves analyze`'s classifier (hpcves/analysis/regimes.py, docs/analysis.md).", "",
               "| S | regime | theta amplitude | min theta (t > 1) | mean theta | period | pattern speed "
               "abs<V_psi + V_L>/abs<V> | mean abs(V_psi + V_L), t > 1 |",
               "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]

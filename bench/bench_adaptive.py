@@ -20,9 +20,9 @@ import time
 
 import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 
-from hpcves import diagnostics
-from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.periodicity import crossing_period
+from hpcves.run import diagnostics
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.analysis.periodicity import crossing_period
 from report import replace_section
 
 CASES = [(psi_bar, S) for psi_bar in (0.3, 0.5, 0.7) for S in (80.0, 160.0, 320.0)]

@@ -55,10 +55,10 @@ ACCESS = {"auto": "serial", "mpio": "mpio", "relay": "relay"}
 def job(study_path: str, io: str) -> None:
     """Under mpirun: run the study, time the checkpoint writes on every rank, print JSON on rank 0."""
     import hpcves  # noqa: F401
-    from hpcves import checkpoint
-    from hpcves.campaign import run_campaign
+    from hpcves.run import store as checkpoint
+    from hpcves.campaign.driver import run_campaign
     from hpcves.cli import _mpi_world
-    from hpcves.study import load_study
+    from hpcves.campaign.study import load_study
 
     spent = [0.0, 0]
     original = checkpoint.CaseStore.write_checkpoint

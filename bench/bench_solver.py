@@ -23,13 +23,13 @@ import numpy as np
 import scipy
 from scipy.linalg import lapack
 
-from hpcves import geometry
-from hpcves.periodicity import crossing_period
-from hpcves.flow import cholesky_solve
-from hpcves.forces import bending_force
-from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.spectral import Spectral
-from hpcves.timestepping import Solver
+from hpcves.model import geometry
+from hpcves.analysis.periodicity import crossing_period
+from hpcves.model.flow import cholesky_solve
+from hpcves.model.forces import bending_force
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.numerics.spectral import Spectral
+from hpcves.run.timestepping import Solver
 
 
 def machine() -> str:

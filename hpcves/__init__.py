@@ -1,6 +1,6 @@
 """hpcves: two-phase (multicomponent) vesicles in shear flow.
 
-A spectral boundary-integral solver (:mod:`hpcves.timestepping`) and the
+A spectral boundary-integral solver (:mod:`hpcves.run.timestepping`) and the
 machinery around it: case files, HDF5 output with checkpoints, the command line.
 
 One case runs on one core. Unless the environment says otherwise, the BLAS and

@@ -13,8 +13,9 @@ import time
 
 import click
 
-from . import __version__, accuracy
-from .params import ConfigError
+from hpcves import __version__
+from hpcves.analysis import accuracy
+from hpcves.model.params import ConfigError
 
 
 def _fail(message: str) -> None:
@@ -45,7 +46,7 @@ def check_output_path(path) -> None:
     """Refuse an output path that cannot be a file before any work: a directory, or under a file."""
     from pathlib import Path
 
-    from .checkpoint import FileFormatError
+    from hpcves.run.store import FileFormatError
 
     path = Path(path)
     if path.is_dir():
@@ -154,11 +155,11 @@ def main():
 @clean_errors
 def run_command(case_file, out, resume, overwrite, quiet):
     """Run one case: ``hpcves run CASE.toml --out case.h5`` or ``hpcves run --resume case.h5``."""
-    from . import runner
-    from .atomic import StorageError
-    from .checkpoint import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, open_file, \
+    from hpcves.run import runner
+    from hpcves.files.atomic import StorageError
+    from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, open_file, \
         safe_flush
-    from .config import load_case
+    from hpcves.config import load_case
 
     if resume and (case_file or out):
         raise click.UsageError("--resume FILE takes the case from the file; give no CASE_FILE or --out")
@@ -229,8 +230,8 @@ def create_case_file(path, case, overwrite: bool):
     (atomic.py), so a kill or a full disk never leaves a half-made file at ``path``."""
     from pathlib import Path
 
-    from .atomic import METADATA_BYTES_PER_FILE, StorageError, new_partial, publish, remove_partial
-    from .checkpoint import CaseStore, FileFormatError, open_file, storage_bytes
+    from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, new_partial, publish, remove_partial
+    from hpcves.run.store import CaseStore, FileFormatError, open_file, storage_bytes
 
     path = Path(path)
     check_output_path(path)
@@ -276,7 +277,7 @@ class CampaignProgress(_StatusLine):
     def __call__(self, master) -> None:
         if not self.due(0.5):
             return
-        from .checkpoint import ENDED, FAILED
+        from hpcves.run.store import ENDED, FAILED
 
         ended = [r for r in master.results if r.status in ENDED]
         failed = sum(1 for r in ended if r.status == FAILED)
@@ -341,8 +342,8 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io
 
 
 def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out, quiet, io):
-    from .campaign import run_campaign
-    from .study import load_study
+    from hpcves.campaign.driver import run_campaign
+    from hpcves.campaign.study import load_study
 
     if retry_failed and not resume:
         if rank == 0:
@@ -395,10 +396,10 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
             display(master)
 
     def on_stage(outcomes):
-        from .search_campaign import write_critical_csv
+        from hpcves.campaign.search_stages import write_critical_csv
 
         if study.refine:
-            from .refine_campaign import refinement_columns, write_rows
+            from hpcves.campaign.refine_stages import refinement_columns, write_rows
 
             write_rows([o.row() for o in outcomes], refinement_columns(study), refine_csv)
             if not any(o.regimes for o in outcomes):          # a new refinement: nothing found yet
@@ -450,15 +451,15 @@ def _search_brief(outcome) -> str:
 
 
 def _print_searches(outcomes, critical_csv) -> None:
-    from .search_campaign import critical_table
+    from hpcves.campaign.search_stages import critical_table
 
     click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys))
     click.echo(f"critical shear rates: {critical_csv}")
 
 
 def _print_refinements(study, outcomes, refine_csv) -> None:
-    from .analysis import markdown_table
-    from .refine_campaign import refinement_columns
+    from hpcves.reports.analyze import markdown_table
+    from hpcves.campaign.refine_stages import refinement_columns
 
     columns = refinement_columns(study)
     click.echo(markdown_table(list(columns), [[f"{v:g}" if isinstance(v, float) else str(v)
@@ -490,7 +491,7 @@ def status_command(campaign_file, check):
 
     Exit status: 0, or 2 if the file cannot be read or a case is damaged.
     """
-    from .campaign_file import DAMAGED, BeingCreated, read_table
+    from hpcves.campaign.file import DAMAGED, BeingCreated, read_table
 
     check_output_path(campaign_file)
     try:
@@ -554,7 +555,7 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, 
     results also go into the file's analysis/ group. The file may belong to a running campaign (then
     nothing is written into it).
     """
-    from .analysis import analyze, parse_overrides
+    from hpcves.reports.analyze import analyze, parse_overrides
 
     axes_pair = None
     if axes:
@@ -581,7 +582,7 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, 
         where = f"psi_bar = {s['psi_bar']:g}, Delta = {s['excess_length']:g}, B2 = {s['B2']:g}"
         value = f"S_C = {s['S_C']:.4g}" if s["S_C"] == s["S_C"] else s["status"]
         click.echo(f"search {where}: {value}  ({s['reason']})")
-    from .refine_campaign import REFINEMENT_FIELDS
+    from hpcves.campaign.refine_stages import REFINEMENT_FIELDS
 
     for r in report.refinements:
         where = ", ".join(f"{k} = {r[k]:g}" for k in r if k not in REFINEMENT_FIELDS)
@@ -615,8 +616,8 @@ def shapes_command(file, case_ids, where, out, n_shapes, no_streamlines):
     streamlines around them. Choose the rows by --case or --where (sorted by shear rate)."""
     from pathlib import Path
 
-    from .figures import choose, parse_where, shape_sequence_figure
-    from .plots import plt
+    from hpcves.reports.figures import choose, parse_where, shape_sequence_figure
+    from hpcves.reports.plots import plt
 
     check_output_path(file)
     if case_ids and where:
@@ -645,7 +646,7 @@ def animate_command(file, case_id, out, fps, no_streamlines):
     streamlines around it, beside theta(t)."""
     from pathlib import Path
 
-    from .figures import choose, default_movie, write_animation
+    from hpcves.reports.figures import choose, default_movie, write_animation
 
     check_output_path(file)
     chosen = choose(file, (case_id,) if case_id else (), one=True)[0]

@@ -1,4 +1,4 @@
-"""Case files (TOML) -> :class:`hpcves.params.Case`, with errors a user can act on.
+"""Case files (TOML) -> :class:`hpcves.model.params.Case`, with errors a user can act on.
 
 A case file has up to three tables, each optional, each key optional
 (defaults are SPEC section 1's published values)::
@@ -17,7 +17,7 @@ A case file has up to three tables, each optional, each key optional
     sample_interval = 0.005
 
 Unknown tables or keys, wrong types and out-of-range values raise
-:class:`~hpcves.params.ConfigError` naming the key.
+:class:`~hpcves.model.params.ConfigError` naming the key.
 """
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ import tomllib
 import typing
 from pathlib import Path
 
-from .params import Case, ConfigError, Numerics, Physics, RunControl
+from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 
 GROUPS = {"physics": Physics, "numerics": Numerics, "run": RunControl}
 

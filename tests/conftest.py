@@ -3,8 +3,8 @@ import hpcves  # noqa: F401  (sets the BLAS thread defaults before numpy loads)
 import numpy as np
 import pytest
 
-from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.timestepping import Solver
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.run.timestepping import Solver
 
 
 def make_solver(N=64, dt=1e-3, **physics):

@@ -80,8 +80,8 @@ def write_study(directory: Path, points: int = POINTS, stepping: str = "fixed") 
 
 def reference(directory: Path, points: int = POINTS, stepping: str = "fixed") -> Path:
     """The study run uninterrupted, serially in this process."""
-    from hpcves.campaign import run_campaign
-    from hpcves.study import study_from_toml
+    from hpcves.campaign.driver import run_campaign
+    from hpcves.campaign.study import study_from_toml
 
     path, output = write_study(directory, points, stepping)
     if not output.exists():

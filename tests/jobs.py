@@ -147,7 +147,7 @@ def case_statuses(path):
 
 def running_cases(path, *, checkpointed=False, sampled=False):
     """Cases with status 1 (running), if ``checkpointed`` with a valid checkpoint, if ``sampled`` with samples
-    written; [] while the file does not exist yet (it appears complete: hpcves/atomic.py)."""
+    written; [] while the file does not exist yet (it appears complete: hpcves/files/atomic.py)."""
     if not os.path.exists(path):
         return []
     with h5py.File(path, "r", locking=False) as f:
@@ -245,9 +245,9 @@ def assert_same_results(a, b, attrs=True):
 
 
 def run_in_process(case, path, max_steps=None):
-    """Run ``case`` into a new case file at ``path`` with hpcves.runner (no subprocess); the outcome."""
-    from hpcves import runner
-    from hpcves.checkpoint import CaseStore, open_file
+    """Run ``case`` into a new case file at ``path`` with hpcves.run.runner (no subprocess); the outcome."""
+    from hpcves.run import runner
+    from hpcves.run.store import CaseStore, open_file
 
     with open_file(path, "w-") as f:
         return runner.run(CaseStore.create(f, case), f.flush, max_steps=max_steps)
@@ -256,8 +256,8 @@ def run_in_process(case, path, max_steps=None):
 def resume_in_process(path, stops=(None,), before=None):
     """Resume the case file at ``path`` once per entry of ``stops`` (max_steps of that call, None: to
     the end); ``before(store)`` is called on each opened store first (a check). The last outcome."""
-    from hpcves import runner
-    from hpcves.checkpoint import CaseStore, open_file
+    from hpcves.run import runner
+    from hpcves.run.store import CaseStore, open_file
 
     outcome = None
     for max_steps in stops:

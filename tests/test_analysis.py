@@ -7,13 +7,14 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves import accuracy, runner
-from hpcves.analysis import COLUMNS, analyze, read_back
-from hpcves.campaign import run_campaign
-from hpcves.lock import CampaignLock
-from hpcves.checkpoint import CaseStore
+from hpcves.analysis import accuracy
+from hpcves.run import runner
+from hpcves.reports.analyze import COLUMNS, analyze, read_back
+from hpcves.campaign.driver import run_campaign
+from hpcves.files.lock import CampaignLock
+from hpcves.run.store import CaseStore
 from hpcves.config import case_from_toml
-from hpcves.study import study_from_toml
+from hpcves.campaign.study import study_from_toml
 
 STUDY = """
 [campaign]
@@ -155,8 +156,8 @@ def test_error_bars_say_which_part_dominates_and_tumbling_gets_none():
 def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tmp_path):
     from PIL import Image
 
-    from hpcves import figures
-    from hpcves.plots import plt
+    from hpcves.reports import figures
+    from hpcves.reports.plots import plt
 
     from click.testing import CliRunner
 

@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from hpcves.campaign import run_campaign
-from hpcves.checkpoint import CaseStore
+from hpcves.campaign.driver import run_campaign
+from hpcves.run.store import CaseStore
 from hpcves.cli import main
 from hpcves.config import case_from_toml
-from hpcves import runner
-from hpcves.study import study_from_toml
+from hpcves.run import runner
+from hpcves.campaign.study import study_from_toml
 
 BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.02\nsample_interval = 0.005\nsnapshot_interval = 0.01\n"
 

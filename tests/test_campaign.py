@@ -14,12 +14,12 @@ import pytest
 from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, job_pids,
                   running_cases, start_job, thaw, wait_until)
 
-from hpcves import campaign as campaign_module
-from hpcves.campaign import run_campaign
-from hpcves.lock import CampaignLock
-from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore
-from hpcves.params import ConfigError
-from hpcves.study import study_from_toml
+from hpcves.campaign import driver as campaign_module
+from hpcves.campaign.driver import run_campaign
+from hpcves.files.lock import CampaignLock
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore
+from hpcves.model.params import ConfigError
+from hpcves.campaign.study import study_from_toml
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
@@ -70,7 +70,7 @@ def reference(tmp_path_factory):
 
 # ---------------------------------------------------------------------- in one process
 def test_a_campaign_case_is_the_single_run_of_that_case(tmp_path, reference):
-    from hpcves import runner
+    from hpcves.run import runner
 
     study = study_from_toml(write_study(tmp_path, t_end=0.3)[0].read_text())
     with h5py.File(tmp_path / "single.h5", "w") as h5:
@@ -313,8 +313,8 @@ def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed
     # Delta = 1.3 under the linear bending law: the soft phase sharpens a tip until psi = 1.08 and
     # the spectral tail stops the run near t = 2.9 (test_stepcontrol.py; the step sequence, and with
     # it the moment, moves with the sampling rule); Delta = 0.194 runs through
-    from hpcves.analysis import analyze
-    from hpcves.checkpoint import MODEL_LIMIT
+    from hpcves.reports.analyze import analyze
+    from hpcves.run.store import MODEL_LIMIT
 
     output = tmp_path / "limit.h5"
     study = study_from_toml(LIMIT_STUDY.format(output=output))

@@ -10,8 +10,8 @@ import pytest
 
 from jobs import resume_in_process, run_in_process, same_case_files, wait_until
 
-from hpcves import runner
-from hpcves.checkpoint import FAILED, FINISHED, INTERRUPTED, CaseStore
+from hpcves.run import runner
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore
 from hpcves.config import case_from_toml
 
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
@@ -243,7 +243,7 @@ def test_the_start_up_of_a_deflated_vesicle_is_not_taken_for_divergence():
 def downgrade_to_format_2(path):
     """Rewrite a case file as the format before adaptive steps wrote it: checkpoints without the
     time, the step controller and level n-2 (the layout of hpcves before format 3)."""
-    from hpcves.checkpoint import _SCALAR_LAYOUTS
+    from hpcves.run.store import _SCALAR_LAYOUTS
     width = sum(n for _, n in _SCALAR_LAYOUTS[2])
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = 2

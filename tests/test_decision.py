@@ -3,12 +3,12 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves import decision
-from hpcves.analysis import analyze
-from hpcves.checkpoint import FINISHED, INTERRUPTED, CaseStore, open_file
+from hpcves.run import decision
+from hpcves.reports.analyze import analyze
+from hpcves.run.store import FINISHED, INTERRUPTED, CaseStore, open_file
 from hpcves.config import case_from_toml
-from hpcves.params import RunControl
-from hpcves.regimes import AnalysisSettings
+from hpcves.model.params import RunControl
+from hpcves.analysis.regimes import AnalysisSettings
 
 from jobs import MPIRUN, assert_same_results, hpcves, resume_in_process, run_in_process, same_case_files
 
@@ -130,8 +130,8 @@ psi_bar = [0.0, 0.3]
 
 @pytest.fixture(scope="module")
 def decided_reference(tmp_path_factory):
-    from hpcves.campaign import run_campaign
-    from hpcves.study import study_from_toml
+    from hpcves.campaign.driver import run_campaign
+    from hpcves.campaign.study import study_from_toml
 
     directory = tmp_path_factory.mktemp("decided")
     output = directory / "reference.h5"
@@ -141,7 +141,7 @@ def decided_reference(tmp_path_factory):
 
 
 def test_a_campaign_runs_its_cases_until_decided(decided_reference):
-    from hpcves.analysis import read_source
+    from hpcves.reports.analyze import read_source
 
     source = read_source(decided_reference)
     messages = {c.case_id: c.message for c in source.cases}

@@ -17,10 +17,10 @@ from jobs import (MPIRUN, assert_same_results, case_statuses, freeze_when, hpcve
                   start_job, thaw, wait_until)
 from test_campaign import TINY_RUN
 
-from hpcves import campaign as campaign_module
-from hpcves.campaign import run_campaign
-from hpcves.checkpoint import FINISHED, RUNNING
-from hpcves.study import study_from_toml
+from hpcves.campaign import driver as campaign_module
+from hpcves.campaign.driver import run_campaign
+from hpcves.run.store import FINISHED, RUNNING
+from hpcves.campaign.study import study_from_toml
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
@@ -255,7 +255,7 @@ def test_a_disk_that_fills_up_during_creation_leaves_no_file(tmp_path, small_dis
     """Another process fills the disk after the space was checked: creation fails cleanly."""
     disk = small_disk(2)
     path, output = write_study(tmp_path / "job", t_end=10.0, output=disk / "out.h5")
-    from hpcves import atomic
+    from hpcves.files import atomic
 
     for module in (campaign_module, atomic):           # the checks pass; then the disk is full
         monkeypatch.setattr(module, "require_space", lambda *args: None)
@@ -334,7 +334,7 @@ def test_absurd_run_lengths_are_refused_with_the_numbers(tmp_path, numerics, run
 
 def test_a_study_no_disk_can_hold_is_refused_with_the_numbers(tmp_path):
     """10^8 steps a case (not absurd by itself), a sample every step: ~20 GB a case, ~20 TB for 1000."""
-    from hpcves.diagnostics import SERIES
+    from hpcves.run.diagnostics import SERIES
 
     path, output = write_study(tmp_path / "job", t_end=1e5, shear="{ linspace = [10, 400, 500] }",
                                psi="[0.3, 0.5]")
@@ -489,7 +489,7 @@ def test_run_resume_refuses_a_damaged_case_file(tmp_path):
     ("shear_rate = 40\npsi_bar = { linspace = [0.3, 0.5, 1000000000] }", "num = 1000000000 must lie in"),
 ])
 def test_sweeps_that_repeat_a_value_or_are_absurd_are_refused(sweep, words):
-    from hpcves.params import ConfigError
+    from hpcves.model.params import ConfigError
 
     text = STUDY.split("[sweep]")[0].format(output="x.h5", t_end=0.1, checkpoint=0.02) + "[sweep]\n" + sweep
     with pytest.raises(ConfigError, match=words.replace("(", r"\(").replace(")", r"\)")):
@@ -497,8 +497,8 @@ def test_sweeps_that_repeat_a_value_or_are_absurd_are_refused(sweep, words):
 
 
 def test_the_case_limit_is_checked_before_any_case_is_built(monkeypatch):
-    from hpcves import study as study_module
-    from hpcves.params import ConfigError
+    from hpcves.campaign import study as study_module
+    from hpcves.model.params import ConfigError
 
     def never(*args, **kwargs):
         raise AssertionError("a case was built")
@@ -512,11 +512,11 @@ def test_the_case_limit_is_checked_before_any_case_is_built(monkeypatch):
 
 # ---------------------------------------------------------------------- 6. analysis results that went stale
 def test_analyze_does_not_store_results_of_a_file_that_changed_meanwhile(tmp_path, monkeypatch):
-    from hpcves import analysis
+    from hpcves.reports import analyze as analysis
 
     path, output = write_study(tmp_path / "job", t_end=0.1, checkpoint=0.02)
     study = study_from_toml(path.read_text())
-    from hpcves import runner
+    from hpcves.run import runner
 
     real_run = runner.run
 
@@ -670,7 +670,7 @@ def test_readers_of_a_live_file_always_find_it_whole(tmp_path):
     span several stages."""
     from test_search_campaign import write_search
 
-    from hpcves.campaign_file import read_table
+    from hpcves.campaign.file import read_table
 
     path, output = write_search(tmp_path, checkpoint=0.05)
     job = start_job(2, "campaign", path, "--quiet")

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from conftest import advance, make_solver
-from hpcves.flow import MembraneFlow, TensionSolveError
+from hpcves.model.flow import MembraneFlow, TensionSolveError
 
 
 @pytest.mark.parametrize("excess_length, shear_rate", [(0.94, 80.0), (2.3, 10.0)])

@@ -8,10 +8,11 @@ published sign does fail this check.
 import numpy as np
 import pytest
 
-from hpcves import geometry, phasefield
-from hpcves.forces import bending_force, energy_terms, tension_force
-from hpcves.params import Physics
-from hpcves.spectral import Spectral
+from hpcves.model import geometry
+from hpcves.model import phasefield
+from hpcves.model.forces import bending_force, energy_terms, tension_force
+from hpcves.model.params import Physics
+from hpcves.numerics.spectral import Spectral
 
 N, L = 64, 2.6442
 
@@ -128,7 +129,7 @@ def test_chemical_potential_is_the_energy_derivative_in_psi(membrane, fine_membr
 
 
 def test_the_saturating_law_is_the_linear_one_on_zero_one_and_bounded_outside():
-    from hpcves import bending
+    from hpcves.model import bending
 
     inside = np.linspace(0.0, 1.0, 101)
     linear, saturating = Physics(bending_law="linear"), Physics(bending_law="saturating")

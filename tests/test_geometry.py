@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from hpcves import geometry
-from hpcves.params import REFERENCE_EXCESS_LENGTH, REFERENCE_LENGTH, ConfigError, Physics
-from hpcves.spectral import Spectral
+from hpcves.model import geometry
+from hpcves.model.params import REFERENCE_EXCESS_LENGTH, REFERENCE_LENGTH, ConfigError, Physics
+from hpcves.numerics.spectral import Spectral
 
 
 def test_the_reference_ellipse_has_the_published_excess_length():

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from hpcves.config import ConfigError
-from hpcves.periodicity import analyse, estimate_period, upward_crossings
-from hpcves.regimes import PT, TT, TU, UNDECIDED, AnalysisSettings, classify
+from hpcves.analysis.periodicity import analyse, estimate_period, upward_crossings
+from hpcves.analysis.regimes import PT, TT, TU, UNDECIDED, AnalysisSettings, classify
 
 H = 0.005                     # the default sampling interval of a run
 T = 0.7
@@ -199,7 +199,7 @@ def test_a_tumbling_period_of_whole_samples_is_not_locked_to_the_sample_grid():
 
 
 def test_the_bending_energy_gap_is_max_minus_min_over_a_period_and_its_error_covers_it():
-    from hpcves.regimes import bending_gap
+    from hpcves.analysis.regimes import bending_gap
 
     gap_true, T = 0.37, 0.7
     energy = 5.0 + 0.5 * gap_true * np.sin(2 * np.pi * t / T) + 0.1 * gap_true * np.sin(4 * np.pi * t / T + 0.3)

@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 
 from conftest import make_solver
-from hpcves import phasefield
-from hpcves.spectral import Spectral
+from hpcves.model import phasefield
+from hpcves.numerics.spectral import Spectral
 
 
 def test_double_well_derivatives():

@@ -8,8 +8,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from hpcves import plots  # noqa: E402
-from hpcves.regimes import OUTCOMES  # noqa: E402
+from hpcves.reports import plots# noqa: E402
+from hpcves.analysis.regimes import OUTCOMES  # noqa: E402
 
 
 def _row(regime, S, psi_bar, period=math.nan):
@@ -68,7 +68,7 @@ def _ellipse_snapshots(n_snapshots=6, N=64):
 
 
 def test_a_case_page_shows_the_settled_window_streamlines_and_short_titles():
-    from hpcves.params import Physics
+    from hpcves.model.params import Physics
 
     t = np.linspace(0.0, 3.0, 301)
     theta = 0.5 + 0.4 * np.exp(-10 * t) + 1e-4 * np.sin(2 * np.pi * t / 0.7)

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from hpcves import geometry
-from hpcves.quadrature import StokesSLP
-from hpcves.spectral import Spectral
+from hpcves.model import geometry
+from hpcves.numerics.quadrature import StokesSLP
+from hpcves.numerics.spectral import Spectral
 
 
 def circle(N, R):

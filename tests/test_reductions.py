@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from hpcves.reductions import largest_magnitude, maximum, minimum
+from hpcves.numerics.reductions import largest_magnitude, maximum, minimum
 
 
 @pytest.mark.parametrize("n", [1, 7, 128])

@@ -1,11 +1,11 @@
-"""Boundary tracing by refinement (hpcves/refine.py) on synthetic regime maps with known boundaries."""
+"""Boundary tracing by refinement (hpcves/analysis/refine.py) on synthetic regime maps with known boundaries."""
 import math
 
 import pytest
 
-from hpcves import refine
-from hpcves.params import ConfigError
-from hpcves.refine import Axis, RefineSettings
+from hpcves.analysis import refine
+from hpcves.model.params import ConfigError
+from hpcves.analysis.refine import Axis, RefineSettings
 
 S_AXIS = Axis("shear_rate", (1.0, 5.0, 20.0, 80.0, 350.0), tolerance=math.log(1.1), log=True)
 PSI_AXIS = Axis("psi_bar", (0.25, 0.5, 0.75), tolerance=0.05)

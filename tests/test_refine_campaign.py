@@ -12,12 +12,12 @@ import signal
 import h5py
 import pytest
 
-from hpcves.analysis import analyze
-from hpcves.campaign import run_campaign
-from hpcves.checkpoint import FINISHED
-from hpcves.params import ConfigError
-from hpcves.refine import CONVERGED, polylines
-from hpcves.study import study_from_toml
+from hpcves.reports.analyze import analyze
+from hpcves.campaign.driver import run_campaign
+from hpcves.run.store import FINISHED
+from hpcves.model.params import ConfigError
+from hpcves.analysis.refine import CONVERGED, polylines
+from hpcves.campaign.study import study_from_toml
 
 from jobs import assert_same_results, hpcves, job_pids, start_job, wait_until
 from test_campaign import TINY_RUN, needs_mpi, statuses

@@ -3,9 +3,9 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.checkpoint import FAILED, FINISHED
+from hpcves.run.store import FAILED, FINISHED
 from hpcves.config import case_from_toml
-from hpcves.spectral import resolution_needed, spectral_tail
+from hpcves.numerics.spectral import resolution_needed, spectral_tail
 
 from jobs import run_in_process
 
@@ -62,7 +62,7 @@ def test_a_field_with_a_heavy_tail_stops_the_run_as_under_resolved_naming_the_N_
 
 
 def test_the_loose_step_hint_is_given_only_where_the_step_tolerance_is_loose():
-    from hpcves.diagnostics import _loose_step_hint
+    from hpcves.run.diagnostics import _loose_step_hint
 
     def numerics(extra):
         return case_from_toml(CASE.format(N=32).replace("rtol = 1e-2", extra)).numerics

@@ -11,14 +11,14 @@ import signal
 import h5py
 import pytest
 
-from hpcves import campaign_file
-from hpcves.analysis import analyze
-from hpcves.campaign import run_campaign
-from hpcves.checkpoint import FINISHED
-from hpcves.params import ConfigError
-from hpcves.search import CONVERGED, UNBRACKETED
-from hpcves.search_campaign import CRITICAL_COLUMNS
-from hpcves.study import study_from_toml
+from hpcves.campaign import file as campaign_file
+from hpcves.reports.analyze import analyze
+from hpcves.campaign.driver import run_campaign
+from hpcves.run.store import FINISHED
+from hpcves.model.params import ConfigError
+from hpcves.analysis.search import CONVERGED, UNBRACKETED
+from hpcves.campaign.search_stages import CRITICAL_COLUMNS
+from hpcves.campaign.study import study_from_toml
 
 from jobs import assert_same_results, hpcves, job_pids, start_job, wait_until
 from test_campaign import TINY_RUN, needs_mpi, statuses
@@ -151,7 +151,7 @@ def test_a_stage_cut_short_while_adding_its_cases_leaves_the_file_as_it_was(sear
 
 def test_a_half_added_stage_of_an_older_version_is_dropped_and_made_again(searched, tmp_path, monkeypatch):
     """Files of hpcves before stages were added by replacement can hold groups beyond n_cases."""
-    from hpcves import campaign as campaign_module
+    from hpcves.campaign import driver as campaign_module
 
     _, reference, _, _ = searched
     path, output = write_search(tmp_path)

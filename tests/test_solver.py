@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from conftest import advance, make_solver
-from hpcves import geometry
-from hpcves.periodicity import crossing_period
-from hpcves.params import Case, Numerics, Physics, RunControl
-from hpcves.spectral import Spectral
-from hpcves.timestepping import Solver, State
+from hpcves.model import geometry
+from hpcves.analysis.periodicity import crossing_period
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.numerics.spectral import Spectral
+from hpcves.run.timestepping import Solver, State
 
 
 def measures(solver, state):
@@ -172,7 +172,7 @@ def test_near_critical_spinodal_growth_does_not_blow_up_the_phase_step():
     """psi_bar = 0.5, S = 80, dt = 1e-3: at step 13 the linearly implicit step met a spinodal
     stretch just short enough to pass ``applicable`` but growing at nearly 1/dt; psi jumped
     to [-0.44, 1.35] and the run died. The implausible step is now replaced by the robust one."""
-    from hpcves.phasefield import plausible
+    from hpcves.model.phasefield import plausible
 
     solver = make_solver(N=64, dt=1e-3, psi_bar=0.5, shear_rate=80.0)
     state = solver.initial_state()
@@ -188,7 +188,7 @@ def test_soft_phase_drawn_past_one_at_a_sharp_tip_stops_the_run_and_says_why():
     """Delta = 2.3, S = 20, psi_bar = 0.5: the soft phase gathers at a tip, the tip
     sharpens (|H| 14 -> 28) and psi passes 1.1 there at t ~ 0.95 (N = 64 and 128
     alike): a limit of the model's linear B(psi), which vanishes at psi = 1.11."""
-    from hpcves import diagnostics
+    from hpcves.run import diagnostics
 
     solver = make_solver(N=64, dt=5e-4, shear_rate=20.0, psi_bar=0.5, excess_length=2.3, bending_law="linear")
     state = solver.initial_state()
@@ -205,7 +205,7 @@ def test_soft_phase_drawn_past_one_at_a_sharp_tip_stops_the_run_and_says_why():
 def test_the_saturating_bending_law_keeps_that_tip_in_range():
     """The same case under the saturating law (B' fades outside [0, 1], bending.py) runs past the
     linear law's blow-up with psi confined near [0, 1] and no fallback to the stabilised step."""
-    from hpcves import diagnostics
+    from hpcves.run import diagnostics
 
     solver = make_solver(N=64, dt=5e-4, shear_rate=20.0, psi_bar=0.5, excess_length=2.3)
     assert solver.case.physics.bending_law == "saturating"

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from hpcves.spectral import Spectral
+from hpcves.numerics.spectral import Spectral
 
 L = 2.6442
 

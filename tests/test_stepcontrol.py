@@ -6,11 +6,14 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves import diagnostics, runner, schedule, stepcontrol
-from hpcves.checkpoint import FINISHED, INTERRUPTED, MODEL_LIMIT, CaseStore, open_file
+from hpcves.run import diagnostics
+from hpcves.run import runner
+from hpcves.run import schedule
+from hpcves.numerics import stepcontrol
+from hpcves.run.store import FINISHED, INTERRUPTED, MODEL_LIMIT, CaseStore, open_file
 from hpcves.config import case_from_toml
-from hpcves.params import Case, ConfigError, Numerics, Physics, RunControl
-from hpcves.timestepping import Coefficients, Estimate, Solver, quadratic_weights
+from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
+from hpcves.run.timestepping import Coefficients, Estimate, Solver, quadratic_weights
 
 from conftest import make_solver
 from jobs import resume_in_process, run_in_process, same_case_files

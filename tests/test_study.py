@@ -1,8 +1,8 @@
 """Campaign files: the grid of cases, end times, and the errors a user gets."""
 import pytest
 
-from hpcves.params import ConfigError
-from hpcves.study import study_from_toml
+from hpcves.model.params import ConfigError
+from hpcves.campaign.study import study_from_toml
 
 BASE = """
 [campaign]
@@ -95,13 +95,13 @@ def test_every_study_in_jobs_is_valid():
     from pathlib import Path
 
     from hpcves.config import load_case
-    from hpcves.study import load_study
+    from hpcves.campaign.study import load_study
 
     jobs = Path(__file__).resolve().parent.parent / "jobs"
     studies = [p for p in jobs.glob("*.toml") if "[campaign]" in p.read_text()]
     assert {p.name for p in studies} >= {"demo.toml", "delta0194_S_psi.toml", "psi048_delta_S.toml",
                                          "delta094_S_psi.toml", "delta230_S_psi.toml"}
-    from hpcves.search_campaign import search_points
+    from hpcves.campaign.search_stages import search_points
 
     for path in studies:
         study = load_study(path)
@@ -113,7 +113,7 @@ def test_every_study_in_jobs_is_valid():
 def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tighter():
     from pathlib import Path
 
-    from hpcves.study import load_study
+    from hpcves.campaign.study import load_study
 
     jobs = Path(__file__).resolve().parent.parent / "jobs" / "reproduce"
     coarse = sorted(jobs.glob("*.toml"))
@@ -174,7 +174,7 @@ def test_search_fingerprint_of_older_files_is_kept():
 def test_a_case_stored_before_the_bending_law_option_reads_back_as_the_linear_law(tmp_path):
     """Every stored case writes all its parameters; one written before physics.bending_law has
     none, and ran the linear law: it must resume with that, not with today's default."""
-    from hpcves.checkpoint import CaseStore, open_file
+    from hpcves.run.store import CaseStore, open_file
     from hpcves.config import case_from_toml, case_to_toml
 
     case = case_from_toml("[physics]\nbending_law = \"linear\"\n[run]\nt_end = 0.1\n")

@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 
 from conftest import make_solver
-from hpcves import diagnostics, geometry
-from hpcves.periodicity import crossing_period
+from hpcves.run import diagnostics
+from hpcves.model import geometry
+from hpcves.analysis.periodicity import crossing_period
 
 pytestmark = pytest.mark.slow
 
@@ -49,12 +50,12 @@ def test_homogeneous_angle_is_the_same_at_S350():
 
 
 def test_the_discretisation_error_bar_covers_the_period_and_inclination_error():
-    """hpcves/accuracy.py's rule on the period table's fastest case (psi_bar = 0.3, S = 320) at sparse
+    """hpcves/analysis/accuracy.py's rule on the period table's fastest case (psi_bar = 0.3, S = 320) at sparse
     sampling (the controller alone sets the step), against rtol = 1e-4 (docs/error_rule.md)."""
     import sys
     from pathlib import Path
 
-    from hpcves import accuracy
+    from hpcves.analysis import accuracy
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
     import error_rule

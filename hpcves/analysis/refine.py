@@ -1,0 +1,396 @@
+"""Regime boundaries over two parameters, traced by refining a coarse grid (pure logic).
+
+Like a search (search.py), a refinement's state is nothing but the outcomes found
+so far, ``{(x, y): regime}``; :func:`step` turns them into the points to run next
+or a final verdict, so a refinement resumes by replaying its classified cases and
+asks for the same points in every run.
+
+* Coordinates: each axis on its own scale, u = log v on a log axis (S), u = v on
+  a linear one (psi_bar, Delta, B2); tolerances are widths in u (log(1 + rel) for
+  a relative one).
+* Start: the coarse grid, every pair of its x and y values.
+* Cells: the rectangles of the coarse grid, each split in two along every axis on
+  which it is wider than its tolerance (a quadtree), as long as it is **mixed**:
+  the outcomes at the known points on it (its corners, the points that its
+  neighbours' splits put on its edges, any inside it) are not all one regime of
+  TT, PT, TU -- two regimes, or one point undecided, failed or at the model's
+  limit. A split asks for the new corners (edge midpoints and centre, in u); once
+  they are known its halves are refined the same way.
+* Stop when no mixed cell is wider than the tolerance (``converged``: every
+  boundary bracketed to it), or when ``max_cases`` points are spent (``budget
+  spent``: the widest mixed cells are split first, so the budget goes where
+  the brackets are widest).
+
+What it cannot see: a region that falls between the points of a cell whose
+known outcomes all agree (an island smaller than a coarse cell that no coarse
+point hits). The coarse grid sets the smallest feature that is found.
+
+The boundary (:func:`boundary`) is read off the finest cells: every cell edge
+whose two ends have different outcomes brackets a crossing, located at the
+edge's middle (in u) to half its width; a crossing with an end that is
+undecided, failed or at the model's limit is **blurry** (which side it lies on is
+unknown). :func:`polylines` chains the crossings of each pair of outcomes into
+lines for a figure or a CSV file.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from hpcves.config import check_type
+from hpcves.model.params import ConfigError
+from hpcves.analysis.regimes import PT, TT, TU
+
+CONVERGED, RUNNING, BUDGET = "converged", "running", "budget spent"
+DECIDED = (TT, PT, TU)
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One parameter of the plane: its coarse values and how finely to bracket a boundary on it."""
+
+    key: str
+    values: tuple             # the coarse grid, increasing
+    tolerance: float          # a width in u: absolute on a linear axis, log(1 + rel) on a log one
+    log: bool = False
+
+    def __post_init__(self):
+        if len(self.values) < 2 or any(b <= a for a, b in zip(self.values, self.values[1:])):
+            raise ConfigError(f"refine: {self.key} needs at least two increasing values, got {list(self.values)}")
+        if self.log and self.values[0] <= 0:
+            raise ConfigError(f"refine: {self.key} on a log scale needs positive values, got {list(self.values)}")
+        if not self.tolerance > 0:
+            raise ConfigError(f"refine: the tolerance on {self.key} must be > 0, got {self.tolerance}")
+
+    def u(self, value: float) -> float:
+        return math.log(value) if self.log else float(value)
+
+    def value(self, u: float) -> float:
+        """The parameter at coordinate u, rounded to 12 significant digits: the same in every run."""
+        return float(f"{(math.exp(u) if self.log else u):.12g}")
+
+    def full_grid_points(self) -> int:
+        """Values a regular grid needs on this axis to have every interval within the tolerance."""
+        return 1 + sum(2 ** _halvings(self.u(b) - self.u(a), self.tolerance)
+                       for a, b in zip(self.values, self.values[1:]))
+
+
+def _halvings(width: float, tolerance: float) -> int:
+    """Times an interval of ``width`` is halved until it is within ``tolerance``."""
+    return max(0, math.ceil(math.log2(width / tolerance) - 1e-12))
+
+
+@dataclass(frozen=True)
+class RefineSettings:
+    """The plane, the tolerances and the budget of one refinement."""
+
+    x: Axis
+    y: Axis
+    max_cases: int = 200
+
+    def __post_init__(self):
+        if self.x.key == self.y.key:
+            raise ConfigError(f"refine: the two axes are both {self.x.key}")
+        coarse = len(self.x.values) * len(self.y.values)
+        if self.max_cases < coarse:
+            raise ConfigError(f"refine.max_cases = {self.max_cases}: fewer than the {coarse} points of the "
+                              "coarse grid")
+
+    def log_keys(self) -> tuple:
+        """The parameters of the plane on a log scale."""
+        return tuple(a.key for a in (self.x, self.y) if a.log)
+
+    def full_grid_cases(self) -> int:
+        """Cases of the regular grid that brackets every boundary to the tolerances everywhere."""
+        return self.x.full_grid_points() * self.y.full_grid_points()
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A rectangle in (u_x, u_y); its corners are points of the refinement."""
+
+    x0: float
+    x1: float
+    y0: float
+    y1: float
+
+    def corners(self, settings: RefineSettings) -> tuple:
+        return tuple(point(settings, x, y) for x in (self.x0, self.x1) for y in (self.y0, self.y1))
+
+    def splits(self, settings: RefineSettings) -> tuple[bool, bool]:
+        """Along which axes the cell is wider than its tolerance."""
+        return (self.x1 - self.x0 > settings.x.tolerance * (1 + 1e-9),
+                self.y1 - self.y0 > settings.y.tolerance * (1 + 1e-9))
+
+    def halves(self, settings: RefineSettings) -> tuple:
+        """The cells it splits into (2 or 4), and the new points that split needs."""
+        split_x, split_y = self.splits(settings)
+        xs = (self.x0, 0.5 * (self.x0 + self.x1), self.x1) if split_x else (self.x0, self.x1)
+        ys = (self.y0, 0.5 * (self.y0 + self.y1), self.y1) if split_y else (self.y0, self.y1)
+        return tuple(Cell(a, b, c, d) for a, b in zip(xs, xs[1:]) for c, d in zip(ys, ys[1:]))
+
+    def size(self, settings: RefineSettings) -> float:
+        """Its width in tolerances along the wider axis: how far it is from done."""
+        return max((self.x1 - self.x0) / settings.x.tolerance, (self.y1 - self.y0) / settings.y.tolerance)
+
+
+#: default tolerances of ``[refine]``: relative on S (10 %), absolute on the others
+DEFAULT_TOLERANCE = {"shear_rate": 0.1, "psi_bar": 0.05, "excess_length": 0.05, "B2": 0.05}
+#: the parameters refined on a log scale (S spans decades); the others are linear
+LOG_KEYS = ("shear_rate",)
+
+
+@dataclass(frozen=True)
+class RefinePlan:
+    """``[refine]`` of a campaign file: the plane, the tolerances, the budget of each refinement::
+
+        [refine]
+        axes = ["shear_rate", "psi_bar"]               # default: the first two swept keys
+        tolerance = { shear_rate = 0.1, psi_bar = 0.05 }   # relative on S, absolute otherwise
+        max_cases = 150                                # per refinement (coarse grid included)
+
+    The coarse grid is the ``[sweep]`` values of the two axes; every combination of the
+    other swept keys gets a refinement of its own.
+    """
+
+    axes: tuple               # (x key, y key)
+    tolerance: tuple          # ((key, tolerance), ...) for the two axes, in the user's terms
+    max_cases: int = 200
+
+    def settings(self, sweep: dict) -> RefineSettings:
+        """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
+        tolerance = dict(self.tolerance)
+
+        def axis(key):
+            log = key in LOG_KEYS
+            return Axis(key, tuple(sorted(sweep[key])), math.log1p(tolerance[key]) if log else tolerance[key], log)
+
+        return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases)
+
+    @classmethod
+    def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
+        """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
+        known = ("axes", "tolerance", "max_cases")
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
+                              f"(known: {', '.join(known)})")
+        swept = [k for k, v in sweep.items() if len(v) > 1]
+        axes = values.get("axes", swept[:2])
+        if (not isinstance(axes, list | tuple) or len(axes) != 2
+                or not all(isinstance(a, str) for a in axes)):
+            raise ConfigError(f"{where}: axes = {axes!r}: give the two swept parameters of the plane, "
+                              'e.g. axes = ["shear_rate", "psi_bar"]')
+        for key in axes:
+            if key not in sweep:
+                raise ConfigError(f"{where}: axis {key} is not in [sweep] (its values there are the coarse grid)")
+            if len(sweep[key]) < 2:
+                raise ConfigError(f"{where}: axis {key} has {len(sweep[key])} value in [sweep]; the coarse "
+                                  "grid needs at least two")
+        if axes[0] == axes[1]:
+            raise ConfigError(f"{where}: the two axes are both {axes[0]}")
+        given = values.get("tolerance", {})
+        if not isinstance(given, dict):
+            raise ConfigError(f"{where}: tolerance = {given!r}: must be a table, e.g. "
+                              "{ shear_rate = 0.1, psi_bar = 0.05 }")
+        extra = sorted(set(given) - set(axes))
+        if extra:
+            raise ConfigError(f"{where}: tolerance for {', '.join(extra)}, which is not an axis ({', '.join(axes)})")
+        tolerance = []
+        for key in axes:
+            value = check_type(f"refine.tolerance.{key}", given.get(key, DEFAULT_TOLERANCE[key]), float)
+            if not value > 0:
+                raise ConfigError(f"{where}: tolerance.{key} = {value}: must be > 0"
+                                  + (" (relative: 0.1 brackets S to 10 %)" if key in LOG_KEYS else ""))
+            tolerance.append((key, value))
+        max_cases = check_type("refine.max_cases", values.get("max_cases", 200), int)
+        plan = cls(tuple(axes), tuple(tolerance), max_cases)
+        try:
+            plan.settings(sweep)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {str(exc).removeprefix('refine: ')}") from None
+        return plan
+
+
+def point(settings: RefineSettings, ux: float, uy: float) -> tuple[float, float]:
+    """The parameter values (x, y) of the point at coordinates (ux, uy)."""
+    return settings.x.value(ux), settings.y.value(uy)
+
+
+@dataclass(frozen=True)
+class RefineState:
+    status: str                     # converged, running, budget spent
+    next_points: tuple              # (x, y) to run now (empty unless running)
+    cells: tuple                    # the finest mixed cells so far
+    reason: str
+
+
+def coarse_points(settings: RefineSettings) -> tuple:
+    return tuple((settings.x.value(settings.x.u(x)), settings.y.value(settings.y.u(y)))
+                 for x in settings.x.values for y in settings.y.values)
+
+
+def step(settings: RefineSettings, results: dict) -> RefineState:
+    """The next points to run given ``results`` = {(x, y): outcome} of the classified cases."""
+    missing = tuple(p for p in coarse_points(settings) if p not in results)
+    if missing:
+        return RefineState(RUNNING, missing, (), f"the coarse grid: {len(missing)} points")
+    leaves, wanted = _mixed_leaves(settings, results)
+    if not wanted:
+        return RefineState(CONVERGED, (), tuple(leaves),
+                           f"every boundary bracketed to the tolerances ({len(results)} cases)")
+    left = settings.max_cases - len(results)
+    if left <= 0:
+        return RefineState(BUDGET, (), tuple(leaves), f"max_cases = {settings.max_cases} spent with "
+                           f"{len(wanted)} mixed cells wider than the tolerances")
+    chosen: list = []
+    for _, cell, points in sorted(wanted, key=lambda w: (-w[0], w[1].x0, w[1].y0)):
+        new = [p for p in points if p not in chosen]
+        if len(chosen) + len(new) > left:
+            break
+        chosen += new
+    if not chosen:
+        return RefineState(BUDGET, (), tuple(leaves), f"max_cases = {settings.max_cases}: {left} left, too few "
+                           "for the next split")
+    return RefineState(RUNNING, tuple(sorted(chosen)), tuple(leaves),
+                       f"{len(wanted)} mixed cells wider than the tolerances: {len(chosen)} new points")
+
+
+def _outcomes_on(cell: Cell, settings: RefineSettings, known: list) -> set:
+    """The outcomes of the known points on the closed cell (corners, edges, inside)."""
+    eps_x, eps_y = 1e-9 * settings.x.tolerance, 1e-9 * settings.y.tolerance
+    return {regime for ux, uy, regime in known
+            if cell.x0 - eps_x <= ux <= cell.x1 + eps_x and cell.y0 - eps_y <= uy <= cell.y1 + eps_y}
+
+
+def _mixed(outcomes: set) -> bool:
+    return len(outcomes) > 1 or not outcomes <= set(DECIDED)
+
+
+def _mixed_leaves(settings: RefineSettings, results: dict):
+    """(the finest mixed cells, [(size, cell, its split's points)] for the mixed cells still too wide
+    whose split has points not yet run)."""
+    known = [(ux, uy, results[p]) for ux, uy, p in _coordinates(settings, results)]
+    xs = [settings.x.u(v) for v in settings.x.values]
+    ys = [settings.y.u(v) for v in settings.y.values]
+    todo = [Cell(a, b, c, d) for a, b in zip(xs, xs[1:]) for c, d in zip(ys, ys[1:])]
+    leaves, wanted = [], []
+    while todo:
+        cell = todo.pop()
+        if not _mixed(_outcomes_on(cell, settings, known)):
+            continue
+        if not any(cell.splits(settings)):
+            leaves.append(cell)
+            continue
+        halves = cell.halves(settings)
+        needed = sorted({p for half in halves for p in half.corners(settings)} - set(results))
+        if needed:
+            leaves.append(cell)
+            wanted.append((cell.size(settings), cell, needed))
+        else:
+            todo.extend(halves)
+    leaves.sort(key=lambda c: (c.x0, c.y0))
+    return leaves, wanted
+
+
+# ---------------------------------------------------------------------- the boundary
+@dataclass(frozen=True)
+class Crossing:
+    """Where a boundary crosses the edge between two points of different outcomes."""
+
+    pair: str                  # the two outcomes, sorted: "PT|TT"
+    x: float                   # the edge's middle (in u)
+    y: float
+    x_low: float               # the edge's ends: the bracket
+    x_high: float
+    y_low: float
+    y_high: float
+    blurry: bool               # one end is not TT, PT or TU
+
+
+def boundary(settings: RefineSettings, results: dict, cells=None) -> list[Crossing]:
+    """The crossings on the edges of the finest mixed cells (``cells``, default: step's)."""
+    found, _ = _crossings(settings, results, cells)
+    return sorted(found.values(), key=lambda c: (c.pair, c.x, c.y))
+
+
+def _crossings(settings, results, cells):
+    """({edge: Crossing}, [the edges with a crossing, per cell]) of the finest mixed cells."""
+    if cells is None:
+        cells, _ = _mixed_leaves(settings, results)
+    known = _coordinates(settings, results)
+    found, per_cell = {}, []
+    for cell in cells:
+        mine = []
+        for (ax, ay), (bx, by) in (((cell.x0, cell.y0), (cell.x1, cell.y0)), ((cell.x0, cell.y1), (cell.x1, cell.y1)),
+                                   ((cell.x0, cell.y0), (cell.x0, cell.y1)), ((cell.x1, cell.y0), (cell.x1, cell.y1))):
+            for a, b in _edge_pieces(settings, known, (ax, ay), (bx, by)):
+                ra, rb = results[a], results[b]
+                if ra == rb:
+                    continue
+                key = (min(a, b), max(a, b))
+                if key not in found:
+                    ua = (settings.x.u(a[0]), settings.y.u(a[1]))
+                    ub = (settings.x.u(b[0]), settings.y.u(b[1]))
+                    mx, my = point(settings, 0.5 * (ua[0] + ub[0]), 0.5 * (ua[1] + ub[1]))
+                    found[key] = Crossing("|".join(sorted((ra, rb))), mx, my, min(a[0], b[0]), max(a[0], b[0]),
+                                          min(a[1], b[1]), max(a[1], b[1]), not (ra in DECIDED and rb in DECIDED))
+                mine.append(key)
+        per_cell.append(mine)
+    return found, per_cell
+
+
+def _coordinates(settings: RefineSettings, results: dict) -> list:
+    """(u_x, u_y, point) of every known point."""
+    return [(settings.x.u(p[0]), settings.y.u(p[1]), p) for p in results]
+
+
+def _edge_pieces(settings, known, a, b):
+    """The consecutive ``known`` points (_coordinates) along the edge from a to b (u coordinates), as
+    pairs of points (a point's u, from its value rounded to 12 digits, is within 1e-9 tolerances of
+    the lattice's)."""
+    eps_x, eps_y = 1e-9 * settings.x.tolerance, 1e-9 * settings.y.tolerance
+    horizontal = a[1] == b[1]
+    on_edge = []
+    for ux, uy, p in known:
+        if horizontal and abs(uy - a[1]) <= eps_y and a[0] - eps_x <= ux <= b[0] + eps_x:
+            on_edge.append((ux, p))
+        elif not horizontal and abs(ux - a[0]) <= eps_x and a[1] - eps_y <= uy <= b[1] + eps_y:
+            on_edge.append((uy, p))
+    on_edge.sort()
+    return [(p, q) for (_, p), (_, q) in zip(on_edge, on_edge[1:])]
+
+
+def polylines(settings: RefineSettings, results: dict, cells=None) -> list[tuple[str, list[Crossing]]]:
+    """The crossings of each pair of outcomes chained into lines, as marching squares does: two
+    crossings of one pair on the edges of one cell are neighbours along the boundary. Each line
+    runs from an end (a crossing with one neighbour; any crossing of a closed loop) to the
+    nearest unvisited neighbour until none is left; a loop's last crossing neighbours its first."""
+    found, per_cell = _crossings(settings, results, cells)
+    links = {key: set() for key in found}
+    for keys in per_cell:
+        for a in keys:
+            for b in keys:
+                if a != b and found[a].pair == found[b].pair:
+                    links[a].add(b)
+
+    def gap(a, b):
+        return math.hypot((settings.x.u(found[a].x) - settings.x.u(found[b].x)) / settings.x.tolerance,
+                          (settings.y.u(found[a].y) - settings.y.u(found[b].y)) / settings.y.tolerance)
+
+    lines, seen = [], set()
+    order = sorted(found, key=lambda k: (found[k].pair, len(links[k]) != 1, found[k].x, found[k].y))
+    for start in order:
+        if start in seen:
+            continue
+        line = [start]
+        seen.add(start)
+        while True:
+            ahead = [k for k in links[line[-1]] if k not in seen]
+            if not ahead:
+                break
+            nearest = min(ahead, key=lambda k: (gap(line[-1], k), found[k].x, found[k].y))
+            line.append(nearest)
+            seen.add(nearest)
+        lines.append((found[start].pair, [found[k] for k in line]))
+    return lines

@@ -1,0 +1,148 @@
+"""The critical shear rate S_C: bracket it between a TT and a PT case, then bisect (pure logic).
+
+One search runs along S for fixed (psi_bar, Delta, B2). Its state is nothing
+but the regimes found so far, ``{S: regime}``; :func:`step` turns that into
+the next shear rates to run or a final verdict. Being a pure function of the
+results, a search resumes by replaying them, and the cases it asks for are
+the same in every run.
+
+* Start: the two ends of ``[low, high]`` (and ``points - 1`` shear rates
+  spaced geometrically between them).
+* Bracket: ``lo`` = the largest TT shear rate below every PT/TU one,
+  ``hi`` = the smallest PT/TU one above ``lo``.
+* Bisect geometrically (S spans decades): the next case is sqrt(lo hi) --
+  or, with ``points = k``, the k rates that split [lo, hi] into k + 1 equal
+  ratios, run side by side (for many ranks and few searches) -- until
+  ``hi / lo - 1 <= rel_tol``; then S_C = sqrt(lo hi), bracket [lo, hi].
+* Stop without S_C, saying why, when: the range does not bracket a
+  transition (TT everywhere: S_C > high; PT at ``low`` already: S_C < low);
+  a case inside the bracket is undecided, failed or at the model's limit; TT is found above a PT
+  case (no single transition); or ``max_cases`` cases were spent.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from hpcves.config import from_table
+from hpcves.model.params import ConfigError
+from hpcves.analysis.regimes import PT, TT, TU
+
+CONVERGED, RUNNING, UNBRACKETED, STOPPED = "converged", "running", "not bracketed", "stopped"
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """``[search]`` of a campaign file: the S range and the relative tolerance on S_C."""
+
+    low: float
+    high: float
+    rel_tol: float = 0.02
+    max_cases: int = 16
+    points: int = 1                # shear rates per search per stage (k-section; 1 = bisection)
+
+    def __post_init__(self):
+        if not 0 < self.low < self.high:
+            raise ConfigError(f"search: need 0 < low < high, got low = {self.low}, high = {self.high}")
+        if not 0 < self.rel_tol < 1:
+            raise ConfigError(f"search.rel_tol = {self.rel_tol}: must lie in (0, 1)")
+        if self.points < 1:
+            raise ConfigError(f"search.points = {self.points}: must be >= 1")
+        if self.max_cases < self.points + 1:
+            raise ConfigError(f"search.max_cases = {self.max_cases}: must be >= points + 1 = {self.points + 1}")
+
+    def cases_needed(self) -> int:
+        """Cases a search takes at most to converge from [low, high].
+
+        The start (points + 1 cases) leaves a bracket of ratio (high/low)^(1/points);
+        each stage divides its logarithm by points + 1. For bisection this is
+        2 + ceil(log2(log(high/low) / log(1 + rel_tol))).
+        """
+        ratio = math.log(self.high / self.low) / self.points / math.log1p(self.rel_tol)
+        stages = max(0, math.ceil(math.log(ratio) / math.log(self.points + 1) - 1e-12)) if ratio > 1 else 0
+        return self.points + 1 + stages * self.points
+
+    def stages_needed(self) -> int:
+        """Stages (rounds of cases run side by side) a search takes at most: the start plus the splits."""
+        return 1 + (self.cases_needed() - self.points - 1) // self.points
+
+    @classmethod
+    def from_dict(cls, values: dict, where: str = "[search]") -> "SearchSettings":
+        unknown = set(values) - {f.name for f in fields(cls)}       # from_table names them
+        missing = [k for k in ("low", "high") if k not in values]
+        if missing and not unknown:
+            raise ConfigError(f"{where}: give {' and '.join(missing)} (the range of S to search)")
+        return from_table(cls, values, where, "search")
+
+
+@dataclass(frozen=True)
+class SearchState:
+    status: str                    # converged, running, not bracketed, stopped
+    next_shear_rates: tuple        # to run now (empty unless running)
+    low: float                     # bracket: the largest TT below the transition (nan if none)
+    high: float                    # the smallest PT/TU above it (nan if none)
+    critical: float                # sqrt(low high) once converged, else nan
+    reason: str
+
+
+def _clean(value: float) -> float:
+    return float(f"{value:.12g}")
+
+
+def between(low: float, high: float, k: int) -> tuple:
+    """The k shear rates that split [low, high] into k + 1 equal ratios (k = 1: sqrt(low high))."""
+    if k == 1:
+        return (_clean(math.sqrt(low * high)),)
+    return tuple(_clean(low * (high / low) ** (i / (k + 1))) for i in range(1, k + 1))
+
+
+def start_rates(settings: SearchSettings) -> tuple:
+    """The shear rates of a search's first stage: both ends and points - 1 between them."""
+    inner = between(settings.low, settings.high, settings.points - 1) if settings.points > 1 else ()
+    return (settings.low, *inner, settings.high)
+
+
+def step(settings: SearchSettings, results: dict) -> SearchState:
+    """The state of one search given ``results`` = {shear rate: regime} of its finished cases.
+
+    A regime other than TT, PT or TU (undecided, failed, model limit) is never taken as either side.
+    """
+    nan = float("nan")
+    missing = tuple(s for s in start_rates(settings) if s not in results)
+    if missing:
+        return SearchState(RUNNING, missing, nan, nan, nan, "starting: both ends of the range")
+    rates = sorted(results)
+    above = [s for s in rates if results[s] in (PT, TU)]
+    if not above:
+        undecided = [s for s in rates if results[s] != TT]
+        if undecided:
+            return SearchState(STOPPED, (), nan, nan, nan,
+                               f"no PT found, and S = {_list(undecided)} undecided")
+        return SearchState(UNBRACKETED, (), settings.high, nan, nan,
+                           f"TT up to S = {settings.high:g}: S_C > {settings.high:g}")
+    hi = above[0]
+    below = [s for s in rates if s < hi]
+    if not below or results[settings.low] in (PT, TU):
+        return SearchState(UNBRACKETED, (), nan, hi, nan,
+                           f"{results[settings.low]} already at S = {settings.low:g}: S_C < {settings.low:g}")
+    lo = below[-1]
+    if results[lo] != TT:
+        return SearchState(STOPPED, (), nan, hi, nan, f"S = {lo:g} below the first PT is {results[lo]}")
+    wrong = [s for s in rates if s > hi and results[s] == TT]
+    if wrong:
+        return SearchState(STOPPED, (), lo, hi, nan,
+                           f"TT again at S = {_list(wrong)} above PT at S = {hi:g}: not a single transition")
+    if hi / lo - 1 <= settings.rel_tol:
+        critical = math.sqrt(lo * hi)
+        return SearchState(CONVERGED, (), lo, hi, critical,
+                           f"S_C = {critical:.4g} in [{lo:g}, {hi:g}] ({len(results)} cases)")
+    left = settings.max_cases - len(results)
+    if left <= 0:
+        return SearchState(STOPPED, (), lo, hi, nan, f"max_cases = {settings.max_cases} spent; S_C in "
+                                                     f"[{lo:g}, {hi:g}]")
+    return SearchState(RUNNING, between(lo, hi, min(settings.points, left)), lo, hi, nan,
+                       f"bracket [{lo:g}, {hi:g}]")
+
+
+def _list(values) -> str:
+    return ", ".join(f"{v:g}" for v in values)

@@ -1,0 +1,779 @@
+"""Running a study on MPI: rank 0 schedules and computes, the other ranks compute.
+
+Scheduling (:class:`Master`, rank 0). Cases go out most expensive first
+(cost = steps x N^2) to whichever rank asks. Rank 0 runs cases itself: its
+run loop polls the message queue once per time step (``MPI.Iprobe``, ~1 us)
+and answers requests there, so with ``mpirun -n 2`` on two cores both cores
+compute. Nobody busy-waits: a rank with nothing to compute polls with a
+sleep that backs off from 1 ms to 50 ms (as mpi4py.futures does), and the
+final synchronisation is a non-blocking barrier polled the same way.
+
+Workers (:func:`worker_loop`) ask for a case, run it, report, ask again.
+A case that raises is recorded as failed (message and traceback in the file)
+and the rank asks for the next one; only an error outside a case (a bug in
+the scheduler itself) aborts the job (``MPI.Abort``), so nothing ever hangs.
+
+Stopping. SIGTERM/SIGINT on any rank (SLURM signals every task; mpirun
+forwards to every rank) sets that rank's flag; its running case checkpoints
+at the next step and reports "interrupted", and rank 0 then stops handing
+out cases and tells every busy rank to checkpoint too. If the job has not
+wound down ``stop_timeout`` seconds after the first stop request, rank 0
+aborts it (valid checkpoints are never at risk: see checkpoint.py).
+
+File access. With one process the file is opened with the default driver.
+With several ranks and an h5py built with MPI every rank opens it with the
+``mpio`` driver; the structure is created collectively up front, under a
+temporary name that is renamed to the file's once complete (atomic.py), after
+which each case is written only by the rank running it (independent raw-data
+writes to preallocated datasets, which reach the file in program order -- the
+order the checkpoint protocol needs). A search or refine stage's new cases are added
+the same way, to a copy that replaces the file. Without MPI in h5py (or with
+``io="relay"``) only rank 0 opens the file and applies the other ranks'
+writes, which they send it in order (relay.py).
+
+Who writes. Every rank holds its part of the file's lock (lock.py) for the
+whole campaign, so no second campaign starts while any rank of this one
+lives. When the file system refuses a write (a full disk), the case is not
+failed: the campaign stops as on SIGTERM, every case keeping its last valid
+checkpoint, and ends with exit status 2 and the reason.
+"""
+from __future__ import annotations
+
+import logging
+import sys
+import threading
+import time
+import traceback
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from hpcves.run import runner
+from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
+    remove_partial, require_space, size_text
+from hpcves.campaign.file import CampaignFile
+from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
+                         FileFormatError,
+                         attr_text, open_file, reading, safe_flush, storage_bytes)
+from hpcves.files.lock import CampaignLock, LockError, real_path
+from hpcves.model.params import ConfigError
+from hpcves.analysis.regimes import AnalysisSettings
+from hpcves.campaign.relay import Relay, RemoteCampaign
+from hpcves.campaign.refine_stages import RefineDriver
+from hpcves.campaign.search_stages import SearchDriver
+from hpcves.campaign.study import Study
+
+log = logging.getLogger(__name__)
+
+TAG_REQUEST = 11      # worker -> rank 0: ("ready",) | ("done", CaseResult) | ("progress", id, fraction) | ("stop",)
+                      #   | with --io relay, its file writes and reads (relay.py), on this tag to keep their order
+TAG_TASK = 12         # rank 0 -> worker: (case_id, resume) or None (no more work)
+TAG_STOP = 13         # rank 0 -> worker: checkpoint the running case and report
+TAG_REPLY = 14        # rank 0 -> worker: the answer to a file read (--io relay only)
+IO_MODES = ("auto", "mpio", "relay")
+PROGRESS_SECONDS = 2.0
+#: CaseResult.status of a case stopped because the file system refused a write (never stored in the file)
+NOT_WRITTEN = -1
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    case_id: str
+    status: int
+    message: str
+    t: float
+    steps: int
+    wall: float
+    rank: int
+
+
+@dataclass(frozen=True)
+class Summary:
+    """What a campaign call did, and the state of the whole file afterwards."""
+
+    ran: tuple                      # CaseResult of every case run in this call
+    counts: dict                    # status name -> number of cases in the file
+    failed: tuple                   # (case_id, message) of every failed case in the file
+    wall: float
+    searches: tuple = ()            # search (refine) studies: SearchOutcome (RefineOutcome) of every search
+                                    # (refinement); empty if stopped
+    not_written: str = ""           # why the campaign stopped when the file system refused a write
+
+    @property
+    def exit_status(self) -> int:
+        return 2 if self.not_written else 1 if self.failed else 0
+
+
+# ---------------------------------------------------------------------- helpers
+class Backoff:
+    """Sleep 1 ms, doubling to 50 ms, while there is nothing to do; reset on activity."""
+
+    def __init__(self, start=1e-3, limit=0.05):
+        self.start, self.limit, self.delay = start, limit, start
+
+    def reset(self):
+        self.delay = self.start
+
+    def sleep(self):
+        time.sleep(self.delay)
+        self.delay = min(2.0 * self.delay, self.limit)
+
+
+def wait_until(ready: Callable[[], bool]) -> None:
+    """Poll ``ready`` with a backoff until it is true (MPI's own waits keep a core spinning)."""
+    backoff = Backoff()
+    while not ready():
+        backoff.sleep()
+
+
+def wait(request) -> None:
+    """Complete a non-blocking MPI request without spinning."""
+    wait_until(request.Test)
+
+
+def bcast(comm, value, root: int = 0):
+    """``comm.bcast`` without spinning: a non-blocking barrier polled with a backoff first, so that
+    ranks waiting for rank 0's serial work (reading, copying, classifying) leave their cores alone."""
+    wait(comm.Ibarrier())
+    return comm.bcast(value, root=root)
+
+
+def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> str:
+    """Decide, on rank 0 holding the file's lock, whether to create the file or continue it; refuse
+    bad files, damaged cases and what the disk has no room for. Returns "create" or "continue".
+
+    A leftover ``.partial`` (a creation, stage or analysis cut short) is removed. With ``overwrite``
+    an existing file is only replaced once its successor is complete.
+    """
+    if remove_partial(path):
+        log.warning("%s: removed %s, left behind by an interrupted change", path, partial_path(path).name)
+    if path.exists() and not overwrite:
+        if not resume:
+            raise FileFormatError(f"{path}: exists already; use --resume to continue it or --overwrite to "
+                                  "start over")
+        _drop_partial_stage(path)
+        check_file(study, path)
+        return "continue"
+    needed = METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases)
+    replaced = " (the old file is replaced only once the new one is complete)" if path.exists() else ""
+    require_space(path, needed, f"the campaign file ({len(study.cases)} cases, every sample and snapshot "
+                                f"preallocated){replaced}")
+    return "create"
+
+
+def _drop_partial_stage(path: Path) -> None:
+    """Files of hpcves before stages were added by replacement: drop a half-added stage's cases."""
+    try:
+        with open_file(path, "r", locking=False) as h5:
+            partial = (attr_text(h5.attrs.get("mode", "")) == "search"
+                       and len(h5.get("cases", ())) != int(h5.attrs.get("n_cases", -1)))
+    except HDF5_ERRORS:
+        return                                     # check_file says what is wrong
+    if partial:
+        copy = copy_for_change(path, 0, "removing a half-added search stage")
+        with open_file(copy, "r+") as h5:
+            dropped = CampaignFile.drop_partial_stage(h5)
+        publish(copy, path)
+        log.warning("%s: removed %d case%s of a search stage whose adding was interrupted; the search makes "
+                    "them again", path, dropped, "s" * (dropped != 1))
+
+
+def check_file(study: Study, path: Path) -> None:
+    """Refuse a file to continue that is not this study's, or holds a damaged case (each one named)."""
+    with open_file(path, "r", locking=False) as h5, reading(str(path)):
+        campaign = CampaignFile.check(h5, str(path))
+        campaign.check_study(study, str(path))
+        damaged = campaign.damaged(study)
+    if damaged:
+        shown = "; ".join(f"case {case_id}: {problems[0]}" for case_id, problems in damaged[:3])
+        more = f"; {len(damaged) - 3} more" if len(damaged) > 3 else ""
+        raise FileFormatError(f"{path}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)}, not resumed "
+                              f"({shown}{more}); hpcves status lists them; --overwrite starts the study over")
+
+
+def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[tuple[str, bool]]:
+    """(case_id, resume) for every case to run, most expensive first.
+
+    Finished cases and those that reached the model's limit are skipped; failed ones too,
+    unless ``retry_failed`` (then they start over); everything else continues from its last
+    valid checkpoint.
+    """
+    todo = []
+    for case_id, status in campaign.statuses().items():
+        if status in (FINISHED, MODEL_LIMIT) or (status == FAILED and not retry_failed):
+            continue
+        todo.append((case_id, status != FAILED))
+    todo.sort(key=lambda item: (-study.by_id(item[0]).cost, item[0]))
+    return todo
+
+
+def run_one(campaign: CampaignFile, case_id: str, resume: bool, flush: Callable[[], None], rank: int,
+            stop_requested: Callable[[], bool], progress: Callable[[float], None],
+            analysis: AnalysisSettings) -> CaseResult:
+    """Run one case to its end (or to a stop request); an exception is recorded, never raised."""
+    store = campaign.store(case_id)
+    t0 = time.perf_counter()
+
+    def tick(t):
+        progress(t.t / t.t_end)
+
+    try:
+        out = runner.run(store, flush, resume=resume, progress=tick, stop_requested=stop_requested,
+                         analysis=analysis)
+        return CaseResult(case_id, out.status, out.message, out.t, out.steps, out.wall, rank)
+    except StorageError as exc:                  # the file, not the case: nothing more is written
+        return CaseResult(case_id, NOT_WRITTEN, str(exc), float("nan"), 0, time.perf_counter() - t0, rank)
+    except Exception as exc:                     # noqa: BLE001 -- recorded in the file, the campaign goes on
+        message = f"{type(exc).__name__}: {exc}"
+        try:
+            store.set_status(FAILED, message, traceback.format_exc())
+            flush()
+        except StorageError as refused:
+            return CaseResult(case_id, NOT_WRITTEN, str(refused), float("nan"), 0, time.perf_counter() - t0,
+                              rank)
+        return CaseResult(case_id, FAILED, message, float("nan"), 0, time.perf_counter() - t0, rank)
+
+
+# ---------------------------------------------------------------------- rank 0
+class Master:
+    """Hands out cases, runs cases itself between scheduling turns, shows progress."""
+
+    def __init__(self, comm, campaign: CampaignFile, study: Study, todo, flush, stop_flag,
+                 stop_timeout: float, display=None, relay: Relay | None = None):
+        self.comm = comm
+        self.relay = relay                       # applies the other ranks' file writes (--io relay)
+        self.size = 1 if comm is None else comm.Get_size()
+        self.campaign, self.study, self.flush = campaign, study, flush
+        self.pending = deque(todo)
+        self.stop_flag = stop_flag
+        self.stop_timeout = stop_timeout
+        self.display = display
+        self.busy: dict[int, str] = {}           # rank -> case id
+        self.fraction: dict[str, float] = {}     # case id -> fraction of its t_end reached
+        self.waiting: set[int] = set()
+        self.results: list[CaseResult] = []
+        self.stopping = False
+        self.not_written = ""                    # the first write the file system refused
+        self.cost_total = sum(study.by_id(c).cost for c, _ in todo)
+        if self.size > 1:
+            from mpi4py import MPI
+
+            self._status, self._any_source = MPI.Status(), MPI.ANY_SOURCE
+
+    # -- messages
+    def service(self) -> bool:
+        """Answer every waiting message; hand out cases. Returns True if anything happened."""
+        active = False
+        if self.stop_flag() and not self.stopping:
+            self.begin_stop("signal")
+        if self.size > 1:
+            status = self._status
+            while self.comm.Iprobe(source=self._any_source, tag=TAG_REQUEST, status=status):
+                source = status.Get_source()
+                message = self.comm.recv(source=source, tag=TAG_REQUEST)
+                active = True
+                kind = message[0]
+                if self.relay is not None and kind in Relay.KINDS:
+                    try:
+                        self.relay.handle(self.comm, source, message)
+                    except StorageError as exc:      # the worker's case stops at its next step
+                        self.refused(str(exc))
+                    continue
+                if kind == "progress":
+                    self.fraction[message[1]] = message[2]
+                    continue
+                if kind == "done":
+                    self.record(message[1])
+                    self.busy.pop(source, None)
+                elif kind == "stop":
+                    self.begin_stop(f"signal on rank {source}")
+                    continue
+                self.waiting.add(source)
+            for rank in sorted(self.waiting):
+                if not self.pending or self.stopping:
+                    break
+                case_id, resume = self.pending.popleft()
+                self.comm.send((case_id, resume), dest=rank, tag=TAG_TASK)
+                self.waiting.discard(rank)
+                self.busy[rank] = case_id
+                self.fraction[case_id] = 0.0
+                active = True
+        if self.display is not None:
+            self.display(self)
+        return active
+
+    def refused(self, why: str) -> None:
+        """The file system refused a write: stop the campaign, keep the reason for the summary."""
+        if not self.not_written:
+            self.not_written = why
+            print(f"\ncannot write the campaign file: {why}", file=sys.stderr)
+        self.begin_stop("the file system refused a write")
+
+    def record(self, result: CaseResult) -> None:
+        if result.status == NOT_WRITTEN:
+            self.fraction.pop(result.case_id, None)
+            self.refused(result.message)
+            return
+        self.results.append(result)
+        self.fraction[result.case_id] = 1.0 if result.status in ENDED else self.fraction.get(
+            result.case_id, 0.0)
+        if result.status == FAILED:
+            first = result.message.splitlines()[0] if result.message else ""
+            print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) failed on rank "
+                  f"{result.rank}: {first}", file=sys.stderr)
+        elif result.status == MODEL_LIMIT:
+            print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) reached the model's "
+                  f"limit at t = {result.t:.4g}: {runner.model_limit_cause(result.message)}", file=sys.stderr)
+        if result.status == INTERRUPTED and not self.stopping:
+            self.begin_stop(f"rank {result.rank} was stopped")
+
+    def begin_stop(self, why: str) -> None:
+        """No new cases; every busy rank checkpoints and reports; abort if that takes too long."""
+        if self.stopping:
+            return
+        self.stopping = True
+        print(f"\nstopping ({why}): checkpointing the running cases", file=sys.stderr)
+        if self.size > 1:
+            for rank in self.busy:
+                if rank != 0:
+                    self.comm.send(None, dest=rank, tag=TAG_STOP)
+            threading.Thread(target=self._watchdog, daemon=True).start()
+
+    def _watchdog(self) -> None:
+        time.sleep(self.stop_timeout)
+        print(f"\nthe campaign did not stop within {self.stop_timeout:g} s of the stop request; aborting "
+              "(every case keeps its last valid checkpoint)", file=sys.stderr, flush=True)
+        self.comm.Abort(3)
+
+    def cost_done(self) -> float:
+        return sum(self.study.by_id(c).cost * f for c, f in self.fraction.items())
+
+    # -- the loop
+    def run(self) -> list[CaseResult]:
+        backoff = Backoff()
+        while True:
+            if self.service():
+                backoff.reset()
+            if self.pending and not self.stopping:
+                case_id, resume = self.pending.popleft()
+                self.fraction[case_id] = 0.0
+                self.busy[0] = case_id
+
+                def poll() -> bool:
+                    self.service()
+                    return self.stopping
+
+                def progress(fraction, case_id=case_id):
+                    self.fraction[case_id] = fraction
+
+                result = run_one(self.campaign, case_id, resume, self.flush, 0, poll, progress, self.study.analysis)
+                del self.busy[0]
+                self.record(result)
+                backoff.reset()
+            elif not self.busy and len(self.waiting) == self.size - 1:
+                break               # every other rank has asked for work: none of its messages is left unread
+            else:
+                backoff.sleep()
+        for rank in range(1, self.size):
+            self.comm.send(None, dest=rank, tag=TAG_TASK)
+        return self.results
+
+
+# ---------------------------------------------------------------------- other ranks
+def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: AnalysisSettings) -> None:
+    """Ask rank 0 for cases and run them until told there are no more."""
+    rank = comm.Get_rank()
+    comm.send(("ready",), dest=0, tag=TAG_REQUEST)
+    told_stop = False
+    backoff = Backoff()
+    while True:
+        if comm.Iprobe(source=0, tag=TAG_TASK):
+            task = comm.recv(source=0, tag=TAG_TASK)
+            if task is None:
+                break
+            case_id, resume = task
+            last = [0.0]
+
+            def stop_requested() -> bool:
+                return stop_flag() or comm.Iprobe(source=0, tag=TAG_STOP)
+
+            def progress(fraction, case_id=case_id):
+                now = time.monotonic()
+                if now - last[0] >= PROGRESS_SECONDS:
+                    last[0] = now
+                    comm.send(("progress", case_id, fraction), dest=0, tag=TAG_REQUEST)
+
+            result = run_one(campaign, case_id, resume, flush, rank, stop_requested, progress, analysis)
+            comm.send(("done", result), dest=0, tag=TAG_REQUEST)
+            backoff.reset()
+        else:
+            if stop_flag() and not told_stop:       # signalled while idle: tell rank 0
+                told_stop = True
+                comm.send(("stop",), dest=0, tag=TAG_REQUEST)
+            backoff.sleep()
+    while comm.Iprobe(source=0, tag=TAG_STOP):      # a stop that crossed our last report
+        comm.recv(source=0, tag=TAG_STOP)
+
+
+# ---------------------------------------------------------------------- the whole job
+def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, retry_failed: bool = False,
+                 overwrite: bool = False, io: str = "auto", stop_flag: Callable[[], bool] = lambda: False,
+                 display=None, announce: Callable[[str, int, int], None] = lambda text, total, finished: None,
+                 on_stage: Callable[[list], None] = lambda outcomes: None) -> Summary:
+    """Run (or continue) a study into ``path`` on every rank of ``comm`` (None: this process alone).
+
+    ``io`` (several ranks only): "mpio" -- every rank opens the file with
+    h5py's MPI driver; "relay" -- only rank 0 opens it and applies the other
+    ranks' writes (relay.py); "auto" -- mpio where h5py has MPI, else relay.
+
+    A search or refine study (``study.staged``) runs in stages
+    (search_campaign.py, refine_campaign.py): after each, rank 0 classifies
+    the finished cases, the searches (refinements) choose their next shear
+    rates (points), and the file is replaced by a copy holding those cases
+    before the next stage runs them. Rank 0 calls ``on_stage(outcomes)`` with
+    the state of every search (refinement) after each stage.
+
+    Rank 0 calls ``announce(text, None, n_finished)`` with the campaign's
+    first line, ``announce(text, n_cases, n_finished_before)`` once the work
+    of a stage is known, and ``display(master)`` at every scheduling turn.
+
+    Collective: every rank calls it with the same study. Bad input raises
+    ConfigError on every rank (the message is rank 0's).
+    """
+    size = 1 if comm is None else comm.Get_size()
+    rank = 0 if comm is None else comm.Get_rank()
+    start = time.perf_counter()
+    io = choose_io(io, size)
+    given, path = Path(path), real_path(path)         # every change goes to the file itself, not a symlink
+    lock = CampaignLock(given)
+    verdict = None
+    if rank == 0:
+        try:
+            lock.acquire()
+            verdict = ("ok", prepare_file(study, path, resume=resume, overwrite=overwrite))
+        except ConfigError as exc:
+            lock.release()
+            verdict = ("error", str(exc).replace(str(path), str(given)))
+    if size > 1:
+        verdict = bcast(comm, verdict)
+    if verdict[0] == "error":
+        raise FileFormatError(verdict[1])
+    mode = verdict[1]
+    try:
+        if rank > 0:
+            refused = ""
+            try:
+                lock.join(rank)
+            except LockError as exc:
+                refused = str(exc)
+        if size > 1:
+            problems = [p for p in comm.allgather(refused if rank > 0 else "") if p]
+            if problems:
+                raise LockError(problems[0])
+        return _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, display, announce,
+                           on_stage)
+    finally:
+        lock.release()
+
+
+def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, display, announce, on_stage):
+    size = 1 if comm is None else comm.Get_size()
+    rank = 0 if comm is None else comm.Get_rank()
+    if mode == "create":
+        if rank == 0:
+            announce(f"creating {path} ({len(study.cases)} cases, "
+                     f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, 0)
+        _create(study, path, comm, io)
+        mode_seen = "create"
+    else:
+        mode_seen = "continue"
+    h5, campaign, flush = _open(path, comm, io)
+    not_written = ""
+    try:
+        results, outcomes = [], []
+        driver = None
+        if rank == 0 and study.staged:
+            driver = (SearchDriver if study.search else RefineDriver)(study)
+            if mode_seen == "continue":
+                study = driver.cases_from_file(study, campaign)
+        stage = 0
+        while True:
+            ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, io, mode_seen, stage,
+                                               retry_failed and stage == 0, stop_flag, display, announce)
+            results += ran
+            not_written = not_written or refused
+            if not study.staged:
+                break
+            if io == "mpio":
+                # Rank 0 is about to read the cases the others wrote: MPI-IO makes their writes
+                # visible after a sync by the writers (H5Fflush, collective) and a barrier.
+                h5.flush()
+                comm.Barrier()
+            plan = ("stop",)
+            if rank == 0 and not stopped:
+                outcomes, new = driver.next_stage(study, campaign)
+                on_stage(outcomes)
+                plan = ("add", new) if new else ("done",)
+            if size > 1:
+                plan = bcast(comm, plan)
+            if plan[0] != "add":
+                break
+            study = study.with_cases(plan[1]) if rank == 0 else study
+            if h5 is not None:
+                h5.close()
+                h5 = None
+            refused = _add_stage(path, comm, io, plan[1], stage + 1, study.source)
+            if refused:
+                not_written = refused
+                if rank == 0:
+                    print(f"\ncannot add the next stage's cases: {refused}", file=sys.stderr)
+                h5, campaign, flush = _open(path, comm, io)
+                break
+            h5, campaign, flush = _open(path, comm, io)
+            stage += 1
+        summary = None
+        if rank == 0:
+            counts = {name: 0 for name in STATUS_NAMES.values()}
+            failed = []
+            for row in campaign.table():
+                counts[row["status"]] = counts.get(row["status"], 0) + 1
+                if row["status"] == "failed":
+                    failed.append((row["case"], row["message"]))
+            summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start,
+                              tuple(outcomes), not_written)
+    finally:
+        if h5 is not None:
+            try:
+                h5.close()
+            except HDF5_ERRORS:
+                pass                               # a refused write was reported already
+    if size > 1:
+        summary = comm.bcast(summary, root=0)
+    return summary
+
+
+def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed, stop_flag, display,
+               announce) -> tuple[list[CaseResult], bool, str]:
+    """Run every unfinished case of the file on every rank: (results, whether it was stopped, why the
+    file system refused a write or "") on rank 0."""
+    size = 1 if comm is None else comm.Get_size()
+    rank = 0 if comm is None else comm.Get_rank()
+    results, stopped, refused = [], False, ""
+    if rank == 0:
+        todo = work_list(campaign, study, retry_failed)
+        statuses = campaign.statuses()
+        finished = sum(1 for s in statuses.values() if s == FINISHED)
+        if stage == 0:
+            announce(_announcement(study, path, statuses, size, mode, io), None, finished)
+        if todo or not study.staged:
+            announce(_stage_line(study, statuses, todo, stage), len(statuses), finished)
+        relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
+        master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display, relay)
+        results = master.run()
+        stopped, refused = master.stopping, master.not_written
+    else:
+        worker_loop(comm, campaign, flush, stop_flag, study.analysis)
+    if size > 1:
+        wait(comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
+    return results, stopped, refused
+
+
+def choose_io(io: str, size: int) -> str:
+    """The file access of a campaign on ``size`` ranks: "serial", "mpio" or "relay"."""
+    if io not in IO_MODES:
+        raise ConfigError(f"io = {io!r}: choose one of {', '.join(IO_MODES)}")
+    if size == 1:
+        return "serial"
+    import h5py
+
+    has_mpi = h5py.get_config().mpi
+    if io == "auto":
+        return "mpio" if has_mpi else "relay"
+    if io == "mpio" and not has_mpi:
+        raise ConfigError("--io mpio: this h5py was built without MPI (make setup builds one with it); "
+                          "--io relay works without")
+    return io
+
+
+def _open_h5(path: Path, mode: str, comm, io: str):
+    if io == "mpio":
+        return open_file(path, mode, driver="mpio", comm=comm)
+    return open_file(path, mode)
+
+
+def _collective_failure(comm, io: str, what: str, exc: BaseException, partial: Path | None) -> None:
+    """A rank failed inside a collective change of the file: the others may wait in HDF5 for ever, so
+    say why in one line and end the job (the file at its path is untouched: the change was a copy)."""
+    if partial is not None:
+        try:
+            partial.unlink()
+        except OSError:
+            pass
+    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    print(f"Error: {what}: {reason}; the file at its path is unchanged", file=sys.stderr, flush=True)
+    comm.Abort(2)
+
+
+def _create(study: Study, path: Path, comm, io: str) -> None:
+    """Lay out the whole file under ``<path>.partial`` (collectively under mpio), then rename it to ``path``.
+
+    Rank 0 first reserves the space on disk (atomic.new_partial), so that a full disk refuses
+    here, before HDF5 writes anything.
+    """
+    rank = 0 if comm is None else comm.Get_rank()
+    size = 1 if comm is None else comm.Get_size()
+    partial = partial_path(path)
+    failure = None
+    if rank == 0:
+        try:
+            new_partial(path, METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases),
+                        f"the campaign file ({len(study.cases)} cases, every sample and snapshot preallocated)")
+        except StorageError as exc:
+            failure = str(exc)
+    if size > 1:
+        failure = bcast(comm, failure)
+    if failure:
+        raise StorageError(failure)
+    if io != "relay" or rank == 0:
+        try:
+            h5 = _open_h5(partial, "r+", comm, io)
+            try:
+                CampaignFile.create(h5, study)
+            finally:
+                h5.close()                        # (collective under mpio) the structure is on disk
+        except (*HDF5_ERRORS, ConfigError) as exc:
+            if io == "mpio":
+                _collective_failure(comm, io, f"creating {path}", exc, partial if rank == 0 else None)
+            remove_partial(path)
+            failure = f"{path}: cannot create it ({str(exc).strip().splitlines()[0] if str(exc).strip() else exc}); " \
+                      "nothing was written"
+        if rank == 0 and failure is None:
+            try:
+                publish(partial, path)
+            except OSError as exc:
+                remove_partial(path)
+                failure = f"{path}: cannot rename {partial.name} to it ({exc.strerror})"
+    if comm is not None and comm.Get_size() > 1:
+        failure = bcast(comm, failure)
+    if failure:
+        raise StorageError(failure)
+
+
+def _add_stage(path: Path, comm, io: str, cases, stage: int, source: str) -> str:
+    """Add a search (refine) stage's cases to a copy of the file that then replaces it, with the
+    campaign file's text ``source`` (a refinement's budget may have been raised); "" or why it could not be."""
+    rank = 0 if comm is None else comm.Get_rank()
+    size = 1 if comm is None else comm.Get_size()
+    partial, refused = None, ""
+    if rank == 0:
+        try:
+            partial = copy_for_change(path, sum(storage_bytes(c.case) for c in cases),
+                                      f"adding stage {stage}'s {len(cases)} cases")
+        except StorageError as exc:
+            refused = str(exc)
+    if size > 1:
+        refused = bcast(comm, refused)
+    if refused:
+        return refused
+    partial = partial_path(path)
+    if io != "relay" or rank == 0:
+        try:
+            h5 = _open_h5(partial, "r+", comm, io)
+            try:
+                CampaignFile(h5).add_cases(cases, source)
+            finally:
+                h5.close()
+        except (*HDF5_ERRORS, ConfigError) as exc:
+            if io == "mpio":
+                _collective_failure(comm, io, f"adding stage {stage}'s cases to {path}", exc,
+                                    partial if rank == 0 else None)
+            remove_partial(path)
+            refused = f"{path}: cannot add stage {stage}'s cases ({exc}); the file is unchanged"
+        if rank == 0 and not refused:
+            try:
+                publish(partial, path)
+            except OSError as exc:
+                remove_partial(path)
+                refused = f"{path}: cannot rename {partial.name} to it ({exc.strerror}); the file is unchanged"
+    if size > 1:
+        refused = bcast(comm, refused)
+    return refused
+
+
+def _open(path: Path, comm, io: str):
+    """(h5 or None, campaign, flush) on this rank for the existing file at ``path``.
+
+    serial: this process alone. mpio: every rank opens the file; raw writes
+    reach the file at once, in program order, so ``flush`` has nothing to do
+    (File.flush would be collective). relay: rank 0 opens it and tells the
+    others whether that worked; they get a RemoteCampaign.
+    """
+    rank = 0 if comm is None else comm.Get_rank()
+    if io == "relay" and rank > 0:
+        opened = bcast(comm, None)
+        if opened is not None:
+            raise FileFormatError(opened)
+        remote = RemoteCampaign(comm, TAG_REQUEST, TAG_REPLY, wait_until)
+        return None, remote, remote.flush
+    h5 = None
+    try:
+        h5 = _open_h5(path, "r+", comm, io)
+        campaign = CampaignFile(h5)
+    except ConfigError as exc:
+        if h5 is not None:
+            h5.close()
+        if io == "relay":
+            bcast(comm, str(exc))
+        raise
+    if io == "relay":
+        bcast(comm, None)
+    return h5, campaign, (safe_flush(h5) if io != "mpio" else _nothing)
+
+
+def _nothing() -> None:
+    pass
+
+
+def _announcement(study, path, statuses, size, mode, io) -> str:
+    """The first line of a campaign: what, where, on how many ranks."""
+    access = {"serial": "serial HDF5", "mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}[io]
+    verb = "new file" if mode == "create" else "continuing"
+    if study.refine:
+        x, y = study.refine_settings.x, study.refine_settings.y
+        n = len(study.refinements)
+        what = (f"{n} refinement{'s' * (n != 1)} of the regime boundaries over {x.key} x {y.key} from a "
+                f"{len(x.values)} x {len(y.values)} grid (at most {study.refine.max_cases} cases each), "
+                f"{len(statuses)} cases so far")
+    elif study.search is None:
+        what = f"{len(study.cases)} cases"
+    else:
+        n = len(study.searches)
+        what = (f"{n} critical-shear search{'es' * (n != 1)} over S in [{study.search.low:g}, "
+                f"{study.search.high:g}] to {study.search.rel_tol:g} (at most {study.search.max_cases} cases each), "
+                f"{len(statuses)} cases so far")
+    return f"campaign {study.name!r} -> {path} ({verb}): {what}; {size} rank{'s' * (size > 1)}, {access}"
+
+
+def _stage_line(study, statuses, todo, stage) -> str:
+    """What a stage runs: cases to run, resumed, finished and failed before."""
+    finished = sum(1 for s in statuses.values() if s == FINISHED)
+    failed = sum(1 for s in statuses.values() if s == FAILED)
+    resumed = sum(1 for case_id, resume in todo if resume and statuses[case_id] != PENDING)
+    parts = [f"{len(todo)} to run"]
+    if resumed:
+        parts.append(f"{resumed} from a checkpoint")
+    if finished:
+        parts.append(f"{finished} finished before")
+    if failed:
+        parts.append(f"{failed} failed before" + ("" if any(not r for _, r in todo) else
+                                                  " (--retry-failed reruns them)"))
+    limited = sum(1 for s in statuses.values() if s == MODEL_LIMIT)
+    if limited:
+        parts.append(f"{limited} at the model's limit before")
+    if study.staged and stage > 0:
+        groups = len({study.by_id(case_id).search for case_id, _ in todo})
+        kind = "search" if study.search else "refinement"
+        parts[0] = f"stage {stage}: {len(todo)} new case{'s' * (len(todo) != 1)} for {groups} " \
+                   f"{kind}{('es' if study.search else 's') * (groups != 1)}"
+    return ", ".join(parts)

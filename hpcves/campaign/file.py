@@ -1,0 +1,293 @@
+"""The campaign HDF5 file: every case of a study in one file (docs/file-format.md).
+
+    attrs      format = "hpcves-campaign", format_version, hpcves_version, name,
+               fingerprint (Study.fingerprint), campaign_toml (the campaign
+               file's text), sweep_keys, n_cases
+               mode ("grid", "search" or "refine")
+    index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
+               search (n,) int (the search -- or refinement -- of each case; -1 in a grid) --
+               all resizable: a search or refinement adds its cases stage by stage
+    searches/  search files: one (n_searches,) dataset per swept key
+    refinements/  refine files: one (n_refinements,) dataset per swept key that is not an axis
+    cases/<id>/  one case, laid out exactly as a single run (checkpoint.CaseStore):
+               parameters as attributes, status, message, traceback, progress,
+               timeseries/ (preallocated, with a length counter), snapshots/,
+               checkpoint/slot0|slot1 with a validity marker written last
+
+The whole structure is created up front -- collectively when the file is
+opened with the ``mpio`` driver, every rank making the same calls -- under a
+temporary name that becomes the file's only once it is complete (atomic.py).
+Afterwards only raw data are written in place, each case by the one rank
+running it (independent I/O; attributes are never written again); a search
+stage's cases are added to a copy that replaces the file.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from dataclasses import dataclass
+
+from hpcves import __version__
+from hpcves.files import faults
+from hpcves.files.atomic import partial_path
+from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
+from hpcves.files.lock import writer
+from hpcves.campaign.study import Study
+
+#: the status shown for a case whose data cannot be read or are inconsistent
+DAMAGED = "damaged"
+
+
+class BeingCreated(FileFormatError):
+    """The campaign file does not exist yet: a running campaign is laying it out."""
+
+FORMAT = "hpcves-campaign"
+#: the modes whose cases come stage by stage (a stage may be half-added when a crash cut it short)
+STAGED_MODES = ("search", "refine")
+FORMAT_VERSION = 1
+
+
+class CampaignFile:
+    """The cases of one study inside an open h5py File."""
+
+    def __init__(self, h5):
+        self.h5 = h5
+        self._cases = h5["cases"]
+
+    # ------------------------------------------------------------------ creation / opening
+    @classmethod
+    def create(cls, h5, study: Study) -> "CampaignFile":
+        """Lay out the file and every case known yet (collective under mpio: every rank calls this identically)."""
+        a = h5.attrs
+        a["format"] = FORMAT
+        a["format_version"] = FORMAT_VERSION
+        a["hpcves_version"] = __version__
+        a["name"] = study.name
+        a["fingerprint"] = study.fingerprint
+        a["campaign_toml"] = study.source
+        a["mode"] = study.mode
+        a["sweep_keys"] = ",".join(study.sweep_keys)
+        a["n_cases"] = 0
+        index = h5.create_group("index")
+        growing = {"shape": (0,), "maxshape": (None,), "chunks": (1024,)}
+        index.create_dataset("case_id", dtype=f"S{study.id_width}", **growing)
+        for key in study.sweep_keys:
+            index.create_dataset(key, dtype="f8", **growing)
+        index.create_dataset("cost", dtype="f8", **growing)
+        index.create_dataset("search", dtype="i4", **growing)
+        if study.search:
+            searches = h5.create_group("searches")
+            for key in study.sweep:
+                searches.create_dataset(key, data=np.array([p[key] for p in study.searches], dtype="f8"))
+        if study.refine:
+            refinements = h5.create_group("refinements")
+            for key in study.refinements[0]:
+                refinements.create_dataset(key, data=np.array([p[key] for p in study.refinements], dtype="f8"))
+        h5.create_group("cases")
+        campaign = cls(h5)
+        campaign.add_cases(study.cases)
+        return campaign
+
+    def add_cases(self, cases, source: str | None = None) -> None:
+        """Lay out new cases and append them to the index (collective under mpio); with ``source``,
+        the campaign file's text replaces the stored one where it differs (a refinement continued
+        with a larger ``max_cases``: the fingerprint leaves the budget out).
+
+        Order matters for a crash in the middle: the groups come first, the
+        index next, the ``n_cases`` attribute last, so a file whose groups
+        outnumber ``n_cases`` is recognisably one with a half-added stage
+        (:meth:`drop_partial_stage`).
+        """
+        cases = list(cases)
+        if not cases:
+            return
+        for c in cases:
+            group = self._cases.create_group(c.case_id)
+            CaseStore.create(group, c.case)
+            group.attrs["case_id"] = c.case_id
+            faults.point("case-laid-out")
+        index = self.h5["index"]
+        start = index["case_id"].shape[0]
+        stop = start + len(cases)
+        columns = {"case_id": [c.case_id.encode() for c in cases], "cost": [c.cost for c in cases],
+                   "search": [c.search for c in cases]}
+        columns.update({k: [c.swept[k] for c in cases] for k in self.sweep_keys})
+        for key, values in columns.items():
+            dataset = index[key]
+            dataset.resize((stop,))
+            dataset[start:stop] = np.array(values, dtype=dataset.dtype)
+        if source is not None and attr_text(self.h5.attrs.get("campaign_toml", "")) != source:
+            self.h5.attrs["campaign_toml"] = source
+        self.h5.attrs["n_cases"] = stop
+
+    @staticmethod
+    def drop_partial_stage(h5) -> int:
+        """Remove the cases of a stage whose adding was cut short (search files; serial access).
+
+        Returns the number of case groups removed.
+        """
+        n = int(h5.attrs["n_cases"])
+        extra = [case_id for case_id in h5["cases"] if int(case_id) >= n]
+        for case_id in extra:
+            del h5["cases"][case_id]
+        for dataset in h5["index"].values():
+            if dataset.shape[0] > n:
+                dataset.resize((n,))
+        return len(extra)
+
+    @classmethod
+    def check(cls, h5, where: str) -> "CampaignFile":
+        """Open an existing campaign file, refusing anything else with a clear message."""
+        fmt = attr_text(h5.attrs.get("format", ""))
+        if fmt == "hpcves-case":
+            raise FileFormatError(f"{where}: a single-run file (hpcves run), not a campaign file")
+        if fmt != FORMAT:
+            raise FileFormatError(f"{where}: not an hpcves campaign file (no format = {FORMAT!r} attribute)")
+        version = int(h5.attrs.get("format_version", -1))
+        if version != FORMAT_VERSION:
+            raise FileFormatError(f"{where}: campaign format version {version}, this hpcves reads {FORMAT_VERSION}")
+        missing = [k for k in ("index", "cases") if k not in h5]
+        if missing:
+            raise FileFormatError(f"{where}: incomplete campaign file, missing {', '.join(missing)}")
+        n = int(h5.attrs.get("n_cases", -1))
+        staged = attr_text(h5.attrs.get("mode", "grid")) in STAGED_MODES
+        if len(h5["cases"]) != n and not (staged and len(h5["cases"]) > n):   # a half-added stage
+            raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
+                                  "(creation was interrupted?)")
+        keys = [k for k in attr_text(h5.attrs.get("sweep_keys", "")).split(",") if k]
+        for key in ("case_id", "cost", *keys):
+            if key not in h5["index"] or h5["index"][key].shape[:1] < (n,):
+                raise FileFormatError(f"{where}: index/{key} is missing or shorter than the {n} cases")
+        return cls(h5)
+
+    def check_study(self, study: Study, where: str) -> None:
+        """Refuse a file that belongs to another study (or another version of this one)."""
+        if self.fingerprint != study.fingerprint:
+            other = attr_text(self.h5.attrs.get("name", "?"))
+            detail = (f"study {other!r}" if other != study.name
+                      else f"a different version of study {other!r} (some parameter or sweep value changed; files "
+                            "from before physics.bending_law ran the linear law: bending_law = \"linear\" in "
+                            "[physics] resumes them)")
+            raise FileFormatError(f"{where}: belongs to {detail}, not to this campaign file; "
+                                  "use another output file, or --overwrite to start over")
+
+    # ------------------------------------------------------------------ contents
+    @property
+    def name(self) -> str:
+        return attr_text(self.h5.attrs["name"])
+
+    @property
+    def fingerprint(self) -> str:
+        return attr_text(self.h5.attrs.get("fingerprint", ""))
+
+    @property
+    def mode(self) -> str:
+        """"grid" (every case known up front), "search" (critical-shear searches) or "refine" (regime
+        boundaries refined): the last two add their cases stage by stage."""
+        return attr_text(self.h5.attrs.get("mode", "grid"))
+
+    def searches_of_cases(self) -> list[int]:
+        """The search (or refinement) each case belongs to (-1 in a grid study), in id order."""
+        index = self.h5["index"]
+        n = int(self.h5.attrs["n_cases"])
+        return [int(v) for v in index["search"][:n]] if "search" in index else [-1] * n
+
+    @property
+    def sweep_keys(self) -> list[str]:
+        keys = attr_text(self.h5.attrs.get("sweep_keys", ""))
+        return [k for k in keys.split(",") if k]
+
+    @property
+    def case_ids(self) -> list[str]:
+        """Every complete case (a search's half-added stage beyond ``n_cases`` left out)."""
+        n = int(self.h5.attrs["n_cases"])
+        return [attr_text(i) for i in self.h5["index/case_id"][:n]]
+
+    def store(self, case_id: str) -> CaseStore:
+        return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
+
+    def statuses(self) -> dict[str, int]:
+        return {case_id: int(self._cases[case_id]["status"][()]) for case_id in self.case_ids}
+
+    def damaged(self, study: Study) -> list[tuple[str, list[str]]]:
+        """(case id, problems) of every case whose data are missing, misshapen or inconsistent
+        (CaseStore.problems), checked against the study's own case; empty for a sound file."""
+        found = []
+        index = self.h5["index"]
+        n = int(self.h5.attrs["n_cases"])
+        short = [k for k in index if index[k].shape[0] < n]
+        if short:
+            return [("index", [f"index/{k} holds {index[k].shape[0]} rows for {n} cases" for k in short])]
+        expected = {c.case_id: c.case for c in study.cases}
+        for case_id in self.case_ids:
+            try:
+                store = self.store(case_id)
+            except (FileFormatError, *HDF5_ERRORS) as exc:
+                found.append((case_id, [str(exc).split(": ", 1)[-1]]))
+                continue
+            problems = store.problems(expected.get(case_id))
+            if problems:
+                found.append((case_id, problems))
+        return found
+
+    def table(self, check: bool = False) -> list[dict]:
+        """One row per case: id, swept values, status, t, t_end, wall, steps/s, message.
+
+        A case whose status or progress cannot be read, or holds an unknown status -- with ``check``:
+        whose data fail CaseStore.problems -- is shown with status "damaged" and what is wrong as its
+        message.
+        """
+        rows = []
+        keys = self.sweep_keys
+        n = int(self.h5.attrs["n_cases"])
+        swept = {k: self.h5["index"][k][:n] for k in keys}
+        for i, case_id in enumerate(self.case_ids):
+            values = {k: float(swept[k][i]) if i < len(swept[k]) else float("nan") for k in keys}
+            try:
+                g = self._cases[case_id]
+                t, t_end, wall, rate = (float(v) for v in g["progress"][:])
+                status = int(g["status"][()])
+                message = bytes(g["message"][()]).decode(errors="replace")
+                name = STATUS_NAMES[status] if status in STATUS_NAMES else DAMAGED
+                if name == DAMAGED:
+                    message = f"status {status} is not a status"
+                elif check:
+                    problems = CaseStore.open(g, where=case_id).problems()
+                    if problems:
+                        name, message = DAMAGED, "; ".join(problems[:2])
+            except (FileFormatError, *HDF5_ERRORS) as exc:
+                t = t_end = wall = rate = float("nan")
+                name, message = DAMAGED, f"unreadable ({str(exc).strip().splitlines()[0] if str(exc) else exc})"
+            rows.append({"case": case_id, **values, "status": name, "t": t, "t_end": t_end, "wall": wall,
+                         "steps_per_second": rate, "message": message})
+        return rows
+
+
+@dataclass(frozen=True)
+class Table:
+    """What ``hpcves status`` shows of a campaign file: its name, one row per case, who writes it."""
+
+    name: str
+    rows: list
+    writer: str | None          # "pid ... on host, since ..." of the campaign writing it now, or None
+
+
+def read_table(path, check: bool = False) -> Table:
+    """The cases of a campaign file, read without locking (a campaign may be writing it).
+
+    A file that does not exist yet but is being made (``<file>.partial`` and a campaign holding the
+    lock) or whose making was cut short is refused with a message that says so.
+    """
+    import os
+
+    path = os.fspath(path)
+    if not os.path.exists(path) and os.path.exists(partial_path(path)):
+        holder = writer(path)
+        if holder is not None:
+            raise BeingCreated(f"{path}: being created by a campaign ({holder}); it appears once "
+                                  "every case is laid out")
+        raise FileFormatError(f"{path}: its creation was interrupted (only {partial_path(path).name} is left); "
+                              "hpcves campaign --resume starts it again")
+    with open_file(path, "r", locking=False) as h5, reading(str(path)):
+        campaign = CampaignFile.check(h5, str(path))
+        return Table(campaign.name, campaign.table(check), writer(path))

@@ -1,0 +1,142 @@
+"""Campaign file access through rank 0, for when the ranks cannot share the file.
+
+With an h5py built without MPI (or ``--io relay``, for file systems where
+MPI-IO misbehaves) only rank 0 opens the campaign file. The other ranks run
+their cases against a :class:`RemoteCaseStore`, which has the interface of
+:class:`~hpcves.run.store.CaseStore` but forwards every write to rank 0 as a
+message; rank 0's :class:`Relay` applies them to the real store.
+
+Order is what makes this safe. The writes travel on the same tag as the
+worker's scheduling messages, and MPI never reorders messages between two
+ranks on one tag, so rank 0 applies each worker's writes in the order they
+were made, and its "done" after all of them. The file therefore always holds
+a prefix of each case's writes -- exactly what the checkpoint protocol
+(invalidate the slot, write it, validate it) needs to survive a kill at any
+moment, as it does under ``mpio``. Reads are a round trip; a run makes a few
+when it starts (its case, progress, newest checkpoint and, for a run until decided, its
+series so far) and none after.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from hpcves.campaign.file import CampaignFile
+
+#: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
+WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshot", "truncate",
+                    "write_checkpoint", "set_decision"})
+READS = frozenset({"case", "status", "progress", "read_checkpoint", "newest_checkpoint_slot", "timeseries"})
+
+
+class Relay:
+    """Rank 0's side: apply the writes and answer the reads of the other ranks."""
+
+    KINDS = ("write", "read", "flush")
+
+    def __init__(self, campaign: CampaignFile, flush: Callable[[], None], reply_tag: int):
+        self.campaign, self.flush, self.reply_tag = campaign, flush, reply_tag
+        self._stores = {}
+
+    def _store(self, case_id: str):
+        if case_id not in self._stores:
+            self._stores[case_id] = self.campaign.store(case_id)
+        return self._stores[case_id]
+
+    def handle(self, comm, source: int, message: tuple) -> None:
+        kind = message[0]
+        if kind == "flush":
+            self.flush()
+        elif kind == "write":
+            _, case_id, name, args = message
+            if name not in WRITES:
+                raise ValueError(f"rank {source} asked for an unknown write {name!r}")
+            store = self._store(case_id)
+            if name == "write_checkpoint":
+                store.write_checkpoint(*args, self.flush)
+            else:
+                getattr(store, name)(*args)
+        elif kind == "read":
+            _, case_id, name = message
+            try:
+                if name not in READS:
+                    raise ValueError(f"unknown read {name!r}")
+                value = getattr(self._store(case_id), name)
+                reply = ("ok", value() if callable(value) else value)
+            except Exception as exc:            # noqa: BLE001 -- raised again on the asking rank
+                reply = ("error", exc)
+            comm.send(reply, dest=source, tag=self.reply_tag)
+        else:
+            raise ValueError(f"rank {source} sent an unknown file request {kind!r}")
+
+
+class RemoteCaseStore:
+    """A worker's view of one case: the CaseStore interface, served by rank 0."""
+
+    def __init__(self, comm, case_id: str, request_tag: int, reply_tag: int, wait: Callable):
+        self.comm, self.case_id = comm, case_id
+        self._request_tag, self._reply_tag, self._wait = request_tag, reply_tag, wait
+
+    def _send(self, message: tuple) -> None:
+        self.comm.send(message, dest=0, tag=self._request_tag)
+
+    def _write(self, name: str, *args) -> None:
+        self._send(("write", self.case_id, name, args))
+
+    def _read(self, name: str):
+        self._send(("read", self.case_id, name))
+        self._wait(lambda: self.comm.Iprobe(source=0, tag=self._reply_tag))
+        verdict, value = self.comm.recv(source=0, tag=self._reply_tag)
+        if verdict == "error":
+            raise value
+        return value
+
+    # reads
+    case = property(lambda self: self._read("case"))
+    status = property(lambda self: self._read("status"))
+    progress = property(lambda self: self._read("progress"))
+
+    def read_checkpoint(self):
+        return self._read("read_checkpoint")
+
+    def newest_checkpoint_slot(self):
+        return self._read("newest_checkpoint_slot")
+
+    def timeseries(self):
+        return self._read("timeseries")
+
+    # writes
+    def set_status(self, status, message=None, traceback=None):
+        self._write("set_status", status, message, traceback)
+
+    def set_progress(self, t, t_end, wall, steps_per_second):
+        self._write("set_progress", t, t_end, wall, steps_per_second)
+
+    def append_samples(self, rows):
+        if rows:
+            self._write("append_samples", list(rows))
+
+    def append_snapshot(self, snap):
+        self._write("append_snapshot", snap)
+
+    def truncate(self, n_samples, n_snapshots):
+        self._write("truncate", n_samples, n_snapshots)
+
+    def set_decision(self, code, t, step):
+        self._write("set_decision", code, t, step)
+
+    def write_checkpoint(self, state, flush):
+        """Rank 0 writes it with its own flushes between the phases; ``flush`` is not needed here."""
+        self._write("write_checkpoint", state)
+
+
+class RemoteCampaign:
+    """What a worker sees of the campaign file: ``store(case_id)`` and a ``flush``."""
+
+    def __init__(self, comm, request_tag: int, reply_tag: int, wait: Callable):
+        self.comm, self._tags, self._wait = comm, (request_tag, reply_tag), wait
+
+    def store(self, case_id: str) -> RemoteCaseStore:
+        return RemoteCaseStore(self.comm, case_id, *self._tags, self._wait)
+
+    def flush(self) -> None:
+        self.comm.send(("flush",), dest=0, tag=self._tags[0])

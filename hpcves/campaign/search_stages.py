@@ -1,0 +1,196 @@
+"""The ``[search]`` campaign mode: critical-shear searches run stage by stage.
+
+A search study holds one search per point of its sweep (psi_bar, Delta, B2).
+The campaign runs in stages: every case the searches asked for runs under the
+same MPI scheduler; then rank 0 classifies the finished cases
+(:func:`hpcves.analysis.regimes.classify`, with the study's ``[analysis]`` thresholds),
+lets every search take its next step (:func:`hpcves.analysis.search.step`) and adds the
+cases they ask for to the file. The searches advance together, so the cases of
+all of them share the ranks.
+
+Nothing about a search is stored but its cases: the state of every search is
+recomputed from the regimes of the cases in the file, so a resumed campaign
+takes the same steps and asks for the same cases as an uninterrupted one.
+
+This module is the part that reads the file; the logic is in search.py.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from hpcves.reports.analyze import LABELS, analyse_case, case_data, markdown_table
+from hpcves.run.store import ENDED, STATUS_NAMES
+from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
+from hpcves.campaign.study import SEARCHABLE, Study, study_from_toml
+
+#: the columns of critical_shear.csv
+#: (bending_gap: Delta E_b of the case at bracket_high, the smallest phase-treading shear rate; nan if none)
+CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "bending_gap", "bending_gap_err", "status",
+                                 "cases", "reason")
+
+
+@dataclass(frozen=True)
+class SearchOutcome:
+    """Where one search stands: its parameters, its state, the regimes it found."""
+
+    index: int
+    point: dict                # psi_bar, excess_length, B2 of the search (swept or from the base case)
+    state: SearchState
+    regimes: dict              # {shear rate: regime} of its finished cases
+    swept_keys: tuple = ()     # the keys of ``point`` that the study sweeps
+
+    def row(self) -> dict:
+        """One row of critical_shear.csv."""
+        reason = self.state.reason
+        if self.state.status == RUNNING:
+            reason = f"unfinished: next S = {', '.join(f'{s:g}' for s in self.state.next_shear_rates)} ({reason})"
+        return {**self.point, "S_C": self.state.critical, "bracket_low": self.state.low,
+                "bracket_high": self.state.high, "bending_gap": math.nan, "bending_gap_err": math.nan,
+                "status": self.state.status, "cases": len(self.regimes), "reason": reason}
+
+
+#: status names of the cases a search reads (those that are over)
+ENDED_NAMES = tuple(STATUS_NAMES[s] for s in ENDED)
+
+
+def outcomes(settings: SearchSettings, points: list[dict], found: list[tuple[int, float, str]],
+             swept_keys: tuple = ()) -> list[SearchOutcome]:
+    """The state of every search from ``found`` = (search, shear rate, regime) of its finished cases."""
+    by_search = [{} for _ in points]
+    for search, shear_rate, regime in found:
+        by_search[search][shear_rate] = regime
+    return [SearchOutcome(i, point, step(settings, regimes), regimes, tuple(swept_keys))
+            for i, (point, regimes) in enumerate(zip(points, by_search))]
+
+
+def search_points(study: Study) -> list[dict]:
+    """psi_bar, excess_length and B2 of every search of ``study``."""
+    physics = study.base.physics
+    return [{k: float(point.get(k, getattr(physics, k))) for k in SEARCHABLE} for point in study.searches]
+
+
+def cases_from_file(study: Study, campaign) -> Study:
+    """``study`` with the cases its file holds already (a resumed search; the file's fingerprint
+    guarantees they are the cases this study makes)."""
+    searches = campaign.searches_of_cases()
+    shear_rates = campaign.h5["index/shear_rate"][:]
+    cases = [study.search_case(search, float(s), case_id)
+             for case_id, search, s in zip(campaign.case_ids, searches, shear_rates)]
+    return study.with_cases(cases)
+
+
+class StageDriver:
+    """Rank 0's side of a staged campaign (search or refine): the regimes of the cases that ended."""
+
+    def __init__(self, study: Study):
+        self.settings = study.analysis
+        self._regimes: dict[str, str] = {}      # case id -> regime (finished and failed cases only)
+
+    def regime(self, campaign, case_id: str) -> str | None:
+        """The regime of one case, or None while it is not finished (or failed)."""
+        if case_id not in self._regimes:
+            store = campaign.store(case_id)
+            if store.status not in ENDED:
+                return None
+            row = analyse_case(case_data(store, case_id), self.settings)
+            self._regimes[case_id] = row["regime"]
+        return self._regimes[case_id]
+
+
+class SearchDriver(StageDriver):
+    """Rank 0's side of a search campaign: classify what finished, ask for the next stage."""
+
+    def __init__(self, study: Study):
+        super().__init__(study)
+        self.points = search_points(study)
+
+    cases_from_file = staticmethod(cases_from_file)
+
+    def next_stage(self, study: Study, campaign) -> tuple[list[SearchOutcome], list]:
+        """(outcome of every search, the new StudyCases to run: none once every search has ended)."""
+        found = []
+        for c in study.cases:
+            regime = self.regime(campaign, c.case_id)
+            if regime is not None:
+                found.append((c.search, c.swept["shear_rate"], regime))
+        states = outcomes(study.search, self.points, found, tuple(study.sweep))
+        new = []
+        taken = {(c.search, c.swept["shear_rate"]) for c in study.cases}
+        for outcome in states:
+            for shear_rate in outcome.state.next_shear_rates:
+                if (outcome.index, shear_rate) in taken:       # asked for, not finished: cannot happen after a stage
+                    raise RuntimeError(f"search {outcome.index}: S = {shear_rate:g} was run but is not finished")
+                case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
+                new.append(study.search_case(outcome.index, shear_rate, case_id))
+        return states, new
+
+
+def write_critical_csv(rows: list[dict], path: Path) -> None:
+    """critical_shear.csv: one row per search (CRITICAL_COLUMNS)."""
+    write_rows(rows, CRITICAL_COLUMNS, path)
+
+
+def write_rows(rows: list[dict], columns: tuple, path: Path) -> None:
+    """A CSV file of ``rows`` with these ``columns`` (floats to 6 digits, nan as an empty cell)."""
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(columns)
+        for row in rows:
+            writer.writerow([_cell(row[c]) for c in columns])
+
+
+def _cell(value) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}" if math.isfinite(value) else ""
+    return str(value)
+
+
+def critical_rows(source, rows: list[dict]) -> list[dict]:
+    """critical_shear.csv rows of a search file (analysis.Source) from its cases' classification ``rows``.
+
+    The searches are replayed with these regimes: with the campaign's own
+    ``[analysis]`` thresholds they reproduce the campaign's verdicts; with
+    others (``--set``) a search may want cases the file does not hold (its
+    status is then "running", its reason names them).
+    """
+    study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
+    found = [(case.search, case.parameters["shear_rate"], row["regime"]) for case, row in zip(source.cases, rows)
+             if row["status"] in ENDED_NAMES]
+    searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
+    gaps = {(case.search, case.parameters["shear_rate"]): (row["bending_gap"], row["bending_gap_err"])
+            for case, row in zip(source.cases, rows)}
+    out = []
+    for o in searched:
+        row = o.row()
+        row["bending_gap"], row["bending_gap_err"] = gaps.get((o.index, o.state.high), (math.nan, math.nan))
+        out.append(row)
+    return out
+
+
+def critical_table(rows: list[dict], keys) -> str:
+    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
+    body = [[f"{r[k]:g}" for k in keys]
+            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]",
+               _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
+               r["status"], r["reason"]] for r in rows]
+    return markdown_table([LABELS.get(k, k) for k in keys]
+                          + ["S_C", "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
+                          body, left=(len(keys) + 4, len(keys) + 5))
+
+
+def _gap(gap: float, error: float) -> str:
+    return f"{gap:.4g} +- {error:.1g}" if math.isfinite(gap) else ""
+
+
+def _fmt(value: float) -> str:
+    return f"{value:.4g}" if math.isfinite(value) else ""
+
+
+def critical_markdown(name: str, searches: list[dict]) -> str:
+    return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
+            "between the largest TT and the smallest PT/TU shear rate. Delta E_b: the bending-energy gap (max - "
+            "min of E_b over a period) of the phase-treading case at the bracket's top.\n\n"
+            + critical_table(searches, SEARCHABLE) + "\n")

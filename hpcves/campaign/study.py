@@ -1,0 +1,412 @@
+"""Campaign files (TOML) -> the list of cases of a study, validated up front.
+
+A campaign file is a case file (the base case: ``[physics]``, ``[numerics]``,
+``[run]``, SPEC defaults for whatever is left out) plus two tables::
+
+    [campaign]
+    name = "delta0194"                 # default: the file name without .toml
+    output = "out/delta0194.h5"        # default: <name>.h5; relative to the working directory
+    shear_times = 200                  # t_end = max(t_end_min, shear_times / S) ...
+    t_end_min = 2.0
+    # t_end = 5.0                      # ... or one absolute end time for every case
+    stop_timeout = 10.0                # seconds from SIGTERM/SIGINT to a checkpointed exit
+
+    [sweep]                            # the full grid over these, in this order
+    shear_rate = [40, 80, 160]                     # explicit values
+    psi_bar = { linspace = [0.3, 0.7, 3] }         # start, stop, number (numpy.linspace)
+    excess_length = { logspace = [0.1, 2.3, 4] }   # start, stop, number, geometric (numpy.geomspace)
+    B2 = 0.3                                       # a single value
+
+    [analysis]                         # optional: thresholds of hpcves analyze (regimes.AnalysisSettings)
+    min_cycles = 3
+
+Sweepable: ``shear_rate``, ``psi_bar``, ``excess_length``, ``B2`` (physics).
+Cases are numbered in grid order (the last swept key varies fastest); the id
+is the zero-padded number. Every case is built -- and so validated -- before
+any work starts; an error names the case and its swept values.
+
+A ``[search]`` table makes it a critical-shear search (search.py, docs/analysis.md)::
+
+    [search]
+    low = 10.0          # the range of S searched for S_C
+    high = 320.0
+    rel_tol = 0.02      # stop when the bracket [S_TT, S_PT] is this narrow
+    max_cases = 16      # per search
+    points = 1          # shear rates per search and stage (1: bisection)
+
+Then ``[sweep]`` may hold only ``psi_bar``, ``excess_length`` and ``B2``: one
+search per point of that grid. The cases are made stage by stage as the
+searches ask for them (numbered in that order); the ends of every search's
+range are validated up front.
+
+A ``[refine]`` table makes it a refinement of the regime boundaries over two
+swept parameters (refine.py, docs/analysis.md)::
+
+    [refine]
+    axes = ["shear_rate", "psi_bar"]                  # default: the first two swept keys
+    tolerance = { shear_rate = 0.1, psi_bar = 0.05 }  # relative on S, absolute on the others
+    max_cases = 150                                   # per refinement
+
+The ``[sweep]`` values of the two axes are the coarse grid; every combination
+of the other swept keys is a refinement of its own. Cases are made stage by
+stage as the refinements ask for them; every point of the coarse grids is
+validated up front.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hpcves.config import case_from_dict, check_type, read_text
+from hpcves.model.params import Case, ConfigError
+from hpcves.analysis.regimes import AnalysisSettings
+from hpcves.analysis.refine import RefinePlan, RefineSettings
+from hpcves.analysis.search import SearchSettings
+
+SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
+SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
+CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "samples_per_shear_time", "stop_timeout")
+#: more cases than this in one study is surely a mistake (checked before any case is built: building
+#: and validating 10^5 cases takes ~6 s; 10^6 took 60 s and 680 MB)
+MAX_CASES = 100_000
+
+
+@dataclass(frozen=True)
+class StudyCase:
+    """One case of a study: its id, the full parameters and the swept values."""
+
+    case_id: str
+    case: Case
+    swept: dict                    # {"shear_rate": 80.0, ...} in sweep order
+    search: int = -1               # search (refine) studies: which search (refinement) the case belongs to
+
+    @property
+    def cost(self) -> float:
+        """Relative cost: steps x N^2 (the dense Stokeslet work of a step)."""
+        return self.case.estimated_steps * self.case.numerics.N ** 2
+
+    def label(self) -> str:
+        return ", ".join(f"{k} = {v:g}" for k, v in self.swept.items())
+
+
+@dataclass(frozen=True)
+class Study:
+    """A campaign: name, output file, and its cases (all validated).
+
+    A grid study knows every case up front. A search study (``search`` set)
+    has one critical-shear search per point of its sweep (``searches``) and
+    gains its cases stage by stage (:meth:`search_case`, :meth:`with_cases`).
+    """
+
+    name: str
+    output: Path
+    sweep: dict                    # key -> tuple of values
+    cases: tuple                   # StudyCase, in id order
+    stop_timeout: float = 10.0
+    source: str = ""               # the campaign file's text (kept in the HDF5 file)
+    analysis: AnalysisSettings = AnalysisSettings()   # thresholds of hpcves analyze ([analysis])
+    base: Case | None = None       # the base case (swept values, t_end and sampling replaced per case)
+    times: TimeRules = field(default_factory=lambda: TimeRules())
+    search: SearchSettings | None = None
+    searches: tuple = ()           # search studies: the swept values of each search, in sweep order
+    refine: RefinePlan | None = None
+    refinements: tuple = ()        # refine studies: the values of the other swept keys of each refinement
+
+    @property
+    def mode(self) -> str:
+        """"grid" (every case known up front), "search" or "refine" (cases added stage by stage)."""
+        return "search" if self.search else "refine" if self.refine else "grid"
+
+    @property
+    def staged(self) -> bool:
+        """Whether the study gains its cases stage by stage (a search or a refinement)."""
+        return self.mode != "grid"
+
+    @property
+    def refine_settings(self) -> RefineSettings:
+        """The plane, tolerances and budget shared by every refinement of a refine study."""
+        return self.refine.settings(self.sweep)
+
+    @property
+    def fingerprint(self) -> str:
+        """SHA-256 of the expanded study (name, ids, every parameter of every case).
+
+        Comments and formatting of the TOML do not change it; any parameter does.
+        A search study's cases are not known up front: its fingerprint covers
+        what decides them -- base case, time rules, sweep, search range and
+        the classification thresholds (which decide where the search goes next).
+        A grid study's covers the thresholds when its cases run until decided. A refine study's leaves
+        out its budget (max_cases): raised, it continues the refinement where it stopped.
+        """
+        if self.refine is not None:          # not max_cases: a refinement continues with a larger budget
+            plan = {k: v for k, v in dataclasses.asdict(self.refine).items() if k != "max_cases"}
+            payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
+                       "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
+                       "refine": plan, "analysis": dataclasses.asdict(self.analysis)}
+        elif self.search is None:
+            payload = {"name": self.name,
+                       "cases": [[c.case_id, c.case.significant()] for c in self.cases]}
+            if self.base.run.until_decided:          # the thresholds decide when its cases stop
+                payload["analysis"] = dataclasses.asdict(self.analysis)
+        else:
+            times = dataclasses.asdict(self.times)
+            samples = times.pop("samples_per_shear_time")
+            payload = {"name": self.name, "mode": "search", "base": self.base.significant(),
+                       "end_time": times, "searches": list(self.searches),
+                       "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
+            if samples is not None:        # absent from files written before the rule existed
+                payload["samples_per_shear_time"] = samples
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+    def by_id(self, case_id: str) -> StudyCase:
+        return self.cases[int(case_id)]
+
+    @property
+    def most_cases(self) -> int:
+        """Every case the study can have: the grid, or max_cases for every search or refinement."""
+        if self.refine:
+            return len(self.refinements) * self.refine.max_cases
+        points = math.prod(len(v) for v in self.sweep.values())
+        return points * (self.search.max_cases if self.search else 1)
+
+    @property
+    def id_width(self) -> int:
+        """Digits of a case id: enough for every case the study can have."""
+        return max(4, len(str(self.most_cases - 1)))
+
+    def make_case(self, case_id: str, swept: dict, search: int = -1) -> StudyCase:
+        """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated)."""
+        where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
+        try:
+            physics = dataclasses.replace(self.base.physics, **swept)
+            S, run = physics.shear_rate, self.base.run
+            run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
+                                      sample_interval=self.times.sample_interval(S, run.sample_interval,
+                                                                                 self.base.numerics.fixed_dt))
+            case = Case(physics=physics, numerics=self.base.numerics, run=run)
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        return StudyCase(case_id, case, swept, search)
+
+    def search_case(self, search: int, shear_rate: float, case_id: str) -> StudyCase:
+        """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
+        return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
+
+    def refine_case(self, refinement: int, x: float, y: float, case_id: str) -> StudyCase:
+        """Case ``case_id`` of refinement number ``refinement``, at the point (x, y) of its plane."""
+        x_key, y_key = self.refine.axes
+        fixed = self.refinements[refinement]
+        swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
+        return self.make_case(case_id, swept, refinement)
+
+    def with_cases(self, new) -> "Study":
+        """This study with ``new`` cases appended (their ids must continue the numbering)."""
+        new = tuple(new)
+        for i, c in enumerate(new, start=len(self.cases)):
+            if int(c.case_id) != i:
+                raise ValueError(f"case id {c.case_id} does not follow {i - 1}")
+        return dataclasses.replace(self, cases=self.cases + new)
+
+    @property
+    def sweep_keys(self) -> tuple:
+        """The per-case swept keys (a search adds the shear rate in front)."""
+        return (("shear_rate",) if self.search else ()) + tuple(self.sweep)
+
+
+def _round(value: float) -> float:
+    """12 significant digits: 0.30000000000000004 -> 0.3 (values are recorded, so keep them clean)."""
+    return float(f"{value:.12g}")
+
+
+def sweep_values(key: str, spec) -> tuple:
+    """The values of one swept parameter from a number, a list, or {linspace|logspace = [a, b, n]};
+    each value once (a value given twice would run the same cases twice)."""
+    values = _sweep_values(key, spec)
+    seen = {}
+    for value in values:
+        seen[_round(value)] = seen.get(_round(value), 0) + 1
+    repeated = [f"{v:g} ({n} times)" for v, n in seen.items() if n > 1]
+    if repeated:
+        raise ConfigError(f"sweep.{key}: {', '.join(repeated)}: every value must be different "
+                          "(a repeated value runs the same cases twice)")
+    return values
+
+
+def _sweep_values(key: str, spec) -> tuple:
+    where = f"sweep.{key}"
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        return (float(spec),)
+    if isinstance(spec, list):
+        if not spec:
+            raise ConfigError(f"{where}: empty list")
+        if len(spec) > MAX_CASES:
+            raise ConfigError(f"{where}: {len(spec)} values; more than {MAX_CASES} is surely a mistake")
+        return tuple(check_type(f"{where}[{i}]", v, float) for i, v in enumerate(spec))
+    if isinstance(spec, dict):
+        if len(spec) != 1 or next(iter(spec)) not in ("linspace", "logspace"):
+            raise ConfigError(f"{where} = {spec!r}: use a list, a number, "
+                              "{ linspace = [start, stop, num] } or { logspace = [start, stop, num] }")
+        kind, args = next(iter(spec.items()))
+        if not isinstance(args, list) or len(args) != 3:
+            raise ConfigError(f"{where}.{kind} = {args!r}: must be [start, stop, num]")
+        start = check_type(f"{where}.{kind} start", args[0], float)
+        stop = check_type(f"{where}.{kind} stop", args[1], float)
+        num = check_type(f"{where}.{kind} num", args[2], int)
+        if not 1 <= num <= MAX_CASES:
+            raise ConfigError(f"{where}.{kind}: num = {num} must lie in [1, {MAX_CASES}]")
+        if kind == "logspace":
+            if start <= 0 or stop <= 0:
+                raise ConfigError(f"{where}.logspace: start and stop must be > 0 (they are values, "
+                                  "spaced geometrically), got {start}, {stop}")
+            values = np.geomspace(start, stop, num)
+        else:
+            values = np.linspace(start, stop, num)
+        return tuple(_round(v) for v in values)
+    raise ConfigError(f"{where} = {spec!r}: must be a number, a list or a linspace/logspace table")
+
+
+def study_from_toml(text: str, source: str = "<string>", default_name: str = "campaign") -> Study:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+    try:
+        return _study_from_dict(data, default_name, text)
+    except ConfigError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+
+
+def load_study(path: str | Path) -> Study:
+    """Read a campaign file and build (validate) every case."""
+    path = Path(path)
+    return study_from_toml(read_text(path), source=str(path), default_name=path.stem)
+
+
+def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
+    data = dict(data)
+    is_search, is_refine = "search" in data, "refine" in data
+    if is_search and is_refine:
+        raise ConfigError("[search] and [refine] are two kinds of campaign: give one")
+    tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search", "refine")}
+    for table, value in tables.items():
+        if not isinstance(value, dict):
+            raise ConfigError(f"[{table}] must be a table")
+    campaign, sweep_spec = tables["campaign"], tables["sweep"]
+    unknown = sorted(set(campaign) - set(CAMPAIGN_KEYS))
+    if unknown:
+        raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [campaign]: {', '.join(unknown)} "
+                          f"(known: {', '.join(CAMPAIGN_KEYS)})")
+    try:
+        base = case_from_dict(data)
+    except ConfigError as exc:
+        raise ConfigError(f"base case: {exc}") from None
+
+    name = campaign.get("name", default_name)
+    if not isinstance(name, str) or not name.strip():
+        raise ConfigError(f"campaign.name = {name!r}: must be a non-empty string")
+    output = campaign.get("output", f"{name}.h5")
+    if not isinstance(output, str) or not output:
+        raise ConfigError(f"campaign.output = {output!r}: must be a file path")
+    stop_timeout = check_type("campaign.stop_timeout", campaign.get("stop_timeout", 10.0), float)
+    if not stop_timeout > 0:
+        raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
+    times = TimeRules.from_campaign(campaign)
+    analysis = AnalysisSettings.from_dict(tables["analysis"])
+    search = SearchSettings.from_dict(tables["search"]) if is_search else None
+
+    allowed = SEARCHABLE if search else SWEEPABLE
+    unknown = [k for k in sweep_spec if k not in allowed]
+    if unknown:
+        if search and unknown == ["shear_rate"]:
+            raise ConfigError("[search] runs along the shear rate: leave shear_rate out of [sweep] "
+                              "(the search range is [search] low and high)")
+        raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
+    sweep = {key: sweep_values(key, spec) for key, spec in sweep_spec.items()}
+    refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
+    others = [k for k in sweep if refine and k not in refine.axes]
+    refinements = tuple(dict(zip(others, values)) for values in itertools.product(*(sweep[k] for k in others)))
+    study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
+                  analysis=analysis, base=base, times=times, search=search, refine=refine,
+                  refinements=refinements if refine else ())
+    if study.most_cases > MAX_CASES:
+        raise ConfigError(f"the sweep has {study.most_cases} cases; more than {MAX_CASES} is surely a mistake")
+    if refine is not None:          # validate every point of every coarse grid
+        for i in range(len(refinements)):
+            for x in sweep[refine.axes[0]]:
+                for y in sweep[refine.axes[1]]:
+                    study.refine_case(i, x, y, f"of refinement {i}")
+        return study
+    points = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())]
+    if search is None:
+        width = study.id_width
+        return study.with_cases(study.make_case(f"{i:0{width}d}", swept) for i, swept in enumerate(points))
+    study = dataclasses.replace(study, searches=tuple(points))
+    for i in range(len(points)):         # validate every search at both ends of its range
+        for shear_rate in (search.low, search.high):
+            study.search_case(i, shear_rate, f"of search {i}")
+    return study
+
+
+@dataclass(frozen=True)
+class TimeRules:
+    """Per-case times from the shear rate S ([campaign] keys).
+
+    t_end: ``max(t_end, t_end_min)``, or ``max(shear_times / S, t_end_min)``, or
+    the base case's t_end (at least t_end_min). The sampling interval of the
+    time series: the base case's, or -- with ``samples_per_shear_time`` = k --
+    ``min(base, 1 / (k S))`` (but at least dt), so that fast motion (a phase-treading period
+    is ~7 shear times) is sampled as finely at S = 320 as at S = 20.
+    """
+
+    t_end: float | None = None
+    shear_times: float | None = None
+    t_end_min: float = 0.0
+    samples_per_shear_time: float | None = None
+
+    def end_time(self, shear_rate: float, base: float) -> float:
+        if self.t_end is not None:
+            return max(self.t_end, self.t_end_min)
+        if self.shear_times is not None:
+            if shear_rate == 0:
+                if self.t_end_min > 0:
+                    return self.t_end_min
+                raise ConfigError("shear_rate = 0 has no shear time: set campaign.t_end_min")
+            return _round(max(self.shear_times / shear_rate, self.t_end_min))
+        return max(base, self.t_end_min)
+
+    def sample_interval(self, shear_rate: float, base: float, dt: float) -> float:
+        if self.samples_per_shear_time is None or shear_rate == 0:
+            return base
+        return _round(max(dt, min(base, 1.0 / (self.samples_per_shear_time * shear_rate))))
+
+    @classmethod
+    def from_campaign(cls, campaign: dict) -> "TimeRules":
+        absolute = campaign.get("t_end")
+        shear_times = campaign.get("shear_times")
+        if absolute is not None and shear_times is not None:
+            raise ConfigError("campaign: give t_end or shear_times, not both")
+        floor = check_type("campaign.t_end_min", campaign.get("t_end_min", 0.0), float)
+        if floor < 0:
+            raise ConfigError(f"campaign.t_end_min = {floor}: must be >= 0")
+        if absolute is not None:
+            absolute = check_type("campaign.t_end", absolute, float)
+            if not absolute > 0:
+                raise ConfigError(f"campaign.t_end = {absolute}: must be > 0")
+        if shear_times is not None:
+            shear_times = check_type("campaign.shear_times", shear_times, float)
+            if not shear_times > 0:
+                raise ConfigError(f"campaign.shear_times = {shear_times}: must be > 0")
+        samples = campaign.get("samples_per_shear_time")
+        if samples is not None:
+            samples = check_type("campaign.samples_per_shear_time", samples, float)
+            if not samples > 0:
+                raise ConfigError(f"campaign.samples_per_shear_time = {samples}: must be > 0")
+        return cls(absolute, shear_times, floor, samples)

@@ -1,0 +1,124 @@
+"""Membrane velocity: Stokes flow driven by the membrane force, with the tension
+that makes the flow locally inextensible.
+
+    u = u_inf + SLP[ f_b + d(Lambda~ s)/ds ],     u_inf(x) = S (y, 0),
+    s . du/ds = 0   on the membrane                (local inextensibility).
+
+The constraint is linear in the effective tension Lambda~ (see
+:mod:`hpcves.model.forces`). With B Lambda = d(Lambda s)/ds, i.e.
+B = [D_s diag(s_x); D_s diag(s_y)], and the constraint operator
+s . D_s = [diag(s_x) D_s, diag(s_y) D_s] = -B^T, the tension solves
+
+    A Lambda~ = s . D_s (u_inf + G f_b),     A = B^T G B,
+
+with G the assembled single-layer matrix. A is symmetric positive definite
+(G is, on forces of zero total, and B has no kernel). D_s G D_s is formed in
+closed form from the kernels' analytic derivatives
+(:meth:`hpcves.numerics.quadrature.StokesSLP.constraint_matrix`, O(N^2) elementwise)
+and factorised by Cholesky, O(N^3/6). That A differs from the discrete B^T G B
+by the spectral error of the derivatives (9e-13 relative at psi_bar = 0.3,
+Delta = 0.194, N = 128, which leaves a stretching of ~6e-10 of what the
+tension cancels; 1e-4 on the tips of Delta = 2.3 at N = 64), so the
+tension is refined against the exact discrete constraint (iterative refinement
+with the same factor): each pass costs one matvec and shrinks the residual
+s . du/ds by about that relative error times the condition number. Passes stop
+once it is below REFINEMENT_TOLERANCE = 1e-8 of the stretching s . du0/ds that
+the tension cancels, or stops falling (round-off). Refining further, to round-off
+(1e-13), changed theta(t) by 4e-14 and psi by 9e-13 over t = 1 (N = 128, dt =
+1e-3; psi_bar = 0.3, S = 80 and psi_bar = 0.5, Delta = 0.94, S = 40), where
+halving dt moves theta by 2e-3 and 3e-2 (docs/numerics.md), and cost a pass (~30 us)
+every step; now 95 % of the steps at psi_bar = 0.3, Delta = 0.194 take none,
+70 % at Delta = 0.94 take one, and the tips of Delta = 2.3 one (N = 128) or
+two (N = 64). A residual still above UNRESOLVED = 1e-6 of it means the closed form is
+far from B^T G B, i.e. the shape is not resolved, and stops the run like a
+divergence. (Forming D_s G D_s by a 2-D FFT of the blocks
+instead cost 3x more at N = 128; docs/numerics.md.)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import blas, lapack
+
+from hpcves.model.forces import bending_force, tension_force
+from hpcves.model.geometry import Shape
+from hpcves.model.params import Physics
+from hpcves.numerics.quadrature import StokesSLP
+from hpcves.numerics.reductions import largest_magnitude
+from hpcves.numerics.spectral import Spectral
+
+
+@dataclass(frozen=True)
+class Flow:
+    """The membrane velocity and what it took to compute it."""
+
+    velocity: np.ndarray          # u at the membrane points (complex)
+    tension_eff: np.ndarray       # Lambda~ = Lambda + sigma
+
+    def stretching(self, tangent: np.ndarray, sp: Spectral) -> np.ndarray:
+        """s . du/ds, zero for an inextensible membrane."""
+        return np.real(np.conj(tangent) * sp.ds_complex(self.velocity))
+
+
+class MembraneFlow:
+    """Computes :class:`Flow` for a shape and a phase field."""
+
+    REFINEMENT_TOLERANCE = 1e-8       # residual s . du/ds relative to the stretching of u0
+    MAX_REFINEMENTS = 8
+    UNRESOLVED = 1e-6                 # a residual above this after refining: the shape is not resolved
+
+    def __init__(self, physics: Physics, sp: Spectral):
+        self.physics = physics
+        self.sp = sp
+        self.slp = StokesSLP(sp.N, sp.length)
+        self._blocks = np.empty((3, sp.N, sp.N))
+        self._A = np.empty((sp.N, sp.N))          # constraint matrix, factorised in place
+
+    def solve(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
+        """Velocity of the membrane and its effective tension."""
+        sp, phys, slp = self.sp, self.physics, self.slp
+        tangent = shape.tangent
+        conj_tangent = np.conj(tangent)
+        blocks = slp.assemble(shape.z, tangent, out=self._blocks)
+        f_b = bending_force(shape.curvature, psi, psi_s, tangent, phys, sp)
+        u0 = slp.apply(blocks, f_b)
+        u0 += phys.shear_rate * shape.z.imag
+        rhs = (conj_tangent * sp.ds_complex(u0)).real
+        A = slp.constraint_matrix(tangent, shape.curvature, out=self._A)
+        # A is symmetric and C-ordered: its transpose is the same matrix in the Fortran
+        # order LAPACK wants (no copy), and LAPACK's lower Cholesky is the faster one there
+        factor, info = lapack.dpotrf(A.T, lower=1, overwrite_a=1, clean=0)
+        if info != 0:
+            raise TensionSolveError(
+                "the inextensibility system is not positive definite: the shape is no longer "
+                "resolved (reduce dt or increase N)")
+        tension = cholesky_solve(factor, rhs)
+        u = u0 + slp.apply(blocks, tension_force(tension, tangent, sp))
+        scale = largest_magnitude(rhs)
+        previous = np.inf
+        for refinements in range(self.MAX_REFINEMENTS + 1):
+            residual = (conj_tangent * sp.ds_complex(u)).real       # = rhs - (B^T G B) tension
+            size = largest_magnitude(residual)
+            if size <= self.REFINEMENT_TOLERANCE * scale or size > 0.5 * previous \
+                    or refinements == self.MAX_REFINEMENTS:           # converged, at round-off, or done
+                break
+            previous = size
+            correction = cholesky_solve(factor, residual)
+            tension += correction
+            u += slp.apply(blocks, tension_force(correction, tangent, sp))
+        if size > self.UNRESOLVED * scale:
+            raise TensionSolveError(
+                f"the tension leaves a stretching of {size / scale:.1e} of what it cancels: "
+                "the shape is no longer resolved (reduce dt or increase N)")
+        return Flow(velocity=u, tension_eff=tension)
+
+
+def cholesky_solve(factor, b):
+    """x with L L^T x = b, L = ``factor`` (lower, Fortran order): two triangular solves
+    (BLAS dtrsv; 6.7 us against 8.7 for LAPACK's dpotrs at N = 128)."""
+    return blas.dtrsv(factor, blas.dtrsv(factor, b, lower=1), lower=1, trans=1)
+
+
+class TensionSolveError(ArithmeticError):
+    """The tension system could not be solved (the computation is diverging)."""

@@ -1,0 +1,343 @@
+"""Parameters of one case: typed, frozen, validated on construction.
+
+Three groups, one per concern:
+
+* :class:`Physics`  -- the model of SPEC section 1 (dimensionless), published defaults;
+* :class:`Numerics` -- resolution, time step and the stabilisation constants;
+* :class:`RunControl` -- end time, sampling, snapshot and checkpoint intervals,
+  divergence bounds.
+
+:class:`Case` bundles them. Every check raises :class:`ConfigError` with a
+message that names the offending key, so the command line can print it as is.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Literal
+
+from hpcves.model import bending
+
+#: Perimeter of the 1/2 : 1/3 ellipse, the published reference shape.
+REFERENCE_LENGTH = 2.6442
+#: Delta = L / R - 2 pi of the publication's 1/2 : 1/3 ellipse (geometry.excess_length_of_ellipse(2/3),
+#: checked in tests/test_geometry.py); the default. The rounded 0.194, a shape of its own (still
+#: accepted), settles a homogeneous vesicle 6.5e-5 rad lower (VALIDATION.md, section 1)
+REFERENCE_EXCESS_LENGTH = 0.19385328260599
+
+#: More time steps than this for one case is surely a mistake (at the fastest step measured,
+#: 0.25 ms at N = 32, it is three days of one core; the published runs took 10^6 to 10^7).
+MAX_STEPS = 10**9
+
+PSI_COORDINATES = ("arclength", "ellipse_parameter")
+
+
+class ConfigError(ValueError):
+    """A parameter or input file is invalid; the message says which and why."""
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise ConfigError(message)
+
+
+@dataclass(frozen=True)
+class Physics:
+    """The dimensionless model (SPEC section 1).
+
+    ``psi_bar`` is the mean soft-phase fraction; ``psi_bar`` of exactly 0 or 1
+    is a homogeneous vesicle (B = B1 or B2) whose phase field is not evolved.
+    ``psi_init_coordinate`` says what alpha means in the initial phase
+    psi(alpha, 0) = psi_bar + delta (3 cos 2 pi a + 0.5 cos 6 pi a + 0.5 cos 8 pi a):
+    ``"arclength"`` -- the normalised arclength of the node (the published formula;
+    the mean of psi is then exactly psi_bar); ``"ellipse_parameter"`` -- the
+    parameter t/(2 pi) of the ellipse x = a cos t, y = b sin t at the node (what
+    the authors' code does; the mean then differs from psi_bar by O(delta e^2)).
+    ``bending_law`` is B(psi) (bending.py): ``"linear"``, B1 + (B2 - B1) psi for
+    every psi (SPEC section 1), which vanishes at psi = B1 / (B1 - B2) and lets a
+    sharp tip draw the soft phase past 1 (Delta = 2.3); ``"saturating"`` (the
+    default), the same on [0, 1] with B' fading to zero over ``bending_width``
+    outside it, so that B stays positive (docs/numerics.md, "Bending law").
+    """
+
+    shear_rate: float = 10.0
+    psi_bar: float = 0.3
+    excess_length: float = REFERENCE_EXCESS_LENGTH
+    length: float = REFERENCE_LENGTH
+    B1: float = 1.0
+    B2: float = 0.1
+    a0: float = 100.0
+    epsilon: float = 0.04
+    delta: float = 0.05
+    mobility: float = 1.0
+    psi_init_coordinate: Literal["arclength", "ellipse_parameter"] = "arclength"
+    bending_law: Literal["linear", "saturating"] = "saturating"
+    bending_width: float = 0.05
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _require(self.shear_rate >= 0, f"physics.shear_rate = {self.shear_rate}: must be >= 0")
+        _require(0.0 <= self.psi_bar <= 1.0, f"physics.psi_bar = {self.psi_bar}: must lie in [0, 1]")
+        _require(self.length > 0, f"physics.length = {self.length}: must be > 0")
+        _require(
+            self.excess_length >= 0,
+            f"physics.excess_length = {self.excess_length}: no ellipse reaches a negative "
+            "excess length (the circle has 0)",
+        )
+        _require(
+            self.excess_length <= 20,
+            f"physics.excess_length = {self.excess_length}: the ellipse with this excess length "
+            "has an aspect ratio beyond 1:1000; not supported",
+        )
+        _require(self.B1 > 0, f"physics.B1 = {self.B1}: bending stiffness must be > 0")
+        _require(self.B2 > 0, f"physics.B2 = {self.B2}: bending stiffness must be > 0")
+        _require(self.a0 >= 0, f"physics.a0 = {self.a0}: line-energy strength must be >= 0")
+        _require(self.epsilon > 0, f"physics.epsilon = {self.epsilon}: must be > 0")
+        _require(self.delta >= 0, f"physics.delta = {self.delta}: must be >= 0")
+        _require(self.mobility > 0, f"physics.mobility = {self.mobility}: must be > 0")
+        _require(
+            self.psi_init_coordinate in PSI_COORDINATES,
+            f"physics.psi_init_coordinate = {self.psi_init_coordinate!r}: must be one of "
+            + ", ".join(repr(c) for c in PSI_COORDINATES),
+        )
+        _require(self.bending_law in bending.LAWS, f"physics.bending_law = {self.bending_law!r}: must be one of "
+                 + ", ".join(repr(c) for c in bending.LAWS))
+        _require(self.bending_width > 0, f"physics.bending_width = {self.bending_width}: must be > 0")
+        if self.bending_law == "saturating" and \
+                bending.stiffness_bounds(self.B1, self.B2, self.bending_law, self.bending_width)[0] <= 0:
+            raise ConfigError(f"physics.bending_width = {self.bending_width}: the saturating law would reach "
+                              "B <= 0 outside [0, 1]; it needs bending_width < "
+                              f"{bending.largest_width(self.B1, self.B2):.3g}")
+
+    @property
+    def homogeneous(self) -> bool:
+        """True for psi_bar = 0 or 1: one lipid phase, no phase-field dynamics."""
+        return self.psi_bar in (0.0, 1.0)
+
+    def bending(self, psi):
+        """B(psi) = B1 + (B2 - B1) s(psi): s = psi for the linear law, and on [0, 1] for both (bending.py)."""
+        return self.B1 + (self.B2 - self.B1) * bending.fraction(psi, self.bending_law, self.bending_width)
+
+    def bending_prime(self, psi):
+        """B'(psi) = (B2 - B1) s'(psi): a scalar where it is the constant B2 - B1, else an array."""
+        return (self.B2 - self.B1) * bending.fraction_prime(psi, self.bending_law, self.bending_width)
+
+    def bending_second(self, psi):
+        """B''(psi) = (B2 - B1) s''(psi), or None where it is 0 (the linear law, psi inside [0, 1])."""
+        second = bending.fraction_second(psi, self.bending_law, self.bending_width)
+        return None if second is None else (self.B2 - self.B1) * second
+
+
+@dataclass(frozen=True)
+class Numerics:
+    """Discretisation.
+
+    ``N`` material points, equispaced in arclength (even, >= 16). ``dt`` the time
+    step of a fixed-step run. ``rtol`` (with ``atol``) makes the step adaptive
+    instead: variable-step SBDF2 under error control (stepcontrol.py), steps
+    up to ``dt_max``, the first one ``dt_initial``; ``dt`` is then not used.
+    ``bending_stabilization`` multiplies max(B1, B2) in the implicit part
+    c |k|^3 / 4 of the tangent-angle equation (>= 1 keeps SBDF2 stable for every
+    local B). ``phase_stabilization`` is the constant s of the linear
+    stabilisation (a0/eps) s psi of the double-well term (>= max g'' = 1/2).
+    ``area_correction`` projects each new shape back onto the initial enclosed
+    area (the exact dynamics conserve it; the projection removes the O(dt^2)
+    drift of the time stepping without lowering its order, and its running sum
+    is recorded as the diagnostic ``area_correction``).
+    """
+
+    N: int = 128
+    dt: float = 1e-3
+    rtol: float | None = None
+    atol: float = 0.0
+    dt_max: float = 0.05
+    dt_initial: float = 1e-6
+    bending_stabilization: float = 1.0
+    phase_stabilization: float = 1.0
+    area_correction: bool = True
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.N, int) and not isinstance(self.N, bool),
+                 f"numerics.N = {self.N!r}: must be an integer")
+        _require(self.N >= 16, f"numerics.N = {self.N}: too small, use at least 16 points")
+        _require(self.N % 2 == 0, f"numerics.N = {self.N}: must be even")
+        _require(self.N <= 4096, f"numerics.N = {self.N}: more than 4096 points is not supported "
+                 "(the Stokeslet matrix is dense)")
+        _finite(self)
+        _require(self.dt > 0, f"numerics.dt = {self.dt}: must be > 0")
+        if self.rtol is not None:
+            _require(isinstance(self.rtol, float) and math.isfinite(self.rtol),
+                     f"numerics.rtol = {self.rtol!r}: must be a number")
+            _require(1e-10 <= self.rtol <= 0.1, f"numerics.rtol = {self.rtol:g}: must lie in [1e-10, 0.1]")
+        _require(self.atol >= 0, f"numerics.atol = {self.atol}: must be >= 0")
+        _require(self.dt_max > 0, f"numerics.dt_max = {self.dt_max}: must be > 0")
+        _require(0 < self.dt_initial <= self.dt_max,
+                 f"numerics.dt_initial = {self.dt_initial}: must lie in (0, numerics.dt_max = {self.dt_max}]")
+        _require(self.bending_stabilization >= 1.0,
+                 f"numerics.bending_stabilization = {self.bending_stabilization}: must be >= 1 "
+                 "(smaller values make the time stepping unstable)")
+        _require(self.phase_stabilization >= 0.5,
+                 f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
+                 "(max g'' on [0, 1])")
+
+    @property
+    def adaptive(self) -> bool:
+        """True when the step is chosen by error control (``rtol`` set)."""
+        return self.rtol is not None
+
+    @property
+    def fixed_dt(self) -> float:
+        """The fixed step, 0 in adaptive runs (no step is fixed)."""
+        return 0.0 if self.adaptive else self.dt
+
+
+@dataclass(frozen=True)
+class RunControl:
+    """How long to run and what to record.
+
+    Intervals are in simulated time and are rounded to whole steps.
+    ``checkpoint_wall`` additionally writes a checkpoint whenever that many
+    wall-clock seconds have passed since the last one (0 disables it).
+    A run stops as under-resolved when the top third of the Fourier modes of
+    theta_tilde or psi holds more than ``max_spectral_tail`` of its variation
+    (3e-3: N = 32 at Delta = 0.194 and N = 64 at Delta = 2.3 exceed it, the
+    resolutions that agreed with finer runs stay below; docs/numerics.md).
+    With ``until_decided`` the run stops as soon as the classifier of ``hpcves
+    analyze`` decides it (decision.py): tank-treading steady for
+    ``decided_shear_times`` shear times, phase-treading or tumbling over
+    ``decided_periods`` settled periods, asked every ``decision_samples``
+    samples; ``t_end`` is then a cap.
+    A run stops as diverged when the relative area or length error exceeds
+    ``max_area_error`` / ``max_length_error``, when one step needs the area
+    projection to undo a relative change above ``max_area_correction``, when
+    psi leaves [``psi_min``, ``psi_max``] or when anything becomes NaN.
+    The start-up relaxation of the initial ellipse needs per-step corrections
+    up to ~7e-3 in its first steps (Delta = 2.3, S = 5, dt = 2e-4; Delta = 0.94,
+    dt = 1e-3: 5e-3), and below 1e-7 once the shape has relaxed (t > 0.05);
+    the bound is a guard against runaway steps, well above both.
+    """
+
+    t_end: float = 1.0
+    sample_interval: float = 0.01
+    snapshot_interval: float = 0.1
+    checkpoint_interval: float = 0.5
+    checkpoint_wall: float = 300.0
+    max_area_error: float = 1e-3
+    max_length_error: float = 1e-3
+    max_area_correction: float = 0.05
+    psi_min: float = -0.25
+    psi_max: float = 1.1
+    max_spectral_tail: float = 3e-3
+    until_decided: bool = False
+    decided_shear_times: float = 100.0
+    decided_periods: float = 10.0
+    decision_samples: int = 100
+
+    def __post_init__(self) -> None:
+        _finite(self)
+        _require(self.t_end > 0, f"run.t_end = {self.t_end}: must be > 0")
+        _require(0 < self.max_spectral_tail <= 1,
+                 f"run.max_spectral_tail = {self.max_spectral_tail}: must lie in (0, 1]")
+        _require(self.decided_shear_times > 0, f"run.decided_shear_times = {self.decided_shear_times}: must be > 0")
+        _require(self.decided_periods >= 1, f"run.decided_periods = {self.decided_periods}: must be >= 1")
+        _require(isinstance(self.decision_samples, int) and self.decision_samples >= 1,
+                 f"run.decision_samples = {self.decision_samples!r}: must be an integer >= 1")
+        for name in ("sample_interval", "snapshot_interval", "checkpoint_interval"):
+            value = getattr(self, name)
+            _require(value > 0, f"run.{name} = {value}: must be > 0")
+        _require(self.checkpoint_wall >= 0, f"run.checkpoint_wall = {self.checkpoint_wall}: must be >= 0")
+        _require(self.max_area_error > 0, f"run.max_area_error = {self.max_area_error}: must be > 0")
+        _require(self.max_length_error > 0, f"run.max_length_error = {self.max_length_error}: must be > 0")
+        _require(self.max_area_correction > 0,
+                 f"run.max_area_correction = {self.max_area_correction}: must be > 0")
+        _require(self.psi_min < 0 < 1 < self.psi_max,
+                 f"run.psi_min, run.psi_max = {self.psi_min}, {self.psi_max}: need psi_min < 0 and psi_max > 1")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One simulation: physics, numerics and run control, checked together."""
+
+    physics: Physics = field(default_factory=Physics)
+    numerics: Numerics = field(default_factory=Numerics)
+    run: RunControl = field(default_factory=RunControl)
+
+    def __post_init__(self) -> None:
+        p, r = self.physics, self.run
+        if not p.homogeneous:
+            amplitude = 4.0 * p.delta  # max of |3 cos + 0.5 cos + 0.5 cos|
+            _require(
+                r.psi_min < p.psi_bar - amplitude and p.psi_bar + amplitude < r.psi_max,
+                f"physics.psi_bar = {p.psi_bar} with physics.delta = {p.delta}: the initial psi "
+                f"spans [{p.psi_bar - amplitude:.3g}, {p.psi_bar + amplitude:.3g}], outside the "
+                f"allowed range [{r.psi_min}, {r.psi_max}] (run.psi_min, run.psi_max)",
+            )
+        if self.numerics.adaptive:
+            return
+        _require(self.run.sample_interval >= self.numerics.dt,
+                 f"run.sample_interval = {r.sample_interval} is shorter than numerics.dt = {self.numerics.dt}")
+        _require(self.run.t_end >= self.numerics.dt,
+                 f"run.t_end = {r.t_end} is shorter than numerics.dt = {self.numerics.dt}")
+        steps = r.t_end / self.numerics.dt
+        _require(steps <= MAX_STEPS,
+                 f"run.t_end / numerics.dt = {r.t_end:g} / {self.numerics.dt:g} = {steps:.3g} time steps for one "
+                 f"case: more than {MAX_STEPS:.0e} is surely a mistake ({steps * 2.5e-4 / 86400:.3g} days of one "
+                 "core at the fastest step, N = 32)")
+
+    @property
+    def n_steps(self) -> int:
+        """Number of time steps to reach t_end (t_end rounded to a whole step); fixed-step runs only."""
+        _require(not self.numerics.adaptive, "an adaptive run has no fixed number of steps")
+        return max(1, round(self.run.t_end / self.numerics.dt))
+
+    @property
+    def estimated_steps(self) -> float:
+        """Steps the run will take: n_steps, or for an adaptive run a rough guess for ordering work.
+
+        Steps never cross sample times and the accurate step shrinks about as
+        1 / S (docs/numerics.md), so the guess is t_end / min(sample_interval, 0.05 / S).
+        """
+        if not self.numerics.adaptive:
+            return float(self.n_steps)
+        S = max(self.physics.shear_rate, 1.0)
+        return self.run.t_end / min(self.run.sample_interval, self.numerics.dt_max, 0.05 / S)
+
+    def every(self, interval: float) -> int:
+        """An interval in simulated time as a whole number of steps (>= 1)."""
+        return max(1, round(interval / self.numerics.dt))
+
+    def to_dict(self) -> dict:
+        return {"physics": asdict(self.physics), "numerics": asdict(self.numerics), "run": asdict(self.run)}
+
+    def significant(self) -> dict:
+        """:meth:`to_dict` without the options that this run does not use: the adaptive options
+        of a fixed-step run, dt of an adaptive one, the decision rules of a run to t_end, the
+        resolution watch at its default (what a study's fingerprint covers, so that files written
+        before these options existed keep theirs; the linear bending law, which they all ran)."""
+        out = self.to_dict()
+        unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
+        for key in unused:
+            del out["numerics"][key]
+        if not self.run.until_decided:
+            for key in ("until_decided", "decided_shear_times", "decided_periods", "decision_samples"):
+                del out["run"][key]
+        if self.run.max_spectral_tail == RunControl.max_spectral_tail:
+            del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
+        if self.physics.bending_law == "linear":      # the law of files from before the option
+            del out["physics"]["bending_law"], out["physics"]["bending_width"]
+        return out
+
+    def flat(self) -> dict:
+        """``{"physics.shear_rate": 10.0, ...}``: one key per parameter (HDF5 attributes; an unset
+        option such as rtol of a fixed-step run is NaN)."""
+        return {f"{group}.{key}": (math.nan if value is None else value) for group, values in self.to_dict().items()
+                for key, value in values.items()}
+
+
+def _finite(obj) -> None:
+    group = type(obj).__name__.lower()
+    group = {"runcontrol": "run"}.get(group, group)
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, float):
+            _require(math.isfinite(value), f"{group}.{f.name} = {value}: must be a finite number")

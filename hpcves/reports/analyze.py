@@ -1,0 +1,598 @@
+"""``hpcves analyze``: a campaign (or single-run) file -> regimes, tables, figures.
+
+The edge around :mod:`hpcves.analysis.regimes`: read every case's time series, classify
+it, write the results back into the file (group ``analysis/``, one row per
+case, docs/file-format.md) and into ``regimes.csv`` / ``regimes.md`` and
+``periods.md``; the figures are drawn by :mod:`hpcves.reports.plots`.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+import tomllib
+from dataclasses import dataclass, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from hpcves import __version__
+from hpcves.analysis import accuracy
+from hpcves.files import faults
+from hpcves.files.atomic import StorageError, copy_for_change, publish, remove_partial, size_text
+from hpcves.campaign.file import DAMAGED, CampaignFile
+from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
+from hpcves.run.store import (FAILED, FINISHED, HDF5_ERRORS, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError,
+                         attr_text, open_file, reading)
+from hpcves.run.store import FORMAT as CASE_FORMAT
+from hpcves.files.lock import CampaignLock, real_path
+from hpcves.model.params import ConfigError
+from hpcves.run.decision import REGIMES_BY_CODE
+from hpcves.run.runner import MODEL_LIMIT_PREFIX
+from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
+from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
+from hpcves.analysis.regimes import OUTCOMES, UNDECIDED, AnalysisSettings, Classification, classify
+
+PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
+#: the columns of regimes.csv and of the file's analysis/ group, in order
+#: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step, accuracy.py)
+COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "regime", "period", "period_err",
+                                     "period_dt_err", "theta_mean", "theta_mean_err", "theta_mean_dt_err",
+                                     "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
+                                     "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "reason")
+TEXT_COLUMNS = ("case", "status", "regime", "reason")
+
+
+@dataclass(frozen=True)
+class CaseData:
+    case_id: str
+    parameters: dict           # the four sweepable physics parameters
+    status: str
+    t: float                   # reached
+    t_end: float
+    message: str
+    series: dict
+    search: int = -1           # search files: the search the case belongs to
+    mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
+    decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
+    rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
+
+
+@dataclass(frozen=True)
+class Source:
+    """What a file holds: a campaign's cases, or the one case of ``hpcves run``."""
+
+    path: Path
+    kind: str                  # "campaign" or "case"
+    name: str
+    sweep_keys: tuple
+    settings: AnalysisSettings
+    cases: tuple
+    mode: str = "grid"         # campaigns: "grid", "search" or "refine"
+    toml: str = ""             # campaigns: the campaign file's text
+
+
+def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
+    attrs = store.group.attrs
+    t, t_end = (float(v) for v in store.progress[:2])
+    return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
+                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
+                    search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
+                    float(attrs.get("numerics.rtol", math.nan)))
+
+
+def mark(store: CaseStore) -> tuple:
+    """What changes while a case runs: (status, t reached, samples, snapshots)."""
+    return store.status, float(store.progress[0]), store.n_samples, store.n_snapshots
+
+
+def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
+    """One case's data; a case that cannot be read or fails CaseStore.problems comes back "damaged"."""
+    try:
+        store = CaseStore.open(group, where=case_id)
+        problems = store.problems()
+        if not problems:
+            return case_data(store, case_id, search)
+        why = "; ".join(problems[:3]) + (f"; {len(problems) - 3} more" if len(problems) > 3 else "")
+    except (FileFormatError, *HDF5_ERRORS) as exc:
+        why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    parameters = {k: float(swept.get(k, math.nan)) for k in PARAMETERS}
+    return CaseData(case_id, parameters, DAMAGED, math.nan, math.nan, why, {"t": np.zeros(0)}, search, (DAMAGED,))
+
+
+def settings_of(toml_text: str, where: str) -> AnalysisSettings:
+    """The ``[analysis]`` table of a campaign file's text (defaults where absent)."""
+    try:
+        table = tomllib.loads(toml_text).get("analysis", {}) if toml_text else {}
+    except tomllib.TOMLDecodeError:
+        return AnalysisSettings()
+    return AnalysisSettings.from_dict(table, where=f"{where}: [analysis]")
+
+
+def read_source(path) -> Source:
+    """Every case of a campaign file, or the case of a single-run file (read without locking).
+
+    A campaign case whose data are damaged comes back with status "damaged" and what is wrong as its
+    message (the others are read as usual); a file whose own structure is damaged is refused.
+    """
+    path = Path(path)
+    with open_file(path, "r", locking=False) as h5, reading(str(path)):
+        fmt = attr_text(h5.attrs.get("format", ""))
+        if fmt not in (CAMPAIGN_FORMAT, CASE_FORMAT):
+            raise FileFormatError(f"{path}: not an hpcves campaign or run file (no format attribute)")
+        if fmt == CAMPAIGN_FORMAT:
+            campaign = CampaignFile.check(h5, str(path))
+            index = h5["index"]
+            cases = []
+            for i, (c, search) in enumerate(zip(campaign.case_ids, campaign.searches_of_cases())):
+                swept = {k: index[k][i] for k in campaign.sweep_keys}
+                cases.append(_read_case(h5["cases"].get(c), c, search, swept))
+            toml = attr_text(h5.attrs.get("campaign_toml", ""))
+            return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys),
+                          settings_of(toml, str(path)), tuple(cases), campaign.mode, toml)
+        store = CaseStore.open(h5, where=str(path))           # a single run (or a clear refusal)
+        problems = store.problems()
+        if problems:
+            raise FileFormatError(f"{path}: damaged ({'; '.join(problems[:3])})")
+        return Source(path, "case", path.stem, (), AnalysisSettings(), (case_data(store, path.stem),))
+
+
+def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
+    """One row of regimes.csv (COLUMNS) for one case."""
+    base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
+            "rtol": case.rtol}
+    n = len(case.series["t"])
+    unclassified = {STATUS_NAMES[FAILED]: (FAILED_OUTCOME, "case failed: "),
+                    STATUS_NAMES[MODEL_LIMIT]: (MODEL_LIMIT_OUTCOME, f"stopped at t = {case.t:.4g}: "),
+                    DAMAGED: (UNDECIDED, "case damaged: ")}
+    if case.status in unclassified or n == 0:
+        first = case.message.splitlines()[0] if case.message else ""
+        regime, prefix = unclassified.get(case.status, (UNDECIDED, "not run yet"))
+        reason = prefix + first.removeprefix(MODEL_LIMIT_PREFIX) if case.status in unclassified else prefix
+        empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
+        return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
+    found = classify(case.series, settings)
+    if case.status != STATUS_NAMES[FINISHED]:
+        found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
+    elif case.decided:                                    # stopped by run.until_decided (decision.py)
+        regime = case.decided
+        note = (f"stopped when decided at t = {case.t:.4g} (cap {case.t_end:.4g})" if regime == found.regime else
+                f"the run decided {regime} at t = {case.t:.4g} and stopped, but these thresholds find "
+                f"{found.regime}: rerun to the cap without run.until_decided")
+        found = replace(found, reason=f"{note}; {found.reason}")
+    rtol = case.rtol if math.isfinite(case.rtol) else None
+    flips = bool(found.theta_min < 0)                     # tumbling: no rule (accuracy.py)
+    return {**base, **found.row(), "period_dt_err": accuracy.period_error(found.period, rtol, flips),
+            "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips)}
+
+
+def analyse_source(source: Source, settings: AnalysisSettings | None = None, progress=None) -> list[dict]:
+    settings = settings or source.settings
+    rows = []
+    for i, case in enumerate(source.cases):
+        rows.append(analyse_case(case, settings))
+        if progress is not None:
+            progress(i + 1, len(source.cases))
+    return rows
+
+
+# ---------------------------------------------------------------------- results back into the file
+def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, progress=None) -> str:
+    """Store ``rows`` as the file's ``analysis/`` group; "" if done, else why not (nothing is changed then).
+
+    Safe by construction (atomic.py): the group is written into a copy of the file, which then
+    replaces it; a kill or a full disk at any moment leaves the file as it was. Only while no
+    campaign writes the file (its lock) -- for a single-run file, while no ``hpcves run`` has it open
+    (HDF5's own lock) -- and only if no case changed since ``source`` was read: results of a file
+    that a campaign advanced in the meantime would be stale.
+    """
+    if any(case.status == DAMAGED for case in source.cases):
+        return "it holds damaged cases"
+    path = real_path(source.path)
+    try:
+        guard = CampaignLock(source.path).acquire() if source.kind == "campaign" else open_file(path, "r+")
+    except ConfigError as exc:
+        return str(exc)
+    try:
+        changed = _changes(source, None if isinstance(guard, CampaignLock) else guard)
+        if changed:
+            return f"the file changed while it was analysed ({changed}); analyse it again"
+        if progress is not None:
+            progress(f"storing the results in a copy of the file ({size_text(path.stat().st_size)})")
+        partial = copy_for_change(path, 200 * len(rows) * len(COLUMNS) + 65536, "storing the analysis")
+        try:
+            with open_file(partial, "r+") as h5:
+                _store(h5, rows, settings)
+        except (*HDF5_ERRORS, ConfigError) as exc:
+            remove_partial(path)
+            return f"cannot write into a copy of it ({str(exc).strip().splitlines()[0]}); the file is unchanged"
+        faults.point("analysis-stored")
+        publish(partial, path)
+        return ""
+    except StorageError as exc:
+        return str(exc)
+    finally:
+        if isinstance(guard, CampaignLock):
+            guard.release()
+        else:
+            guard.close()
+
+
+def read_marks(h5, where: str) -> list[tuple]:
+    """:func:`mark` of every case of an open campaign or single-run file, in case order."""
+    with reading(where):
+        if attr_text(h5.attrs.get("format", "")) == CAMPAIGN_FORMAT:
+            campaign = CampaignFile.check(h5, where)
+            return [mark(campaign.store(c)) for c in campaign.case_ids]
+        return [mark(CaseStore.open(h5, where=where))]
+
+
+def _changes(source: Source, h5=None) -> str:
+    """How the cases of the file (``h5`` if open) differ now from when ``source`` was read ("" if not)."""
+    if h5 is None:
+        with open_file(source.path, "r", locking=False) as opened:
+            now = read_marks(opened, str(source.path))
+    else:
+        now = read_marks(h5, str(source.path))
+    if len(now) != len(source.cases):
+        return f"{len(source.cases)} cases then, {len(now)} now"
+    changed = [(case, new) for case, new in zip(source.cases, now) if case.mark != new]
+    if not changed:
+        return ""
+    case, new = changed[0]
+    first = (f"case {case.case_id}: {case.status} at t = {case.t:.4g} when read, now "
+             f"{STATUS_NAMES.get(new[0], new[0])} at t = {new[1]:.4g}")
+    return first + (f"; {len(changed) - 1} more" if len(changed) > 1 else "")
+
+
+def _store(h5, rows: list[dict], settings: AnalysisSettings) -> None:
+    """Replace the ``analysis/`` group of an open file: one dataset per column (one row per case)."""
+    import h5py
+
+    if "analysis" in h5:
+        del h5["analysis"]
+    group = h5.create_group("analysis")
+    group.attrs["hpcves_version"] = __version__
+    group.attrs["analysed_at"] = time.strftime("%Y-%m-%d %H:%M:%S")
+    group.attrs["settings"] = json.dumps(settings.__dict__)
+    text = h5py.string_dtype()
+    for column in COLUMNS:
+        values = [row[column] for row in rows]
+        if column in TEXT_COLUMNS:
+            group.create_dataset(column, data=np.array(values, dtype=object), dtype=text)
+        else:
+            group.create_dataset(column, data=np.array(values, dtype=float))
+
+
+def read_back(path) -> list[dict]:
+    """The rows written by :func:`write_back` (empty if the file was never analysed)."""
+    with open_file(path, "r", locking=False) as h5:
+        if "analysis" not in h5:
+            return []
+        group = h5["analysis"]
+        columns = {c: group[c][:] for c in COLUMNS if c in group}
+    n = len(columns["case"])
+    return [{c: (attr_text(v[i]) if c in TEXT_COLUMNS else float(v[i])) for c, v in columns.items()}
+            for i in range(n)]
+
+
+# ---------------------------------------------------------------------- tables
+def _cell(value, column: str) -> str:
+    if column in TEXT_COLUMNS:
+        return str(value)
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return ""
+    return f"{value:.6g}"
+
+
+def write_csv(rows: list[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(COLUMNS)
+        for row in rows:
+            writer.writerow([_cell(row[c], c) for c in COLUMNS])
+
+
+def markdown_table(header: list[str], body: list[list[str]], left: tuple = (0,)) -> str:
+    """A Markdown table; the columns numbered in ``left`` are left-aligned, the others right-aligned."""
+    lines = ["| " + " | ".join(header) + " |",
+             "| " + " | ".join("---" if i in left else "---:" for i in range(len(header))) + " |"]
+    lines += ["| " + " | ".join(cell.replace("|", "/") for cell in row) + " |" for row in body]
+    return "\n".join(lines)
+
+
+def regimes_markdown(source: Source, rows: list[dict]) -> str:
+    keys = list(source.sweep_keys) or list(PARAMETERS)
+    header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
+                                "min theta", "amplitude", "Delta E_b", "+-", "t settle", "evidence"]
+    body = [[row["case"]] + [_cell(row[k], k) for k in keys]
+            + [row["regime"], _fmt(row["period"], ".6g"), _fmt(row["period_err"], ".2g"),
+               _dt_cell(row, "period"), _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_mean_err"], ".2g"),
+               _dt_cell(row, "theta_mean"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
+               _fmt(row["bending_gap"], ".4g"), _fmt(row["bending_gap_err"], ".2g"),
+               _fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
+    summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
+    left = (0, len(keys) + 1, len(header) - 1)
+    return (f"# Regimes of {source.kind} {source.name!r}\n\n{source.path}: {len(rows)} cases: {summary}.\n\n"
+            + markdown_table(header, body, left) + "\n\n" + ERROR_BARS + "\n")
+
+
+#: what the error columns of the tables mean
+ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error of the crossings' slope, or "
+              "where they are too few the two estimators' fits and their disagreement; mean theta: its drift "
+              "and the averaging over whole periods, docs/analysis.md). +- dt: the discretisation error of the "
+              "time step, by the rule measured against rtol (hpcves/analysis/accuracy.py, docs/error_rule.md); n/e: not "
+              "estimated -- a fixed-step run (rerun with numerics.rtol), or tumbling, for which the rule does "
+              "not hold: the tolerance picks the orbit, and a tumbling period was 1 % longer at rtol = 1e-2 "
+              "and 1e-3, 0.1 % at 1e-4, than at 1e-5. Delta E_b: max - min of the bending energy over a "
+              "period of a phase-treading case, averaged over its whole settled periods, +- their standard "
+              "error and what the sampling can miss of the extremes (the time step's error not included).")
+
+
+def _dt_cell(row: dict, quantity: str) -> str:
+    if not math.isfinite(row[quantity]):
+        return ""
+    return _fmt(row[f"{quantity}_dt_err"], ".2g") or "n/e"
+
+
+def _fmt(value: float, spec: str) -> str:
+    return format(value, spec) if isinstance(value, float) and math.isfinite(value) else ""
+
+
+def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str]) -> list[tuple[dict, str]]:
+    """(fixed values of the other swept keys, Markdown table of row_key x col_key) for each combination.
+
+    A cell holds the period +- its uncertainty (statistical + discretisation, accuracy.error_bar) for PT and TU,
+    with the part that dominates in brackets; else the regime.
+    """
+    out = []
+    for fixed, subset in facets(rows, others):
+        row_values = sorted({row[row_key] for row in subset})
+        col_values = sorted({row[col_key] for row in subset})
+        cells = {(row[row_key], row[col_key]): row for row in subset}
+        body = []
+        for r in row_values:
+            line = [f"{r:g}"]
+            for c in col_values:
+                row = cells.get((r, c))
+                if row is None:
+                    line.append("")
+                elif row["regime"] in ("PT", "TU") and math.isfinite(row["period"]):
+                    error, dominant = accuracy.error_bar(row, "period")
+                    line.append(f"{row['period']:.4g} +- {error:.1g} [{dominant}]"
+                                + (" (TU)" if row["regime"] == "TU" else ""))
+                else:
+                    line.append(row["regime"])
+            body.append(line)
+        header = [f"{LABELS.get(row_key, row_key)} \\ {LABELS.get(col_key, col_key)}"] + [f"{c:g}" for c in col_values]
+        out.append((fixed, markdown_table(header, body)))
+    return out
+
+
+LABELS = {"shear_rate": "S", "psi_bar": "psi_bar", "excess_length": "Delta", "B2": "B2"}
+
+
+def grid_axes(source: Source, rows: list[dict], axes: tuple[str, str] | None = None) -> tuple[str, str, list[str]]:
+    """(x key, y key, other swept keys) for the phase diagrams and period tables.
+
+    Default: shear rate along x, the next swept key along y; only keys with more
+    than one value count as swept.
+    """
+    varied = [k for k in (source.sweep_keys or PARAMETERS) if len({row[k] for row in rows}) > 1]
+    if axes:
+        for k in axes:
+            if k not in PARAMETERS:
+                raise ConfigError(f"--axes: {k!r} is not one of {', '.join(PARAMETERS)}")
+        x, y = axes
+    else:
+        ordered = sorted(varied, key=lambda k: (k != "shear_rate", varied.index(k)))
+        if len(ordered) >= 2:
+            x, y = ordered[0], ordered[1]
+        elif ordered:
+            x, y = ordered[0], next(k for k in PARAMETERS if k != ordered[0])
+        else:
+            x, y = "shear_rate", "psi_bar"
+    others = [k for k in varied if k not in (x, y)]
+    return x, y, others
+
+
+def facets(rows: list[dict], others: list[str]):
+    """(fixed values, rows) for every combination of the other swept keys."""
+    for combo in sorted({tuple(row[k] for k in others) for row in rows}):
+        yield dict(zip(others, combo)), [row for row in rows if tuple(row[k] for k in others) == combo]
+
+
+def facet_suffix(fixed: dict) -> str:
+    """``_B20.3``: the fixed values in a file name."""
+    return "".join(f"_{LABELS.get(k, k)}{v:g}" for k, v in fixed.items())
+
+
+def shared_parameters(rows: list[dict], axes=()) -> dict:
+    """The parameters (other than ``axes``) that every row has the same value of: what a figure
+    over ``rows`` holds fixed, for its title."""
+    return {k: rows[0][k] for k in PARAMETERS
+            if k not in axes and rows and k in rows[0] and len({r[k] for r in rows}) == 1}
+
+
+def facet_label(fixed: dict) -> str:
+    """``B2 = 0.3``: the fixed values in a heading or a title."""
+    return ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in fixed.items())
+
+
+def regime_counts(rows: list[dict]) -> dict:
+    """Number of cases per outcome, in the order TT, PT, TU, undecided, model limit, failed; outcomes
+    with none left out."""
+    counts = {r: sum(1 for row in rows if row["regime"] == r) for r in OUTCOMES}
+    return {r: n for r, n in counts.items() if n}
+
+
+
+# ---------------------------------------------------------------------- the whole command
+@dataclass(frozen=True)
+class Report:
+    source: Source
+    rows: tuple
+    written: tuple             # paths of the tables and figures
+    wrote_back: bool
+    note: str                  # why the results were not written back, if they were not
+    searches: tuple = ()       # search files: the rows of critical_shear.csv
+    refinements: tuple = ()    # refine files: the rows of refinement.csv
+
+    def counts(self) -> dict:
+        return regime_counts(self.rows)
+
+    @property
+    def damaged(self) -> list[CaseData]:
+        """Cases whose data could not be read (or contradict themselves); analysed as undecided."""
+        return [case for case in self.source.cases if case.status == DAMAGED]
+
+
+def parse_overrides(items) -> dict:
+    """``key=value`` strings (values in TOML syntax) -> a dict for AnalysisSettings."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set {item!r}: use key=value, e.g. --set min_cycles=5")
+        try:
+            out[key.strip()] = tomllib.loads(f"v = {value.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            raise ConfigError(f"--set {item!r}: {value!r} is not a TOML value") from None
+    return out
+
+
+def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file: bool = True,
+            case_figures: bool = True, axes=None, progress=None, streamlines: bool = True) -> Report:
+    """Classify every case of ``path``; write the tables and figures to ``out_dir`` (default:
+    ``<file>_analysis`` next to it) and the results back into the file."""
+
+    source = read_source(path)
+    settings = source.settings
+    if overrides:
+        settings = AnalysisSettings.from_dict({**settings.__dict__, **overrides}, where="--set")
+    rows = analyse_source(source, settings, progress=None if progress is None else
+                          (lambda i, n: progress(f"classified {i}/{n} cases")))
+    out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
+    try:
+        written, searches, refinements = _write_outputs(source, rows, out, axes, case_figures, progress,
+                                                        streamlines)
+    except OSError as exc:
+        where = exc.filename or out
+        raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
+                           f"{source.path} is unchanged") from None
+    note = write_back(source, rows, settings, progress) if write_to_file else ""
+    wrote_back = write_to_file and not note
+    return Report(source, tuple(rows), tuple(written), wrote_back,
+                  f"results not written into the file: {note}" if note else "", tuple(searches),
+                  tuple(refinements))
+
+
+def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures: bool, progress,
+                   streamlines: bool = True):
+    """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows,
+    refinement rows)."""
+    from hpcves.reports import plots
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+
+    write_csv(rows, out / "regimes.csv")
+    (out / "regimes.md").write_text(regimes_markdown(source, rows))
+    written += [out / "regimes.csv", out / "regimes.md"]
+
+    refined, lines = None, []
+    if source.mode == "refine":
+        from hpcves.campaign import refine_stages as rc
+
+        study, refined = rc.source_outcomes(source, rows)
+        lines = rc.boundary_rows(study, refined)
+        rc.write_rows([o.row() for o in refined], rc.refinement_columns(study), out / "refinement.csv")
+        rc.write_rows(lines, rc.boundary_columns(study), out / "boundaries.csv")
+        (out / "refinement.md").write_text(rc.refinement_markdown(source.name, study, refined, rows, source.cases))
+        written += [out / "refinement.csv", out / "boundaries.csv", out / "refinement.md"]
+        axes = axes or tuple(sorted(study.refine.axes, key=lambda k: k != "shear_rate"))
+    x_key, y_key, others = grid_axes(source, rows, axes)
+    searches = []
+    if source.mode == "search":
+        from hpcves.campaign.search_stages import critical_markdown, critical_rows, write_critical_csv
+
+        searches = critical_rows(source, rows)
+        write_critical_csv(searches, out / "critical_shear.csv")
+        (out / "critical_shear.md").write_text(critical_markdown(source.name, searches))
+        written += [out / "critical_shear.csv", out / "critical_shear.md"]
+        varied = [k for k in source.sweep_keys if k != "shear_rate" and len({r[k] for r in searches}) > 1]
+        if varied:
+            for fixed, subset in facets(searches, varied[1:]):
+                fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
+                    shared_parameters(subset, (varied[0], "shear_rate"))))
+                written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
+    if source.kind == "campaign" and len(rows) > 1 and source.mode == "grid":
+        tables = period_tables(rows, y_key, x_key, others)
+        text = [f"# Periods of {source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
+                "phase-treads (PT) or tumbles (TU); otherwise its regime. The uncertainty is the statistical "
+                "one plus the discretisation error of the time step; in brackets the one that dominates "
+                "(stat or dt; dt n/e: not estimated, for a fixed-step run or a tumbling case -- a tumbling "
+                "period can be 1 % off at rtol >= 1e-3, docs/error_rule.md). regimes.md has both.\n"]
+        for fixed, table in tables:
+            if fixed:
+                text.append(f"## {facet_label(fixed)}\n")
+            text.append(table + "\n")
+        (out / "periods.md").write_text("\n".join(text))
+        written.append(out / "periods.md")
+    if source.kind == "campaign" and len(rows) > 1:
+        for fixed, subset in facets(rows, others):
+            suffix = facet_suffix(fixed)
+            title = plots.parameter_text(shared_parameters(subset, (x_key, y_key)))
+            fig = plots.phase_diagram(subset, x_key, y_key, title=title, annotate_periods=source.mode == "grid",
+                                      nearest="point" if refined else "row",
+                                      log_keys=study.refine_settings.log_keys() if refined else None)
+            if searches and "shear_rate" in (x_key, y_key):
+                plots.mark_critical(fig.axes[0], [r for r in searches if all(r[k] == v for k, v in fixed.items())],
+                                    y_key if x_key == "shear_rate" else x_key, s_on_x=x_key == "shear_rate")
+            if refined and {x_key, y_key} == set(study.refine.axes):
+                plots.mark_boundaries(fig.axes[0], [r for r in lines if all(r[k] == v for k, v in fixed.items())],
+                                      x_key, y_key)
+            written += _save(fig, out / f"phase_diagram{suffix}")
+            if source.mode == "grid":
+                written += _save(plots.period_figure(subset, y_key, x_key, title=title), out / f"periods{suffix}")
+    if case_figures:
+        directory = out / "cases"
+        directory.mkdir(exist_ok=True)
+        with open_file(source.path, "r", locking=False) as h5:
+            for i, (case, row) in enumerate(zip(source.cases, rows)):
+                if case.status == DAMAGED:
+                    continue
+                group = h5 if source.kind == "case" else h5[f"cases/{case.case_id}"]
+                store = CaseStore(group)
+                title = (f"case {case.case_id}: " if source.kind == "campaign" else "") \
+                    + plots.case_title(dict(group.attrs)) + f" -- {row['regime']}"
+                fig = plots.case_figure(case.series, store.snapshots(), title=title, kymographs=True,
+                                        t_settle=row["t_settle"], period=row["period"],
+                                        physics=store.case.physics if streamlines else None,
+                                        subtitle=_brief(row["reason"]))
+                fig.savefig(directory / f"{case.case_id}.png", dpi=90)
+                plots.plt.close(fig)
+                if progress is not None:
+                    progress(f"case figures {i + 1}/{len(rows)}")
+        written.append(directory / f"<case>.png ({len(rows)})")
+
+    return written, searches, [o.row() for o in refined or ()]
+
+
+def _save(fig, stem: Path) -> list[Path]:
+    """Save a figure as PNG and PDF; close it."""
+    from hpcves.reports.plots import plt
+
+    paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("png", "pdf")]
+    for path in paths:
+        fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return paths
+
+
+def _brief(text: str, width: int = 120) -> str:
+    """The first clause of a reason, clipped to ``width`` characters: a figure's subtitle."""
+    first = text.split("; ")[0]
+    return first if len(first) <= width else first[: width - 3].rstrip() + "..."
+

@@ -1,0 +1,552 @@
+"""HDF5 storage of one case: parameters, time series, snapshots, checkpoints.
+
+A case lives in an HDF5 group -- the file's root for ``hpcves run``, one
+``cases/<id>`` group per case in a campaign file. Layout (see docs/file-format.md):
+
+    attrs          format = "hpcves-case", format_version, hpcves_version,
+                   config (the full case as TOML), one attribute per parameter
+                   ("physics.shear_rate", ...), N, capacities
+    status         int8 scalar: 0 pending, 1 running, 2 finished, 3 failed, 4 interrupted
+    message        fixed-length string: failure reason / last note
+    traceback      fixed-length string: the traceback of a case that raised (absent in
+                   files written before it existed; readers treat that as empty)
+    progress       float64 [t, t_end, wall_seconds, steps_per_second], wall summed
+                   over every call that advanced the case
+    decision       float64 [regime code, t, step]: what stopped a run with
+                   run.until_decided (decision.py; code 0: not decided) -- absent in
+                   files written before it existed
+    timeseries/    one preallocated dataset per series (NaN-filled), ``length``
+                   counts the valid rows; centroid has shape (n, 2)
+    snapshots/     t, shift and one (n, N) dataset per field; ``length`` counts
+    checkpoint/    slot0/, slot1/: the solver State; each has ``meta`` =
+                   [valid, step, n_samples, n_snapshots]
+
+Everything that changes during a run is a dataset written in place (never an
+attribute, never a resize): that keeps the writes independent in parallel
+HDF5, and writes of raw data to preallocated space are the safest thing to be
+doing when a process dies. A checkpoint goes to the slot *not* holding the
+newest valid one: its ``meta`` is marked invalid first, the state written,
+flushed, then marked valid -- so a crash in the middle leaves the previous
+checkpoint intact and recognisably the newest valid one.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import math
+
+import numpy as np
+
+from hpcves import __version__
+from hpcves.files import faults
+from hpcves.files.atomic import METADATA_BYTES_PER_CASE, StorageError
+from hpcves.config import case_from_toml, case_to_toml
+from hpcves.run.decision import REGIMES_BY_CODE
+from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SNAPSHOT_FIELDS
+from hpcves.model.params import Case, ConfigError
+from hpcves.run.schedule import clock
+from hpcves.run.timestepping import State
+
+FORMAT = "hpcves-case"
+FORMAT_VERSION = 3                  # 3: checkpoints hold t, the step controller and level n-2
+READS_VERSIONS = (2, 3)             # 2: fixed-step checkpoints (t = step dt); 1 held psi at material labels
+MESSAGE_BYTES = 4096
+TRACEBACK_BYTES = 16384
+
+PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED, MODEL_LIMIT = range(6)
+NOT_DECIDED = (0.0, math.nan, -1.0)
+STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
+                INTERRUPTED: "interrupted", MODEL_LIMIT: "model limit"}
+#: statuses of a case that is over: it is not run again (FAILED is with --retry-failed). MODEL_LIMIT:
+#: psi left the range where the linear bending law is physics (runner.beyond_model) -- an outcome of
+#: the model, not a fault of the numerics
+ENDED = (FINISHED, FAILED, MODEL_LIMIT)
+
+# scalars of a State, stored as one float64 vector (complex values as two entries), and the
+# arrays, per format version (version 2 files are fixed-step runs: see CaseStore.read_checkpoint)
+_SCALAR_LAYOUTS = {
+    2: (("center", 2), ("shift", 1), ("area_correction", 1), ("prev_center", 2),
+        ("prev_shift", 1), ("prev_rate_center", 2), ("prev_rate_shift", 1)),
+}
+_SCALAR_LAYOUTS[3] = _SCALAR_LAYOUTS[2] + (("t", 1), ("dt_prev", 1), ("dt_prev2", 1), ("error", 1), ("dt_next", 1))
+_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS}
+assert _ARRAYS[2] == ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
+_SCALAR_LAYOUT = _SCALAR_LAYOUTS[FORMAT_VERSION]
+_N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
+
+
+class FileFormatError(ConfigError):
+    """An HDF5 file or group that is not (or no longer) a readable hpcves case."""
+
+
+#: what h5py raises when the file under it is damaged (unreadable metadata, objects of the wrong kind);
+#: ConfigError is a ValueError too: catch it first where it has to go through (see :func:`reading`)
+HDF5_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError)
+
+
+@contextlib.contextmanager
+def reading(where: str):
+    """Reading a file: what h5py raises from damaged metadata becomes one FileFormatError naming
+    ``where``; hpcves's own errors (ConfigError) pass unchanged."""
+    try:
+        yield
+    except ConfigError:
+        raise
+    except HDF5_ERRORS as exc:
+        raise FileFormatError(f"{where}: damaged file ({type(exc).__name__}: {_first_line(exc)})") from None
+
+
+def _writes(method):
+    """A CaseStore write: a refusal of the file system (full disk, quota, I/O error) becomes a StorageError."""
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        try:
+            return method(self, *args, **kwargs)
+        except (OSError, RuntimeError) as exc:
+            raise StorageError(f"{self.group.file.filename}: cannot write {self.group.name} "
+                               f"({_first_line(exc)})") from exc
+    return wrapper
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def safe_flush(h5):
+    """h5py ``File.flush`` that raises StorageError when the file system refuses the write."""
+    def flush():
+        try:
+            h5.flush()
+        except (OSError, RuntimeError) as exc:
+            raise StorageError(f"{h5.filename}: cannot write ({_first_line(exc)})") from exc
+    return flush
+
+
+def open_file(path, mode: str, **kwargs):
+    """h5py.File(path, mode, **kwargs) with one clear message for every way that can fail."""
+    import errno
+    import os
+
+    import h5py
+
+    path = os.fspath(path)
+    if os.path.isdir(path):
+        raise FileFormatError(f"{path}: is a directory, not a file")
+    if os.path.islink(path) and not os.path.exists(path):
+        try:
+            os.stat(path)
+        except OSError as exc:
+            if exc.errno == errno.ELOOP:
+                raise FileFormatError(f"{path}: a symbolic link that leads back to itself") from None
+    if mode in ("r", "r+") and not os.path.exists(path):
+        raise FileFormatError(f"{path}: no such file")
+    if mode in ("w-", "x") and os.path.exists(path):
+        raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
+    try:
+        return h5py.File(path, mode, **kwargs)
+    except OSError as exc:
+        text = str(exc)
+        if "signature" in text or "truncated" in text.lower() or "eof" in text.lower():
+            raise FileFormatError(f"{path}: not a readable HDF5 file (corrupt or truncated?)") from None
+        if "unable to lock" in text.lower() or getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise FileFormatError(f"{path}: in use by another process (HDF5 file lock)") from None
+        if exc.errno:                      # the system's reason, without HDF5's page of detail
+            raise FileFormatError(f"{path}: cannot open as HDF5 ({os.strerror(exc.errno)})") from None
+        raise FileFormatError(f"{path}: cannot open as HDF5 ({_first_line(exc)})") from None
+
+
+def capacities(case: Case) -> tuple[int, int]:
+    """Rows to preallocate for samples and snapshots (schedule.py: every cadence time, plus one)."""
+    return clock(case).capacities()
+
+
+def raw_bytes(case: Case) -> int:
+    """The bytes :meth:`CaseStore.create` allocates for a case's datasets (all of them, up front)."""
+    n_samples, n_snapshots = capacities(case)
+    N = case.numerics.N
+    series = (len(SERIES) + 1) * n_samples                   # centroid has two columns
+    snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots
+    checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
+    fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8 + 3 * 8
+    return 8 * (series + snapshots + checkpoints) + fixed
+
+
+def storage_bytes(case: Case) -> int:
+    """What one case takes in a file: its datasets plus their metadata (atomic.METADATA_BYTES_PER_CASE)."""
+    return raw_bytes(case) + METADATA_BYTES_PER_CASE
+
+
+def attr_text(value) -> str:
+    """An HDF5 string attribute as str (h5py returns bytes for fixed-length strings)."""
+    return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def _early():
+    """A dataset creation property list with storage allocated (and filled) at creation.
+
+    Parallel HDF5 needs this for independent writes (allocation is collective);
+    using it everywhere makes files from ``hpcves run``, serial and parallel
+    campaigns interchangeable.
+    """
+    import h5py
+
+    plist = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    plist.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    return plist
+
+
+class CaseStore:
+    """Reads and writes one case inside an h5py Group."""
+
+    def __init__(self, group):
+        self.group = group
+        self.version = int(group.attrs.get("format_version", FORMAT_VERSION))
+        self._arrays = _ARRAYS.get(self.version, State.ARRAYS)
+        self._scalars = _SCALAR_LAYOUTS.get(self.version, _SCALAR_LAYOUT)
+        self._ts = group["timeseries"]
+        self._snap = group["snapshots"]
+        self._ckpt = group["checkpoint"]
+        #: the series this case records (files written before OPTIONAL_SERIES existed lack those)
+        self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or n in self._ts)
+
+    # ------------------------------------------------------------------ creation
+    @classmethod
+    def create(cls, group, case: Case) -> "CaseStore":
+        """Lay out a new case in an empty group (collective in parallel HDF5)."""
+        n_samples, n_snapshots = capacities(case)
+        N = case.numerics.N
+        a = group.attrs
+        a["format"] = FORMAT
+        a["format_version"] = FORMAT_VERSION
+        a["hpcves_version"] = __version__
+        a["config"] = case_to_toml(case)
+        a["N"] = N
+        a["sample_capacity"] = n_samples
+        a["snapshot_capacity"] = n_snapshots
+        for key, value in case.flat().items():
+            a[key] = value
+        group.create_dataset("status", data=np.int8(PENDING))
+        group.create_dataset("message", data=np.bytes_(b""), dtype=f"S{MESSAGE_BYTES}")
+        group.create_dataset("traceback", data=np.bytes_(b""), dtype=f"S{TRACEBACK_BYTES}")
+        group.create_dataset("decision", data=np.array(NOT_DECIDED))
+        group.create_dataset("progress", data=np.array([0.0, case.run.t_end, 0.0, 0.0]))
+        ts = group.create_group("timeseries")
+        ts.create_dataset("length", data=np.int64(0))
+        for name in SERIES:
+            shape = (n_samples, 2) if name == "centroid" else (n_samples,)
+            ts.create_dataset(name, shape=shape, dtype="f8", fillvalue=np.nan, dcpl=_early())
+        snap = group.create_group("snapshots")
+        snap.create_dataset("length", data=np.int64(0))
+        snap.create_dataset("t", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
+        snap.create_dataset("shift", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
+        for name in SNAPSHOT_FIELDS:
+            snap.create_dataset(name, shape=(n_snapshots, N), dtype="f8", fillvalue=np.nan, dcpl=_early())
+        ckpt = group.create_group("checkpoint")
+        for slot in ("slot0", "slot1"):
+            g = ckpt.create_group(slot)
+            g.create_dataset("meta", data=np.zeros(4, dtype=np.int64))
+            for name in State.ARRAYS:
+                g.create_dataset(name, shape=(N,), dtype="f8", fillvalue=np.nan, dcpl=_early())
+            g.create_dataset("scalars", shape=(_N_SCALARS,), dtype="f8", fillvalue=np.nan, dcpl=_early())
+        return cls(group)
+
+    @classmethod
+    def open(cls, group, where: str = "") -> "CaseStore":
+        """Open an existing case, checking that it is one."""
+        where = where or group.name
+        if attr_text(group.attrs.get("format", "")) != FORMAT:
+            raise FileFormatError(f"{where}: not an hpcves case (no format = {FORMAT!r} attribute)")
+        version = int(group.attrs.get("format_version", -1))
+        if version not in READS_VERSIONS:
+            raise FileFormatError(f"{where}: case format version {version}, this hpcves reads "
+                                  + " and ".join(map(str, READS_VERSIONS)))
+        missing = [k for k in ("timeseries", "snapshots", "checkpoint", "status", "message", "progress")
+                   if k not in group]
+        if missing:
+            raise FileFormatError(f"{where}: incomplete case, missing {', '.join(missing)}")
+        return cls(group)
+
+    # ------------------------------------------------------------------ validation
+    def layout(self, case: Case) -> dict:
+        """Every dataset a case holds: relative name -> (shape, numpy kind)."""
+        n_samples, n_snapshots = capacities(case)
+        N = case.numerics.N
+        out = {"status": ((), "i"), "message": ((), "S"), "progress": ((4,), "f"),
+               "timeseries/length": ((), "i"), "snapshots/length": ((), "i"),
+               "snapshots/t": ((n_snapshots,), "f"), "snapshots/shift": ((n_snapshots,), "f")}
+        if "traceback" in self.group:                  # absent in files written before it existed
+            out["traceback"] = ((), "S")
+        if "decision" in self.group:                   # likewise
+            out["decision"] = ((3,), "f")
+        for name in self.series_names:
+            out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f")
+        for name in SNAPSHOT_FIELDS:
+            out[f"snapshots/{name}"] = ((n_snapshots, N), "f")
+        for slot in ("slot0", "slot1"):
+            out[f"checkpoint/{slot}/meta"] = ((4,), "i")
+            out[f"checkpoint/{slot}/scalars"] = ((sum(n for _, n in self._scalars),), "f")
+            for name in self._arrays:
+                out[f"checkpoint/{slot}/{name}"] = ((N,), "f")
+        return out
+
+    def problems(self, expected: Case | None = None) -> list[str]:
+        """What is wrong with this case's data (empty if nothing): missing or misshapen datasets, a
+        status or counters out of range, checkpoints that contradict the series. Never raises.
+
+        ``expected``: the case the file should hold (its study's); a different config is a problem.
+        """
+        try:
+            case = self.case
+        except (FileFormatError, *HDF5_ERRORS) as exc:
+            return [f"its config attribute cannot be read ({_first_line(exc)})"]
+        if expected is not None and case.to_dict() != expected.to_dict():
+            return ["its config differs from its study's case"]
+        found = []
+        for name, (shape, kind) in self.layout(case).items():
+            try:
+                d = self.group[name]
+                if d.shape != shape or d.dtype.kind != kind:
+                    found.append(f"{name} has shape {d.shape} ({d.dtype}), expected {shape} ({kind})")
+            except HDF5_ERRORS as exc:
+                found.append(f"{name} is missing or unreadable ({_first_line(exc)})")
+        if found:
+            return found
+        try:
+            schedule = clock(case)
+            n_samples, n_snapshots = schedule.capacities()
+            attrs = self.group.attrs
+            if (int(attrs["sample_capacity"]), int(attrs["snapshot_capacity"]), int(attrs["N"])) != \
+                    (n_samples, n_snapshots, case.numerics.N):
+                found.append("its capacities or N attributes do not match its config")
+            status = self.status
+            if status not in STATUS_NAMES:
+                found.append(f"status {status} is not a status (0 to {max(STATUS_NAMES)})")
+            lengths = self.n_samples, self.n_snapshots
+            for what, n, cap in (("timeseries", lengths[0], n_samples), ("snapshots", lengths[1], n_snapshots)):
+                if not 0 <= n <= cap:
+                    found.append(f"{what}/length = {n} lies outside [0, {cap}] (the capacity)")
+            for slot, meta in self._slot_meta().items():
+                valid, step = int(meta[0]), int(meta[1])
+                t = self._checkpoint_time(slot, step, case) if valid == 1 else math.nan
+                if valid == 1 and not np.array_equal(self._ckpt[slot]["meta"][:], meta):
+                    continue          # a live run is rewriting this slot (it is the older one): not damage
+                fixed = not schedule.adaptive
+                if valid not in (0, 1):
+                    found.append(f"checkpoint/{slot}: validity marker {valid} is neither 0 nor 1")
+                elif valid and fixed and not 0 <= step <= case.n_steps:
+                    found.append(f"checkpoint/{slot}: step {step} outside [0, {case.n_steps}]")
+                elif valid and not fixed and not (step >= 0 and 0 <= t <= case.run.t_end * (1 + 1e-9)):
+                    found.append(f"checkpoint/{slot}: step {step} at t = {t:g}, outside [0, {case.run.t_end:g}]")
+                elif valid and (int(meta[2]), int(meta[3])) not in (schedule.recorded(step, t),
+                                                                    schedule.legacy().recorded(step, t)):
+                    found.append(f"checkpoint/{slot}: says {int(meta[2])} samples, {int(meta[3])} snapshots "
+                                 f"before step {step} (t = {t:.6g}), where the run records "
+                                 f"{schedule.recorded(step, t)}")
+                elif valid and fixed and t != step * case.numerics.dt:
+                    found.append(f"checkpoint/{slot}: step {step} at t = {t:g}, not step * dt = "
+                                 f"{step * case.numerics.dt:g}")
+            code, t_decided, step_decided = self.decision
+            if code not in (0, *REGIMES_BY_CODE):
+                found.append(f"decision code {code} is not a regime (0 to {max(REGIMES_BY_CODE)})")
+            elif code and status != FINISHED:
+                found.append(f"decided ({REGIMES_BY_CODE[code]}) but {STATUS_NAMES.get(status, status)}")
+            elif status == FINISHED:
+                expected, before = ((schedule.recorded_through(step_decided, t_decided),
+                                     schedule.legacy().recorded_through(step_decided, t_decided)) if code
+                                    else (schedule.finished_counts(), schedule.legacy().finished_counts()))
+                if lengths not in (expected, before):        # before: written before the coincidence fix
+                    found.append(f"finished, but holds {lengths[0]} samples and {lengths[1]} snapshots of "
+                                 f"{expected}" + (f" (decided at t = {t_decided:.6g})" if code else ""))
+        except HDF5_ERRORS as exc:
+            found.append(f"unreadable ({_first_line(exc)})")
+        return found
+
+    # ------------------------------------------------------------------ metadata
+    @property
+    def case(self) -> Case:
+        try:
+            return case_from_toml(attr_text(self.group.attrs["config"]), source=f"{self.group.name} config",
+                                  stored=True)
+        except ConfigError as exc:
+            raise FileFormatError(str(exc)) from None
+
+    @property
+    def status(self) -> int:
+        return int(self.group["status"][()])
+
+    @property
+    def message(self) -> str:
+        return bytes(self.group["message"][()]).decode(errors="replace")
+
+    @property
+    def traceback(self) -> str:
+        if "traceback" not in self.group:
+            return ""
+        return bytes(self.group["traceback"][()]).decode(errors="replace")
+
+    @_writes
+    def set_status(self, status: int, message: str | None = None, traceback: str | None = None) -> None:
+        """Status, and optionally the message and traceback (written before the status)."""
+        if message is not None:
+            self.group["message"][()] = np.bytes_(_clip(message, MESSAGE_BYTES))
+        if traceback is not None and "traceback" in self.group:
+            self.group["traceback"][()] = np.bytes_(_clip(traceback, TRACEBACK_BYTES))
+        self.group["status"][()] = np.int8(status)
+
+    @property
+    def decision(self) -> tuple[int, float, int]:
+        """(regime code, t, step) of the decision that stopped the run (code 0: none; decision.py)."""
+        if "decision" not in self.group:
+            return 0, math.nan, -1
+        code, t, step = self.group["decision"][:]
+        return (int(code) if np.isfinite(code) else -1), float(t), (int(step) if np.isfinite(step) else -1)
+
+    @_writes
+    def set_decision(self, code: int, t: float, step: int) -> None:
+        if "decision" in self.group:
+            self.group["decision"][:] = (code, t, step)
+
+    @_writes
+    def set_progress(self, t: float, t_end: float, wall: float, steps_per_second: float) -> None:
+        self.group["progress"][:] = (t, t_end, wall, steps_per_second)
+
+    @property
+    def progress(self) -> np.ndarray:
+        return self.group["progress"][:]
+
+    # ------------------------------------------------------------------ series
+    @property
+    def n_samples(self) -> int:
+        return int(self._ts["length"][()])
+
+    @property
+    def n_snapshots(self) -> int:
+        return int(self._snap["length"][()])
+
+    @_writes
+    def append_samples(self, rows: list[dict]) -> None:
+        """Write rows at the end of the valid part of every series, then advance ``length``."""
+        if not rows:
+            return
+        start = self.n_samples
+        stop = start + len(rows)
+        for name in self.series_names:
+            values = np.array([row[name] for row in rows], dtype=float)
+            self._ts[name][start:stop] = values
+        self._ts["length"][()] = stop
+
+    @_writes
+    def append_snapshot(self, snap: dict) -> None:
+        i = self.n_snapshots
+        for name in ("t", "shift") + SNAPSHOT_FIELDS:
+            self._snap[name][i] = snap[name]
+        self._snap["length"][()] = i + 1
+
+    def timeseries(self) -> dict:
+        """The valid part of every series (numpy arrays)."""
+        n = self.n_samples
+        return {name: self._ts[name][:n] for name in self.series_names}
+
+    def snapshots(self) -> dict:
+        n = self.n_snapshots
+        return {name: self._snap[name][:n] for name in ("t", "shift") + SNAPSHOT_FIELDS}
+
+    @_writes
+    def truncate(self, n_samples: int, n_snapshots: int) -> None:
+        """Forget samples and snapshots beyond the given counts (they will be rewritten)."""
+        self._ts["length"][()] = n_samples
+        self._snap["length"][()] = n_snapshots
+
+    # ------------------------------------------------------------------ checkpoints
+    def _slot_meta(self):
+        return {slot: self._ckpt[slot]["meta"][:] for slot in ("slot0", "slot1")}
+
+    def newest_checkpoint_slot(self) -> str | None:
+        valid = [(meta[1], slot) for slot, meta in self._slot_meta().items() if meta[0] == 1]
+        return max(valid)[1] if valid else None
+
+    def _checkpoint_time(self, slot: str, step: int, case: Case) -> float:
+        """The time of a slot's state (version 2 files did not store it: step * dt)."""
+        if self.version == 2:
+            return step * case.numerics.dt
+        names = [name for name, width in self._scalars for _ in range(width)]
+        return float(self._ckpt[slot]["scalars"][names.index("t")])
+
+    @_writes
+    def write_checkpoint(self, state: State, flush) -> None:
+        """Write ``state`` (and the current sample counts) to the older slot, safely.
+
+        ``flush`` makes the file durable between the phases (h5py File.flush).
+        """
+        newest = self.newest_checkpoint_slot()
+        slot = "slot1" if newest == "slot0" else "slot0"
+        g = self._ckpt[slot]
+        g["meta"][0] = 0
+        flush()
+        faults.point("checkpoint")
+        for name in self._arrays:
+            value = getattr(state, name)
+            g[name][:] = np.nan if value is None else value
+        g["scalars"][:] = _pack_scalars(state, self._scalars)
+        g["meta"][1:] = (state.step, self.n_samples, self.n_snapshots)
+        flush()
+        faults.point("checkpoint")
+        g["meta"][0] = 1
+        flush()
+
+    def read_checkpoint(self) -> tuple[State, int, int] | None:
+        """(state, n_samples, n_snapshots) from the newest valid slot, or None."""
+        slot = self.newest_checkpoint_slot()
+        if slot is None:
+            return None
+        g = self._ckpt[slot]
+        meta = g["meta"][:]
+        arrays = {name: g[name][:] for name in self._arrays}
+        scalars = _unpack_scalars(g["scalars"][:], self._scalars)
+        step = int(meta[1])
+        if self.version == 2:                 # a fixed-step run: its time and steps are implied
+            dt = self.case.numerics.dt
+            scalars.update(t=step * dt, dt_prev=dt if step >= 1 else math.nan, dt_prev2=dt if step >= 2 else math.nan)
+        def kept(name):                       # levels n-1 exist from step 1 on, n-2 from step 2 on
+            return not name.startswith("prev") or step >= (2 if name.startswith("prev2") else 1)
+        kwargs = {name: (value if kept(name) else None) for name, value in {**arrays, **scalars}.items()}
+        state = State(step=step, **kwargs)
+        for name in ("theta", "psi"):
+            if not np.all(np.isfinite(getattr(state, name))):
+                raise FileFormatError(f"{self.group.name}: checkpoint {slot} holds non-finite {name}")
+        return state, int(meta[2]), int(meta[3])
+
+
+def _clip(text: str, size: int) -> bytes:
+    """UTF-8 bytes of ``text``, at most ``size``; a long text keeps its head and its tail."""
+    data = text.encode()
+    if len(data) <= size:
+        return data
+    marker = b"\n[...]\n"
+    half = (size - len(marker)) // 2
+    return data[:half] + marker + data[len(data) - half:]
+
+
+def _pack_scalars(state: State, layout=_SCALAR_LAYOUT) -> np.ndarray:
+    out = []
+    for name, width in layout:
+        value = getattr(state, name)
+        if value is None:
+            out.extend([np.nan] * width)
+        elif width == 2:
+            out.extend([complex(value).real, complex(value).imag])
+        else:
+            out.append(float(value))
+    return np.array(out)
+
+
+def _unpack_scalars(values: np.ndarray, layout=_SCALAR_LAYOUT) -> dict:
+    out, i = {}, 0
+    for name, width in layout:
+        if width == 2:
+            out[name] = complex(values[i], values[i + 1])
+        else:
+            out[name] = float(values[i])
+        i += width
+    return out
