@@ -26,9 +26,10 @@ import time
 from pathlib import Path
 
 from hpcves.analysis import accuracy
-from hpcves.reports.analyze import analyze, markdown_table, read_source
+from hpcves.reports.analyze import analyze, read_source
+from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
-from hpcves.campaign.search_stages import critical_table
+from hpcves.reports.critical import critical_table
 from hpcves.campaign.study import load_study
 
 STUDIES = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_delta_S", "delta094_S_psi",

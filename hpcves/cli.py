@@ -396,10 +396,10 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
             display(master)
 
     def on_stage(outcomes):
-        from hpcves.campaign.search_stages import write_critical_csv
+        from hpcves.reports.critical import write_critical_csv
 
         if study.refine:
-            from hpcves.campaign.refine_stages import refinement_columns, write_rows
+            from hpcves.reports.refinement import refinement_columns, write_rows
 
             write_rows([o.row() for o in outcomes], refinement_columns(study), refine_csv)
             if not any(o.regimes for o in outcomes):          # a new refinement: nothing found yet
@@ -451,15 +451,15 @@ def _search_brief(outcome) -> str:
 
 
 def _print_searches(outcomes, critical_csv) -> None:
-    from hpcves.campaign.search_stages import critical_table
+    from hpcves.reports.critical import critical_table
 
     click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys))
     click.echo(f"critical shear rates: {critical_csv}")
 
 
 def _print_refinements(study, outcomes, refine_csv) -> None:
-    from hpcves.reports.analyze import markdown_table
-    from hpcves.campaign.refine_stages import refinement_columns
+    from hpcves.reports.refinement import refinement_columns
+    from hpcves.reports.tables import markdown_table
 
     columns = refinement_columns(study)
     click.echo(markdown_table(list(columns), [[f"{v:g}" if isinstance(v, float) else str(v)
@@ -491,7 +491,8 @@ def status_command(campaign_file, check):
 
     Exit status: 0, or 2 if the file cannot be read or a case is damaged.
     """
-    from hpcves.campaign.file import DAMAGED, BeingCreated, read_table
+    from hpcves.campaign.file import BeingCreated, read_table
+    from hpcves.run.verdict import DAMAGED
 
     check_output_path(campaign_file)
     try:
@@ -582,7 +583,7 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, 
         where = f"psi_bar = {s['psi_bar']:g}, Delta = {s['excess_length']:g}, B2 = {s['B2']:g}"
         value = f"S_C = {s['S_C']:.4g}" if s["S_C"] == s["S_C"] else s["status"]
         click.echo(f"search {where}: {value}  ({s['reason']})")
-    from hpcves.campaign.refine_stages import REFINEMENT_FIELDS
+    from hpcves.reports.refinement import REFINEMENT_FIELDS
 
     for r in report.refinements:
         where = ", ".join(f"{k} = {r[k]:g}" for k in r if k not in REFINEMENT_FIELDS)

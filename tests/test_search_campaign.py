@@ -17,7 +17,7 @@ from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED
 from hpcves.model.params import ConfigError
 from hpcves.analysis.search import CONVERGED, UNBRACKETED
-from hpcves.campaign.search_stages import CRITICAL_COLUMNS
+from hpcves.reports.critical import CRITICAL_COLUMNS
 from hpcves.campaign.study import study_from_toml
 
 from jobs import assert_same_results, hpcves, job_pids, start_job, wait_until

@@ -31,11 +31,11 @@ from hpcves import __version__
 from hpcves.files import faults
 from hpcves.files.atomic import partial_path
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
+from hpcves.run.verdict import DAMAGED
 from hpcves.files.lock import writer
 from hpcves.campaign.study import Study
 
 #: the status shown for a case whose data cannot be read or are inconsistent
-DAMAGED = "damaged"
 
 
 class BeingCreated(FileFormatError):

@@ -12,25 +12,18 @@ Nothing about a search is stored but its cases: the state of every search is
 recomputed from the regimes of the cases in the file, so a resumed campaign
 takes the same steps and asks for the same cases as an uninterrupted one.
 
-This module is the part that reads the file; the logic is in search.py.
+This module is the part that reads the file; the logic is in analysis/search.py, the
+tables in reports/critical.py.
 """
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
-from hpcves.reports.analyze import LABELS, analyse_case, case_data, markdown_table
+from hpcves.run.verdict import analyse_case, case_data
 from hpcves.run.store import ENDED, STATUS_NAMES
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
-from hpcves.campaign.study import SEARCHABLE, Study, study_from_toml
-
-#: the columns of critical_shear.csv
-#: (bending_gap: Delta E_b of the case at bracket_high, the smallest phase-treading shear rate; nan if none)
-CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "bending_gap", "bending_gap_err", "status",
-                                 "cases", "reason")
-
+from hpcves.campaign.study import SEARCHABLE, Study
 
 @dataclass(frozen=True)
 class SearchOutcome:
@@ -126,71 +119,3 @@ class SearchDriver(StageDriver):
                 case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
                 new.append(study.search_case(outcome.index, shear_rate, case_id))
         return states, new
-
-
-def write_critical_csv(rows: list[dict], path: Path) -> None:
-    """critical_shear.csv: one row per search (CRITICAL_COLUMNS)."""
-    write_rows(rows, CRITICAL_COLUMNS, path)
-
-
-def write_rows(rows: list[dict], columns: tuple, path: Path) -> None:
-    """A CSV file of ``rows`` with these ``columns`` (floats to 6 digits, nan as an empty cell)."""
-    with open(path, "w", newline="") as f:
-        writer = csv.writer(f)
-        writer.writerow(columns)
-        for row in rows:
-            writer.writerow([_cell(row[c]) for c in columns])
-
-
-def _cell(value) -> str:
-    if isinstance(value, float):
-        return f"{value:.6g}" if math.isfinite(value) else ""
-    return str(value)
-
-
-def critical_rows(source, rows: list[dict]) -> list[dict]:
-    """critical_shear.csv rows of a search file (analysis.Source) from its cases' classification ``rows``.
-
-    The searches are replayed with these regimes: with the campaign's own
-    ``[analysis]`` thresholds they reproduce the campaign's verdicts; with
-    others (``--set``) a search may want cases the file does not hold (its
-    status is then "running", its reason names them).
-    """
-    study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
-    found = [(case.search, case.parameters["shear_rate"], row["regime"]) for case, row in zip(source.cases, rows)
-             if row["status"] in ENDED_NAMES]
-    searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
-    gaps = {(case.search, case.parameters["shear_rate"]): (row["bending_gap"], row["bending_gap_err"])
-            for case, row in zip(source.cases, rows)}
-    out = []
-    for o in searched:
-        row = o.row()
-        row["bending_gap"], row["bending_gap_err"] = gaps.get((o.index, o.state.high), (math.nan, math.nan))
-        out.append(row)
-    return out
-
-
-def critical_table(rows: list[dict], keys) -> str:
-    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
-    body = [[f"{r[k]:g}" for k in keys]
-            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]",
-               _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
-               r["status"], r["reason"]] for r in rows]
-    return markdown_table([LABELS.get(k, k) for k in keys]
-                          + ["S_C", "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
-                          body, left=(len(keys) + 4, len(keys) + 5))
-
-
-def _gap(gap: float, error: float) -> str:
-    return f"{gap:.4g} +- {error:.1g}" if math.isfinite(gap) else ""
-
-
-def _fmt(value: float) -> str:
-    return f"{value:.4g}" if math.isfinite(value) else ""
-
-
-def critical_markdown(name: str, searches: list[dict]) -> str:
-    return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
-            "between the largest TT and the smallest PT/TU shear rate. Delta E_b: the bending-energy gap (max - "
-            "min of E_b over a period) of the phase-treading case at the bracket's top.\n\n"
-            + critical_table(searches, SEARCHABLE) + "\n")

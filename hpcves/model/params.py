@@ -36,6 +36,9 @@ class ConfigError(ValueError):
     """A parameter or input file is invalid; the message says which and why."""
 
 
+#: the symbol of each sweepable parameter in tables and figures
+LABELS = {"shear_rate": "S", "psi_bar": "psi_bar", "excess_length": "Delta", "B2": "B2"}
+
 def _require(condition: bool, message: str) -> None:
     if not condition:
         raise ConfigError(message)

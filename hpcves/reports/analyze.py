@@ -12,7 +12,7 @@ import json
 import math
 import time
 import tomllib
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,20 +21,20 @@ from hpcves import __version__
 from hpcves.analysis import accuracy
 from hpcves.files import faults
 from hpcves.files.atomic import StorageError, copy_for_change, publish, remove_partial, size_text
-from hpcves.campaign.file import DAMAGED, CampaignFile
+from hpcves.campaign.file import CampaignFile
 from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
-from hpcves.run.store import (FAILED, FINISHED, HDF5_ERRORS, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError,
+from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError,
                          attr_text, open_file, reading)
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.files.lock import CampaignLock, real_path
 from hpcves.model.params import ConfigError
-from hpcves.run.decision import REGIMES_BY_CODE
-from hpcves.run.runner import MODEL_LIMIT_PREFIX
-from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
-from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
-from hpcves.analysis.regimes import OUTCOMES, UNDECIDED, AnalysisSettings, Classification, classify
+from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
+from hpcves.model.params import LABELS
+from hpcves.reports import refinement as rc
+from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
+from hpcves.reports.tables import markdown_table
+from hpcves.run.verdict import DAMAGED, PARAMETERS, CaseData, analyse_case, case_data, mark
 
-PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
 #: the columns of regimes.csv and of the file's analysis/ group, in order
 #: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step, accuracy.py)
 COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "regime", "period", "period_err",
@@ -42,21 +42,6 @@ COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "regime", "p
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
                                      "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "reason")
 TEXT_COLUMNS = ("case", "status", "regime", "reason")
-
-
-@dataclass(frozen=True)
-class CaseData:
-    case_id: str
-    parameters: dict           # the four sweepable physics parameters
-    status: str
-    t: float                   # reached
-    t_end: float
-    message: str
-    series: dict
-    search: int = -1           # search files: the search the case belongs to
-    mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
-    decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
-    rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
 
 
 @dataclass(frozen=True)
@@ -71,20 +56,6 @@ class Source:
     cases: tuple
     mode: str = "grid"         # campaigns: "grid", "search" or "refine"
     toml: str = ""             # campaigns: the campaign file's text
-
-
-def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
-    attrs = store.group.attrs
-    t, t_end = (float(v) for v in store.progress[:2])
-    return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
-                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
-                    search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
-                    float(attrs.get("numerics.rtol", math.nan)))
-
-
-def mark(store: CaseStore) -> tuple:
-    """What changes while a case runs: (status, t reached, samples, snapshots)."""
-    return store.status, float(store.progress[0]), store.n_samples, store.n_snapshots
 
 
 def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
@@ -136,35 +107,6 @@ def read_source(path) -> Source:
         if problems:
             raise FileFormatError(f"{path}: damaged ({'; '.join(problems[:3])})")
         return Source(path, "case", path.stem, (), AnalysisSettings(), (case_data(store, path.stem),))
-
-
-def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
-    """One row of regimes.csv (COLUMNS) for one case."""
-    base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
-            "rtol": case.rtol}
-    n = len(case.series["t"])
-    unclassified = {STATUS_NAMES[FAILED]: (FAILED_OUTCOME, "case failed: "),
-                    STATUS_NAMES[MODEL_LIMIT]: (MODEL_LIMIT_OUTCOME, f"stopped at t = {case.t:.4g}: "),
-                    DAMAGED: (UNDECIDED, "case damaged: ")}
-    if case.status in unclassified or n == 0:
-        first = case.message.splitlines()[0] if case.message else ""
-        regime, prefix = unclassified.get(case.status, (UNDECIDED, "not run yet"))
-        reason = prefix + first.removeprefix(MODEL_LIMIT_PREFIX) if case.status in unclassified else prefix
-        empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
-        return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
-    found = classify(case.series, settings)
-    if case.status != STATUS_NAMES[FINISHED]:
-        found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
-    elif case.decided:                                    # stopped by run.until_decided (decision.py)
-        regime = case.decided
-        note = (f"stopped when decided at t = {case.t:.4g} (cap {case.t_end:.4g})" if regime == found.regime else
-                f"the run decided {regime} at t = {case.t:.4g} and stopped, but these thresholds find "
-                f"{found.regime}: rerun to the cap without run.until_decided")
-        found = replace(found, reason=f"{note}; {found.reason}")
-    rtol = case.rtol if math.isfinite(case.rtol) else None
-    flips = bool(found.theta_min < 0)                     # tumbling: no rule (accuracy.py)
-    return {**base, **found.row(), "period_dt_err": accuracy.period_error(found.period, rtol, flips),
-            "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips)}
 
 
 def analyse_source(source: Source, settings: AnalysisSettings | None = None, progress=None) -> list[dict]:
@@ -294,14 +236,6 @@ def write_csv(rows: list[dict], path: Path) -> None:
             writer.writerow([_cell(row[c], c) for c in COLUMNS])
 
 
-def markdown_table(header: list[str], body: list[list[str]], left: tuple = (0,)) -> str:
-    """A Markdown table; the columns numbered in ``left`` are left-aligned, the others right-aligned."""
-    lines = ["| " + " | ".join(header) + " |",
-             "| " + " | ".join("---" if i in left else "---:" for i in range(len(header))) + " |"]
-    lines += ["| " + " | ".join(cell.replace("|", "/") for cell in row) + " |" for row in body]
-    return "\n".join(lines)
-
-
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
     header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
@@ -368,9 +302,6 @@ def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str
         header = [f"{LABELS.get(row_key, row_key)} \\ {LABELS.get(col_key, col_key)}"] + [f"{c:g}" for c in col_values]
         out.append((fixed, markdown_table(header, body)))
     return out
-
-
-LABELS = {"shear_rate": "S", "psi_bar": "psi_bar", "excess_length": "Delta", "B2": "B2"}
 
 
 def grid_axes(source: Source, rows: list[dict], axes: tuple[str, str] | None = None) -> tuple[str, str, list[str]]:
@@ -503,8 +434,6 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
 
     refined, lines = None, []
     if source.mode == "refine":
-        from hpcves.campaign import refine_stages as rc
-
         study, refined = rc.source_outcomes(source, rows)
         lines = rc.boundary_rows(study, refined)
         rc.write_rows([o.row() for o in refined], rc.refinement_columns(study), out / "refinement.csv")
@@ -515,8 +444,6 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
     x_key, y_key, others = grid_axes(source, rows, axes)
     searches = []
     if source.mode == "search":
-        from hpcves.campaign.search_stages import critical_markdown, critical_rows, write_critical_csv
-
         searches = critical_rows(source, rows)
         write_critical_csv(searches, out / "critical_shear.csv")
         (out / "critical_shear.md").write_text(critical_markdown(source.name, searches))

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.reports.analyze import PARAMETERS, analyse_case, read_source
-from hpcves.campaign.file import DAMAGED
+from hpcves.reports.analyze import read_source
+from hpcves.run.verdict import DAMAGED, PARAMETERS, analyse_case
 from hpcves.run.store import CaseStore, open_file
 from hpcves.model.params import ConfigError, Physics
 

@@ -1,0 +1,69 @@
+"""critical_shear.csv and critical_shear.md: the verdict of every critical-shear search."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from hpcves.campaign.search_stages import ENDED_NAMES, outcomes, search_points
+from hpcves.campaign.study import SEARCHABLE, study_from_toml
+from hpcves.model.params import LABELS
+from hpcves.reports.tables import markdown_table, write_rows
+
+#: the columns of critical_shear.csv
+#: (bending_gap: Delta E_b of the case at bracket_high, the smallest phase-treading shear rate; nan if none)
+CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "bending_gap", "bending_gap_err", "status",
+                                 "cases", "reason")
+
+
+
+def write_critical_csv(rows: list[dict], path: Path) -> None:
+    """critical_shear.csv: one row per search (CRITICAL_COLUMNS)."""
+    write_rows(rows, CRITICAL_COLUMNS, path)
+
+
+def critical_rows(source, rows: list[dict]) -> list[dict]:
+    """critical_shear.csv rows of a search file (analysis.Source) from its cases' classification ``rows``.
+
+    The searches are replayed with these regimes: with the campaign's own
+    ``[analysis]`` thresholds they reproduce the campaign's verdicts; with
+    others (``--set``) a search may want cases the file does not hold (its
+    status is then "running", its reason names them).
+    """
+    study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
+    found = [(case.search, case.parameters["shear_rate"], row["regime"]) for case, row in zip(source.cases, rows)
+             if row["status"] in ENDED_NAMES]
+    searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
+    gaps = {(case.search, case.parameters["shear_rate"]): (row["bending_gap"], row["bending_gap_err"])
+            for case, row in zip(source.cases, rows)}
+    out = []
+    for o in searched:
+        row = o.row()
+        row["bending_gap"], row["bending_gap_err"] = gaps.get((o.index, o.state.high), (math.nan, math.nan))
+        out.append(row)
+    return out
+
+
+def critical_table(rows: list[dict], keys) -> str:
+    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
+    body = [[f"{r[k]:g}" for k in keys]
+            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]",
+               _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
+               r["status"], r["reason"]] for r in rows]
+    return markdown_table([LABELS.get(k, k) for k in keys]
+                          + ["S_C", "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
+                          body, left=(len(keys) + 4, len(keys) + 5))
+
+
+def _gap(gap: float, error: float) -> str:
+    return f"{gap:.4g} +- {error:.1g}" if math.isfinite(gap) else ""
+
+
+def _fmt(value: float) -> str:
+    return f"{value:.4g}" if math.isfinite(value) else ""
+
+
+def critical_markdown(name: str, searches: list[dict]) -> str:
+    return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
+            "between the largest TT and the smallest PT/TU shear rate. Delta E_b: the bending-energy gap (max - "
+            "min of E_b over a period) of the phase-treading case at the bracket's top.\n\n"
+            + critical_table(searches, SEARCHABLE) + "\n")

@@ -1,0 +1,107 @@
+"""refinement.csv, boundaries.csv and refinement.md: the verdict of every refinement and its
+boundaries as polylines, from a refine file's cases."""
+from __future__ import annotations
+
+from hpcves.analysis.refine import boundary, polylines
+from hpcves.campaign.refine_stages import RefineOutcome, outcomes
+from hpcves.campaign.search_stages import ENDED_NAMES
+from hpcves.campaign.study import Study, study_from_toml
+from hpcves.model.params import LABELS
+from hpcves.reports.tables import markdown_table, write_rows  # noqa: F401 (write_rows: the CSV files)
+
+
+def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome]]:
+    """The refinements of a refine file (analysis.Source) replayed with its cases' regimes ``rows``
+    (with thresholds other than the campaign's a refinement may want points the file lacks:
+    its status is then "running")."""
+    study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
+    x_key, y_key = study.refine.axes
+    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"])
+             for case, row in zip(source.cases, rows) if row["status"] in ENDED_NAMES]
+    return study, outcomes(study, found)
+
+
+#: the columns of refinement.csv after the refinement's fixed values
+REFINEMENT_FIELDS = ("status", "cases", "full_grid_cases", "crossings", "blurry", "reason")
+
+
+def refinement_columns(study: Study) -> tuple:
+    """The columns of refinement.csv: one row per refinement."""
+    return tuple(study.refinements[0]) + REFINEMENT_FIELDS
+
+
+def boundary_columns(study: Study) -> tuple:
+    """The columns of boundaries.csv: the refinement's fixed values, the line, and each crossing
+    with its bracket (the two cases of different outcomes it lies between)."""
+    x_key, y_key = study.refine.axes
+    return (tuple(study.refinements[0]) + ("line", "pair", "order", x_key, y_key, f"{x_key}_low", f"{x_key}_high",
+                                           f"{y_key}_low", f"{y_key}_high", "blurry"))
+
+
+def boundary_rows(study: Study, states: list[RefineOutcome]) -> list[dict]:
+    """Every crossing of every refinement, chained into polylines (refine.polylines): one row each."""
+    x_key, y_key = study.refine.axes
+    out, line = [], 0
+    for o in states:
+        if not o.regimes:
+            continue
+        for pair, crossings in polylines(o.settings, o.regimes, o.state.cells):
+            for k, c in enumerate(crossings):
+                out.append({**o.point, "line": line, "pair": pair, "order": k, x_key: c.x, y_key: c.y,
+                            f"{x_key}_low": c.x_low, f"{x_key}_high": c.x_high, f"{y_key}_low": c.y_low,
+                            f"{y_key}_high": c.y_high, "blurry": int(c.blurry)})
+            line += 1
+    return out
+
+
+def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], rows: list[dict],
+                        cases) -> str:
+    """refinement.md: every refinement's verdict, then its blurry stretches with the reasons of the
+    cases that blur them (``rows``: regimes.csv rows of ``cases``)."""
+    settings = study.refine_settings
+    x, y = settings.x, settings.y
+    tolerance = dict(study.refine.tolerance)
+
+    def tol(axis):
+        return f"{tolerance[axis.key]:g}" + (" (relative)" if axis.log else "")
+
+    keys = list(study.refinements[0])
+    text = [f"# Regime boundaries of {name!r}\n",
+            f"Refined over {LABELS.get(x.key, x.key)} x {LABELS.get(y.key, y.key)} from a coarse grid of "
+            f"{len(x.values)} x {len(y.values)} points, splitting every mixed cell until it is within "
+            f"{tol(x)} in {LABELS.get(x.key, x.key)} and {tol(y)} in {LABELS.get(y.key, y.key)} "
+            f"(at most {settings.max_cases} cases per refinement). A crossing lies between two cases of "
+            "different outcomes, on the edge of a finest cell; it is blurry when one of them is undecided, "
+            "failed or at the model's limit. The full grid is the regular grid that brackets every boundary "
+            "to the same tolerances everywhere. boundaries.csv holds the polylines.\n"]
+    body = []
+    for o in states:
+        r = o.row()
+        body.append([f"{r[k]:g}" for k in keys] + [r["status"], str(r["cases"]), str(r["full_grid_cases"]),
+                                                   f"{100 * r['cases'] / r['full_grid_cases']:.0f} %",
+                                                   str(r["crossings"]), str(r["blurry"]), r["reason"]])
+    text.append(markdown_table([LABELS.get(k, k) for k in keys]
+                               + ["status", "cases", "full grid", "share", "crossings", "blurry", "reason"],
+                               body, left=(len(keys), len(keys) + 6)) + "\n")
+    by_point = {}
+    for case, row in zip(cases, rows):
+        by_point[(case.search, case.parameters[x.key], case.parameters[y.key])] = row
+    for o in states:
+        blurry = [c for c in boundary(o.settings, o.regimes, o.state.cells) if c.blurry] if o.regimes else []
+        if not blurry:
+            continue
+        where = ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in o.point.items())
+        text.append(f"## Blurry stretches{' at ' + where if where else ''}\n")
+        text.append("The cases that are not TT, PT or TU at the ends of blurry crossings, and why:\n")
+        seen = set()
+        for c in blurry:
+            for point in ((c.x_low, c.y_low), (c.x_high, c.y_high)):          # the edge's two ends
+                row = by_point.get((o.index, *point))
+                if row is None or row["regime"] in ("TT", "PT", "TU") or row["case"] in seen:
+                    continue
+                seen.add(row["case"])
+                text.append(f"* case {row['case']} ({LABELS.get(x.key, x.key)} = {point[0]:g}, "
+                            f"{LABELS.get(y.key, y.key)} = {point[1]:g}): {row['regime']} -- "
+                            f"{row['reason'].split('; ')[0]}")
+        text.append("")
+    return "\n".join(text) + "\n"

@@ -1,0 +1,82 @@
+"""The verdict on one stored case: its data read from the case store, then classified.
+
+One row of regimes.csv per case (:data:`hpcves.reports.analyze.COLUMNS`): the regime by
+:func:`hpcves.analysis.regimes.classify`, with the discretisation error bars of
+:mod:`hpcves.analysis.accuracy`; a failed, damaged or model-limit case gets its reason instead.
+Used by ``hpcves analyze`` and by the stage drivers of searches and refinements.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+
+from hpcves.analysis import accuracy
+from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
+from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
+from hpcves.analysis.regimes import UNDECIDED, AnalysisSettings, Classification, classify
+from hpcves.run.decision import REGIMES_BY_CODE
+from hpcves.run.runner import MODEL_LIMIT_PREFIX
+from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
+
+#: the four sweepable physics parameters of a case's row
+PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
+#: the status of a campaign case whose data cannot be read
+DAMAGED = "damaged"
+
+
+@dataclass(frozen=True)
+class CaseData:
+    case_id: str
+    parameters: dict           # the four sweepable physics parameters
+    status: str
+    t: float                   # reached
+    t_end: float
+    message: str
+    series: dict
+    search: int = -1           # search files: the search the case belongs to
+    mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
+    decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
+    rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
+
+
+def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
+    attrs = store.group.attrs
+    t, t_end = (float(v) for v in store.progress[:2])
+    return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
+                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
+                    search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
+                    float(attrs.get("numerics.rtol", math.nan)))
+
+
+def mark(store: CaseStore) -> tuple:
+    """What changes while a case runs: (status, t reached, samples, snapshots)."""
+    return store.status, float(store.progress[0]), store.n_samples, store.n_snapshots
+
+
+def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
+    """One row of regimes.csv (COLUMNS) for one case."""
+    base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
+            "rtol": case.rtol}
+    n = len(case.series["t"])
+    unclassified = {STATUS_NAMES[FAILED]: (FAILED_OUTCOME, "case failed: "),
+                    STATUS_NAMES[MODEL_LIMIT]: (MODEL_LIMIT_OUTCOME, f"stopped at t = {case.t:.4g}: "),
+                    DAMAGED: (UNDECIDED, "case damaged: ")}
+    if case.status in unclassified or n == 0:
+        first = case.message.splitlines()[0] if case.message else ""
+        regime, prefix = unclassified.get(case.status, (UNDECIDED, "not run yet"))
+        reason = prefix + first.removeprefix(MODEL_LIMIT_PREFIX) if case.status in unclassified else prefix
+        empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
+        return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
+    found = classify(case.series, settings)
+    if case.status != STATUS_NAMES[FINISHED]:
+        found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
+    elif case.decided:                                    # stopped by run.until_decided (decision.py)
+        regime = case.decided
+        note = (f"stopped when decided at t = {case.t:.4g} (cap {case.t_end:.4g})" if regime == found.regime else
+                f"the run decided {regime} at t = {case.t:.4g} and stopped, but these thresholds find "
+                f"{found.regime}: rerun to the cap without run.until_decided")
+        found = replace(found, reason=f"{note}; {found.reason}")
+    rtol = case.rtol if math.isfinite(case.rtol) else None
+    flips = bool(found.theta_min < 0)                     # tumbling: no rule (accuracy.py)
+    return {**base, **found.row(), "period_dt_err": accuracy.period_error(found.period, rtol, flips),
+            "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips)}
