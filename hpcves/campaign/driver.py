@@ -18,7 +18,7 @@ forwards to every rank) sets that rank's flag; its running case checkpoints
 at the next step and reports "interrupted", and rank 0 then stops handing
 out cases and tells every busy rank to checkpoint too. If the job has not
 wound down ``stop_timeout`` seconds after the first stop request, rank 0
-aborts it (valid checkpoints are never at risk: see checkpoint.py).
+aborts it (valid checkpoints are never at risk: see run/store.py).
 
 File access. With one process the file is opened with the default driver.
 With several ranks and an h5py built with MPI every rank opens it with the
@@ -428,7 +428,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     ranks' writes (relay.py); "auto" -- mpio where h5py has MPI, else relay.
 
     A search or refine study (``study.staged``) runs in stages
-    (search_campaign.py, refine_campaign.py): after each, rank 0 classifies
+    (search_stages.py, refine_stages.py): after each, rank 0 classifies
     the finished cases, the searches (refinements) choose their next shear
     rates (points), and the file is replaced by a copy holding those cases
     before the next stage runs them. Rank 0 calls ``on_stage(outcomes)`` with

@@ -1,7 +1,7 @@
 """The ``[refine]`` campaign mode: regime boundaries over two parameters, refined stage by stage.
 
 A refine study holds one refinement per combination of its swept keys that
-are not axes of the plane. As in ``[search]`` (search_campaign.py), the
+are not axes of the plane. As in ``[search]`` (search_stages.py), the
 campaign runs in stages: every case the refinements asked for runs under the
 same MPI scheduler; then rank 0 classifies the finished cases
 (:func:`hpcves.analysis.regimes.classify`, the study's ``[analysis]`` thresholds), lets

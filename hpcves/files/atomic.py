@@ -12,7 +12,7 @@ it to disk, and renames it over the old name, which POSIX makes atomic.
 Whatever happens before the rename, the old file stays as it was. A stale
 ``.partial`` may be left behind; the next writer, holding the file's lock,
 removes it. In place, hpcves writes only raw data into space that was
-allocated when the file was made (checkpoints, time series: checkpoint.py).
+allocated when the file was made (checkpoints, time series: run/store.py).
 That cannot move or break the metadata a reader parses, so a reader of a
 live file always finds a whole file.
 

@@ -8,7 +8,7 @@ likely to hurt:
 * ``case-laid-out``: after each case is laid out, while a file is created or a search stage added;
 * ``publish``: a finished ``.partial`` is about to be renamed over the file (atomic.py);
 * ``checkpoint``: inside a checkpoint write, once after the slot is marked invalid and once
-  after its data are written, before it is marked valid again (checkpoint.py);
+  after its data are written, before it is marked valid again (run/store.py);
 * ``finished``: a case has just recorded that it finished (runner.py);
 * ``analysis-stored``: ``hpcves analyze`` has written its results into the copy, before the rename.
 
