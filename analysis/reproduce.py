@@ -152,7 +152,6 @@ def theta_figure(report, directory: Path, name: str, group: str | None, title: s
     fig = plots.theta_curves(panels)
     path = directory / f"{name}_theta.png"
     fig.savefig(path, dpi=110)
-    plots.plt.close(fig)
     return path
 
 
@@ -168,7 +167,6 @@ def copy_case_page(report, out: Path, directory: Path, name: str, **values) -> t
 
 def shape_sequence(study_output: Path, directory: Path, name: str, rates=(1.0, 5.0, 20.0, 80.0)) -> Path | None:
     """Shapes over one settled period at psi_bar = 0.5 for the coarse shear rates of a refinement."""
-    from hpcves.reports import plots
     from hpcves.reports.figures import choose, shape_sequence_figure
 
     chosen = [c for c in choose(study_output, where={"psi_bar": 0.5})
@@ -178,7 +176,6 @@ def shape_sequence(study_output: Path, directory: Path, name: str, rates=(1.0, 5
     fig = shape_sequence_figure(chosen)
     path = directory / f"{name}_shapes_psi0.5.png"
     fig.savefig(path, dpi=100)
-    plots.plt.close(fig)
     return path
 
 

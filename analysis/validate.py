@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hpcves.run import runner# noqa: E402
+from hpcves.run import runner  # noqa: E402
 from hpcves.analysis.periodicity import crossing_period  # noqa: E402
 from hpcves.analysis.regimes import classify  # noqa: E402
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402

@@ -618,7 +618,6 @@ def shapes_command(file, case_ids, where, out, n_shapes, no_streamlines):
     from pathlib import Path
 
     from hpcves.reports.figures import choose, parse_where, shape_sequence_figure
-    from hpcves.reports.plots import plt
 
     check_output_path(file)
     if case_ids and where:
@@ -629,7 +628,6 @@ def shapes_command(file, case_ids, where, out, n_shapes, no_streamlines):
     target = Path(out) if out else Path(file).with_name(f"{Path(file).stem}_shapes.png")
     fig = shape_sequence_figure(chosen, n_shapes, streamlines=not no_streamlines)
     fig.savefig(target, dpi=130)
-    plt.close(fig)
     click.echo(f"{target}: {len(chosen)} row{'s' * (len(chosen) != 1)} ("
                + ", ".join(f"{c.case_id} {c.row['regime']}" for c in chosen) + ")")
 

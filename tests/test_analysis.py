@@ -157,7 +157,6 @@ def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tm
     from PIL import Image
 
     from hpcves.reports import figures
-    from hpcves.reports.plots import plt
 
     from click.testing import CliRunner
 
@@ -172,12 +171,9 @@ def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tm
     chosen = figures.choose(campaign, where={"psi_bar": 0.3})
     assert [c.parameters["shear_rate"] for c in chosen] == [40.0, 80.0]
     fig = figures.shape_sequence_figure(chosen, n_shapes=4)
-    try:
-        assert fig._suptitle.get_text() == r"$\bar\psi$ = 0.3, $\Delta$ = 0.193853, $B_2$ = 0.1"
-        titles = [ax.get_title(loc="left") for ax in fig.axes if ax.get_title(loc="left")]
-        assert titles[0].startswith("S = 40: ") and titles[1].startswith("S = 80: ")
-    finally:
-        plt.close(fig)
+    assert fig._suptitle.get_text() == r"$\bar\psi$ = 0.3, $\Delta$ = 0.193853, $B_2$ = 0.1"
+    titles = [ax.get_title(loc="left") for ax in fig.axes if ax.get_title(loc="left")]
+    assert titles[0].startswith("S = 40: ") and titles[1].startswith("S = 80: ")
     result = hpcves("shapes", campaign, "--where", "psi_bar=0.3", "--out", tmp_path / "s.png", "--shapes", "3",
                     "--no-streamlines")                          # (drawn with them above)
     assert result.returncode == 0, result.stderr

@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from hpcves.reports import plots# noqa: E402
+from hpcves.reports import plots  # noqa: E402
 from hpcves.analysis.regimes import OUTCOMES  # noqa: E402
 
 
@@ -140,3 +140,25 @@ def test_the_critical_shear_figure_shows_the_bending_energy_gap_beside_s_c():
         assert np.all(np.abs(gap_points.get_xdata() - [0.1, 0.7]) < 0.02)     # dodged beside the diamonds
     finally:
         plt.close(fig)
+
+
+def test_importing_the_figures_leaves_the_matplotlib_backend_alone():
+    """A notebook's backend stays what it was: hpcves draws on Figure objects, not through pyplot."""
+    import subprocess
+    import sys
+
+    code = ("import matplotlib; matplotlib.use('svg'); "
+            "import hpcves.reports.plots, hpcves.reports.analyze, hpcves.reports.figures, hpcves.cli; "
+            "print(matplotlib.get_backend())")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "svg"
+
+
+def test_a_figure_is_drawn_without_pyplot(tmp_path):
+    """The figures are plain matplotlib Figures: saved as PNG, never registered with pyplot."""
+    t = np.linspace(0.0, 2.0, 50)
+    fig = plots.theta_curves([("S = 1", [(1.0, t, np.sin(t))])])
+    fig.savefig(tmp_path / "theta.png", dpi=50)
+    assert (tmp_path / "theta.png").stat().st_size > 1000
+    assert fig not in [plt.figure(n) for n in plt.get_fignums()]

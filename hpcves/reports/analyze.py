@@ -499,7 +499,6 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
                                         physics=store.case.physics if streamlines else None,
                                         subtitle=_brief(row["reason"]))
                 fig.savefig(directory / f"{case.case_id}.png", dpi=90)
-                plots.plt.close(fig)
                 if progress is not None:
                     progress(f"case figures {i + 1}/{len(rows)}")
         written.append(directory / f"<case>.png ({len(rows)})")
@@ -508,13 +507,10 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
 
 
 def _save(fig, stem: Path) -> list[Path]:
-    """Save a figure as PNG and PDF; close it."""
-    from hpcves.reports.plots import plt
-
+    """Save a figure as PNG and PDF."""
     paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("png", "pdf")]
     for path in paths:
         fig.savefig(path, dpi=150)
-    plt.close(fig)
     return paths
 
 

@@ -154,7 +154,6 @@ def write_animation(chosen: Chosen, out: Path, fps: int = 12, streamlines: bool 
         movie.save(partial, writer=writer, progress_callback=callback)
         partial.replace(out)                  # a kill leaves no half-written movie under the name
     finally:
-        plots.plt.close(fig)
         if partial.exists():
             partial.unlink()
     return frames

@@ -15,14 +15,11 @@ import matplotlib.cm
 import matplotlib.colors
 import matplotlib.lines
 import matplotlib.ticker
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from matplotlib.collections import LineCollection  # noqa: E402
-
-from hpcves.analysis import accuracy# noqa: E402
+from hpcves.analysis import accuracy
 
 PSI_CMAP = "coolwarm"      # blue: hard phase (psi = 0), red: soft phase (psi = 1)
 
@@ -125,7 +122,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     settled = not np.all(window)
     tw = t[window]
     rows = 4 if kymographs and len(snapshots["t"]) >= 2 else 3
-    fig = plt.figure(figsize=(12, 3.1 * rows + 0.4), constrained_layout=True)
+    fig = Figure(figsize=(12, 3.1 * rows + 0.4), constrained_layout=True)
     grid = fig.add_gridspec(rows, 2, height_ratios=[1, 1, 1.2, 1.1][:rows])
     xlabel = f"t (settled from t = {tw[0]:.3g})" if settled else "t"
 
@@ -292,7 +289,7 @@ def _log_scale(values) -> bool:
     return values.size >= 3 and values.min() > 0 and values.max() / values.min() >= 20
 
 
-@plt.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
+@matplotlib.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
 def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True,
                   nearest: str = "row", log_keys=None):
     """Regimes over two swept parameters: one marker per case, coloured by regime;
@@ -300,7 +297,8 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
     PT/TU points carry their period; the legend beside the axes. The regions are shaded by the
     nearest case (region_map: ``nearest`` "row" for grids and searches, "point" for refined maps).
     ``log_keys``: the parameters drawn on a log axis (default: those swept over a factor of 20 or more)."""
-    fig, ax = plt.subplots(figsize=(10, 6), constrained_layout=True)
+    fig = Figure(figsize=(10, 6), constrained_layout=True)
+    ax = fig.subplots()
     size = 140 if len(rows) <= 60 else 50                      # a refined map has hundreds of points
     for regime, (colour, marker, label) in REGIME_STYLE.items():
         chosen = [r for r in rows if r["regime"] == regime]
@@ -433,7 +431,8 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
     row_values = sorted({r[row_key] for r in rows})
     col_values = sorted({r[col_key] for r in rows})
     cells = {(r[row_key], r[col_key]): r for r in rows}
-    fig, ax = plt.subplots(figsize=(1.6 * len(col_values) + 2.5, 0.8 * len(row_values) + 2), constrained_layout=True)
+    fig = Figure(figsize=(1.6 * len(col_values) + 2.5, 0.8 * len(row_values) + 2), constrained_layout=True)
+    ax = fig.subplots()
     scaled = np.full((len(row_values), len(col_values)), np.nan)
     texts = {}
     for i, rv in enumerate(row_values):
@@ -492,15 +491,15 @@ def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True)
         _legend_outside(ax)
 
 
-@plt.rc_context({"font.size": 13})
+@matplotlib.rc_context({"font.size": 13})
 def theta_curves(panels: list[tuple[str, list[tuple[float, np.ndarray, np.ndarray]]]], shear_times: float = 40.0):
     """theta(t) of several cases against the shear time S t, one panel per entry of ``panels``
     = (title, [(S, t, theta), ...]); a colour per S (log scale), the first ``shear_times``."""
     rates = sorted({s for _, curves in panels for s, _, _ in curves})
-    cmap = plt.get_cmap("viridis")
+    cmap = matplotlib.colormaps["viridis"]
     norm = matplotlib.colors.LogNorm(min(rates), max(rates)) if len(rates) > 1 else None
-    fig, axes = plt.subplots(1, len(panels), figsize=(5.2 * len(panels) + 1.5, 4.4), squeeze=False,
-                             constrained_layout=True, sharey=True)
+    fig = Figure(figsize=(5.2 * len(panels) + 1.5, 4.4), constrained_layout=True)
+    axes = fig.subplots(1, len(panels), squeeze=False, sharey=True)
     for ax, (title, curves) in zip(axes[0], panels):
         for s, t, theta in sorted(curves, key=lambda c: c[0]):
             shown = s * np.asarray(t) <= shear_times
@@ -537,7 +536,8 @@ def mark_boundaries(ax, lines: list[dict], x_key: str, y_key: str) -> None:
 def critical_shear_figure(searches: list[dict], x_key: str, title: str = ""):
     """S_C against one swept parameter: the bracket as an error bar, S_C as a point; a search
     that did not bracket S_C is an arrow at the end of its range."""
-    fig, ax = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    fig = Figure(figsize=(7, 5), constrained_layout=True)
+    ax = fig.subplots()
     for r in searches:
         x, low, high = r[x_key], r["bracket_low"], r["bracket_high"]
         if np.isfinite(r["S_C"]):
@@ -604,8 +604,8 @@ def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):
     col_key = keys[-1] if keys else None
     rows = sorted({c[row_key] for c in cases}) if row_key else [None]
     cols = sorted({c[col_key] for c in cases}) if col_key else [None]
-    fig, axes = plt.subplots(len(rows), len(cols), figsize=(3.2 * len(cols) + 0.8, 2.4 * len(rows) + 0.8),
-                             squeeze=False, constrained_layout=True)
+    fig = Figure(figsize=(3.2 * len(cols) + 0.8, 2.4 * len(rows) + 0.8), constrained_layout=True)
+    axes = fig.subplots(len(rows), len(cols), squeeze=False)
     for ax in axes.flat:
         ax.set_visible(False)
     names = SHORT_NAMES
@@ -633,13 +633,13 @@ def campaign_figure(cases: list[dict], keys: list[str], title: str = ""):
     return fig
 
 
-@plt.rc_context({"font.size": 12})
+@matplotlib.rc_context({"font.size": 12})
 def shape_sequences(rows: list[tuple], title: str = "", n_shapes: int = 6, streamlines_on: bool = True):
     """Rows of shapes coloured by psi, one row per case, over its last period (else its settled
     window), with the streamlines around each; ``rows``: (label, snapshots, physics, t_settle,
     period) per case. One colour bar for all."""
-    fig, axes = plt.subplots(len(rows), 1, figsize=(2.1 * n_shapes + 1.6, 2.0 * len(rows) + 0.6),
-                             squeeze=False, constrained_layout=True)
+    fig = Figure(figsize=(2.1 * n_shapes + 1.6, 2.0 * len(rows) + 0.6), constrained_layout=True)
+    axes = fig.subplots(len(rows), 1, squeeze=False)
     mappable = None
     for ax, (label, snapshots, physics, t_settle, period) in zip(axes[:, 0], rows):
         snap_t = np.asarray(snapshots["t"])
@@ -660,7 +660,7 @@ def animation(series: dict, snapshots: dict, physics=None, title: str = "", exte
     psi with the streamlines around it (with ``physics``) beside theta(t) up to the frame's time."""
     from matplotlib.animation import FuncAnimation
 
-    fig = plt.figure(figsize=(11, 4.6), constrained_layout=True)
+    fig = Figure(figsize=(11, 4.6), constrained_layout=True)
     grid = fig.add_gridspec(1, 2, width_ratios=[1.25, 1])
     shape_ax, theta_ax = fig.add_subplot(grid[0, 0]), fig.add_subplot(grid[0, 1])
     t, theta = np.asarray(series["t"]), np.asarray(series["theta"])
