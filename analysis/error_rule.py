@@ -24,7 +24,6 @@ import multiprocessing
 import sys
 import time
 
-import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 import numpy as np
 
 from hpcves.analysis import accuracy
@@ -32,6 +31,9 @@ from hpcves.run import diagnostics
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.analysis.periodicity import analyse
 from hpcves.analysis.regimes import flip_period
+from hpcves.run.runner import one_thread
+
+one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 
 #: (label, regime, psi_bar, Delta, S, N, t_end, sampling of the job files)
 CASES = [

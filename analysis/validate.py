@@ -12,7 +12,6 @@ import sys
 import time
 from pathlib import Path
 
-import hpcves  # noqa: F401
 import matplotlib
 
 matplotlib.use("Agg")
@@ -27,6 +26,9 @@ from hpcves.model.params import REFERENCE_EXCESS_LENGTH, Case, Numerics, Physics
 from hpcves.reports.plots import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
 from hpcves.numerics.spectral import Spectral  # noqa: E402
 from hpcves.run.timestepping import Solver, State  # noqa: E402
+from hpcves.run.runner import one_thread  # noqa: E402
+
+one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 
 WORK = Path("out/validation")
 FIGURES = Path("docs/validation")

@@ -18,12 +18,14 @@ import multiprocessing
 import sys
 import time
 
-import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 
 from hpcves.run import diagnostics
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.analysis.periodicity import crossing_period
 from report import replace_section
+from hpcves.run.runner import one_thread
+
+one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 
 CASES = [(psi_bar, S) for psi_bar in (0.3, 0.5, 0.7) for S in (80.0, 160.0, 320.0)]
 REFERENCE_DT = 3.125e-5

@@ -54,7 +54,6 @@ ACCESS = {"auto": "serial", "mpio": "mpio", "relay": "relay"}
 
 def job(study_path: str, io: str) -> None:
     """Under mpirun: run the study, time the checkpoint writes on every rank, print JSON on rank 0."""
-    import hpcves  # noqa: F401
     from hpcves.run import store as checkpoint
     from hpcves.campaign.driver import run_campaign
     from hpcves.cli import _mpi_world

@@ -18,7 +18,6 @@ import statistics
 import sys
 import time
 
-import hpcves  # noqa: F401  (pins BLAS to one thread before numpy loads)
 import numpy as np
 import scipy
 from scipy.linalg import lapack
@@ -30,6 +29,9 @@ from hpcves.model.forces import bending_force
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import Spectral
 from hpcves.run.timestepping import Solver
+from hpcves.run.runner import one_thread
+
+one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 
 
 def machine() -> str:

@@ -1,10 +1,12 @@
-"""Shared helpers for the tests. hpcves is imported first so that it pins BLAS to one thread."""
-import hpcves  # noqa: F401  (sets the BLAS thread defaults before numpy loads)
+"""Shared helpers for the tests; BLAS and OpenMP at one thread, as in a run."""
 import numpy as np
 import pytest
 
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.run.timestepping import Solver
+from hpcves.run.runner import one_thread
+
+one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 
 
 def make_solver(N=64, dt=1e-3, **physics):
