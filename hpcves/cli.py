@@ -7,6 +7,8 @@ input (configuration, files).
 from __future__ import annotations
 
 import functools
+import json
+import math
 import signal
 import sys
 import time
@@ -485,26 +487,67 @@ def _print_summary(summary, path) -> None:
 @click.option("--check", is_flag=True,
               help="Also check every dataset of every case (shapes, counters, checkpoints), as --resume does: "
                    "about 3 ms a case instead of 0.2.")
+@click.option("--json", "as_json", is_flag=True,
+              help="One JSON object on stdout instead of the table: the cases, the totals and what is left.")
 @clean_errors
-def status_command(campaign_file, check):
-    """One line per case of a campaign file (it may be running) and the totals.
+def status_command(campaign_file, check, as_json):
+    """One line per case of a campaign file (it may be running), the totals and what is left.
 
-    Exit status: 0, or 2 if the file cannot be read or a case is damaged.
+    Exit status: 0 the campaign is complete (nothing left for --resume); 1 complete, but cases
+    failed (--resume --retry-failed reruns them); 3 work is left (cases to run, the next stage of
+    a search or refinement, a campaign writing the file, or a creation that was cut short:
+    resubmit); 2 the file cannot be read or a case is damaged.
     """
-    from hpcves.campaign.file import BeingCreated, read_table
+    from hpcves.campaign.file import BeingCreated, CreationInterrupted, read_table
+    from hpcves.campaign.progress import WORK_LEFT, progress
     from hpcves.run.verdict import DAMAGED
 
     check_output_path(campaign_file)
     try:
         table = read_table(campaign_file, check=check)
-    except BeingCreated as exc:
-        click.echo(str(exc))
-        return
+    except (BeingCreated, CreationInterrupted) as exc:        # work left: a campaign makes it, or --resume will
+        if as_json:
+            click.echo(json.dumps({"file": str(campaign_file), "complete": False, "left": str(exc),
+                                   "exit_status": WORK_LEFT}))
+        else:
+            click.echo(str(exc), err=isinstance(exc, CreationInterrupted))
+        sys.exit(WORK_LEFT)
     name, rows = table.name, table.rows
     writing = (f"a campaign is writing it ({table.writer})" if table.writer else "no campaign is writing it")
-    if not rows:
+    damaged = [r for r in rows if r["status"] == DAMAGED]
+    left = None if damaged else progress(campaign_file, rows, table.writer)
+    if as_json:
+        _status_json(campaign_file, table, left)
+    elif not rows:
         click.echo(f"{campaign_file}: study {name!r}, no cases; {writing}")
-        return
+    else:
+        _status_table(name, rows, writing, left)
+    if damaged:
+        _fail(f"{campaign_file}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)} ("
+              + "; ".join(f"{r['case']}: {r['message']}" for r in damaged[:3])
+              + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")
+    sys.exit(left.exit_status)
+
+
+def _status_json(campaign_file, table, left) -> None:
+    """``hpcves status --json``: the file, the study, every case, the totals and what is left."""
+    def plain(value):                       # JSON has no NaN: null
+        return None if isinstance(value, float) and not math.isfinite(value) else value
+    totals = {}
+    for r in table.rows:
+        totals[r["status"]] = totals.get(r["status"], 0) + 1
+    click.echo(json.dumps({
+        "file": str(campaign_file), "study": table.name, "writer": table.writer, "cases": len(table.rows),
+        "totals": totals, "complete": None if left is None else left.complete,
+        "left": "damaged cases" if left is None else left.left, "failed": totals.get("failed", 0),
+        "exit_status": 2 if left is None else left.exit_status,
+        "rows": [{k: plain(v) for k, v in r.items()} for r in table.rows]}, indent=1))
+
+
+def _status_table(name, rows, writing, left) -> None:
+    """The human ``hpcves status``: one line per case, the totals, what is left."""
+    from hpcves.run.verdict import DAMAGED
+
     keys = [k for k in rows[0] if k not in ("case", "status", "t", "t_end", "wall", "steps_per_second",
                                             "message")]
     header = ["case", *keys, "status", "t / t_end", "wall", "steps/s", "reason"]
@@ -525,13 +568,14 @@ def status_command(campaign_file, check):
     total = sum(r["t_end"] for r in readable)
     wall = sum(r["wall"] for r in readable)
     share = f"{100 * done / total:.0f} %" if total > 0 else "-"
+    if left is None:
+        state = ""
+    elif left.complete:
+        state = "; complete" + (f", {left.failed} failed (--resume --retry-failed reruns them)" if left.failed else "")
+    else:
+        state = f"; work left: {left.left}"
     click.echo(f"study {name!r}: {len(rows)} cases: " + ", ".join(f"{n} {s}" for s, n in totals.items())
-               + f"; simulated time {share} done; {_duration(wall)} of compute; {writing}")
-    damaged = [r for r in rows if r["status"] == DAMAGED]
-    if damaged:
-        _fail(f"{campaign_file}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)} ("
-              + "; ".join(f"{r['case']}: {r['message']}" for r in damaged[:3])
-              + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")
+               + f"; simulated time {share} done; {_duration(wall)} of compute; {writing}{state}")
 
 
 @main.command("analyze")

@@ -23,12 +23,12 @@ export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1
 status=0
 srun --kill-on-bad-exit=0 "$HPCVES" campaign "$STUDY" --resume || status=$?
 # 0: finished or stopped by the signal; 1: some case failed (see hpcves status); else: trouble
-OUT=$(.venv/bin/python -c "from hpcves.study import load_study; print(load_study('$STUDY').output)")
-# the walltime may fall before the file is complete: it is created under $OUT.partial, so then
-# status says "creation was interrupted" (or "no such file"), and the next job starts it again
-summary=$("$HPCVES" status "$OUT" 2>&1 | tail -n 1 || true)
-echo "$summary"
-if echo "$summary" | grep -qE "pending|running|interrupted|no such file"; then
+OUT=$(.venv/bin/python -c "from hpcves.campaign.study import load_study; print(load_study('$STUDY').output)")
+# status exits 3 while work is left: cases to run, a search's or refinement's next stage, or a
+# file whose creation the walltime cut short (the next job starts it again); 0/1: complete
+left=0
+"$HPCVES" status "$OUT" | tail -n 1 || left=$?
+if [ "$left" -eq 3 ]; then
     if [ "$status" -le 1 ]; then
         echo "not finished: resubmitting"
         sbatch --export=ALL,STUDY="$STUDY" "$0"

@@ -3,6 +3,7 @@
 The MPI tests start real jobs (``mpirun -n 2`` and an oversubscribed ``-n 3``)
 and compare every recorded number bitwise with an uninterrupted serial run.
 """
+import json
 import os
 import re
 import shutil
@@ -97,7 +98,13 @@ def test_layout_and_status_command(reference):
     lines = result.stdout.splitlines()
     assert lines[0].split()[:4] == ["case", "shear_rate", "psi_bar", "status"]
     assert lines[3].split()[:5] == ["0002", "80", "0.3", "finished", "0.3"]
-    assert "4 cases: 4 finished" in lines[-1]
+    assert "4 cases: 4 finished" in lines[-1] and lines[-1].endswith("; complete")
+    result = hpcves("status", reference, "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    assert report["complete"] is True and report["exit_status"] == 0 and report["totals"] == {"finished": 4}
+    assert [r["case"] for r in report["rows"]] == ["0000", "0001", "0002", "0003"]
+    assert report["rows"][2]["shear_rate"] == 80 and report["rows"][2]["status"] == "finished"
 
 
 def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, reference):
@@ -286,6 +293,7 @@ def test_a_diverging_case_fails_alone_under_mpi(tmp_path, io):
     assert "case 0002 failed: diverged" in result.stderr
     status = hpcves("status", output)
     assert "2 finished, 2 failed" in status.stdout.splitlines()[-1]
+    assert status.returncode == 1 and "complete, 2 failed (--resume --retry-failed" in status.stdout
 
 
 LIMIT_STUDY = """

@@ -225,3 +225,26 @@ def test_mpi_search_killed_between_stages_resumes_to_the_serial_result(searched,
         rows = list(csv.DictReader(f))
     assert [r["status"] for r in rows] == ["not bracketed", "converged"]
     assert float(rows[1]["S_C"]) == pytest.approx(searched[2].searches[1].state.critical, rel=1e-6)
+
+
+def test_status_says_a_stage_is_left_until_the_searches_are_complete(searched, tmp_path):
+    """Killed just after the first stage's four cases finished: every case in the file has ended,
+    yet the mixed search has a bisection to run. status replays the searches as --resume does."""
+    import json
+    import signal as signals
+
+    from jobs import mpi_env
+
+    _, reference, _, _ = searched
+    path, output = write_search(tmp_path)
+    killed = hpcves("campaign", path, "--quiet", env=mpi_env(HPCVES_FAULT="finished:4"))
+    assert killed.returncode == -signals.SIGKILL, killed.stderr
+    status = hpcves("status", output, "--json")
+    report = json.loads(status.stdout)
+    assert status.returncode == 3 and report["complete"] is False, status.stdout
+    assert report["totals"] == {"finished": 4} and report["left"] == "the next stage: 1 new case"
+    assert "work left: the next stage: 1 new case" in hpcves("status", output).stdout
+    assert hpcves("campaign", path, "--resume", "--quiet").returncode == 0
+    status = hpcves("status", output, "--json")
+    assert status.returncode == 0 and json.loads(status.stdout)["complete"] is True
+    assert_same_results(output, reference, attrs=False)

@@ -35,11 +35,12 @@ from hpcves.run.verdict import DAMAGED
 from hpcves.files.lock import writer
 from hpcves.campaign.study import Study
 
-#: the status shown for a case whose data cannot be read or are inconsistent
-
-
 class BeingCreated(FileFormatError):
     """The campaign file does not exist yet: a running campaign is laying it out."""
+
+
+class CreationInterrupted(FileFormatError):
+    """The campaign file does not exist: its making was cut short (``--resume`` starts it again)."""
 
 FORMAT = "hpcves-campaign"
 #: the modes whose cases come stage by stage (a stage may be half-added when a crash cut it short)
@@ -286,7 +287,7 @@ def read_table(path, check: bool = False) -> Table:
         if holder is not None:
             raise BeingCreated(f"{path}: being created by a campaign ({holder}); it appears once "
                                   "every case is laid out")
-        raise FileFormatError(f"{path}: its creation was interrupted (only {partial_path(path).name} is left); "
+        raise CreationInterrupted(f"{path}: its creation was interrupted (only {partial_path(path).name} is left); "
                               "hpcves campaign --resume starts it again")
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
