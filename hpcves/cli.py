@@ -509,8 +509,10 @@ def status_command(campaign_file, check, as_json):
         if as_json:
             click.echo(json.dumps({"file": str(campaign_file), "complete": False, "left": str(exc),
                                    "exit_status": WORK_LEFT}))
+        elif isinstance(exc, CreationInterrupted):
+            click.echo(f"Error: {exc}", err=True)
         else:
-            click.echo(str(exc), err=isinstance(exc, CreationInterrupted))
+            click.echo(str(exc))
         sys.exit(WORK_LEFT)
     name, rows = table.name, table.rows
     writing = (f"a campaign is writing it ({table.writer})" if table.writer else "no campaign is writing it")
