@@ -156,7 +156,7 @@ def main():
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @clean_errors
 def run_command(case_file, out, resume, overwrite, quiet):
-    """Run one case: ``hpcves run CASE.toml --out case.h5`` or ``hpcves run --resume case.h5``."""
+    """Run one case: hpcves run CASE.toml --out case.h5, or continue one: hpcves run --resume case.h5."""
     from hpcves.run import runner
     from hpcves.files.atomic import StorageError
     from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, open_file, \
@@ -315,7 +315,7 @@ def _mpi_world():
                    "relay (rank 0 writes for everyone: for an h5py without MPI, or a file system where "
                    "MPI-IO misbehaves), auto (mpio if h5py has MPI).")
 def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io):
-    """Run a study: ``mpirun -n P hpcves campaign STUDY.toml`` (or without mpirun, on one core).
+    """Run a study: mpirun -n P hpcves campaign STUDY.toml (or without mpirun, on one core).
 
     Exit status: 0 every case finished or at the model's limit (or the campaign was stopped by a signal
     and can be resumed), 1 some case failed, 2 bad input.

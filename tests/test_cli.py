@@ -266,3 +266,16 @@ def test_a_file_of_the_previous_format_is_read_and_resumes_bitwise(tmp_path):
         assert store.version == 2 and store.problems() == []
     assert resume_in_process(tmp_path / "b.h5", before=as_format_2).status == FINISHED
     compare_files(tmp_path / "a.h5", tmp_path / "b.h5")
+
+
+def test_help_texts_show_no_markup():
+    """What --help prints is read in a terminal: no reStructuredText backticks or roles."""
+    from click.testing import CliRunner
+
+    from hpcves.cli import main
+
+    for command in ([], *[[name] for name in main.commands]):
+        result = CliRunner().invoke(main, [*command, "--help"])
+        assert result.exit_code == 0, result.output
+        assert "``" not in result.output and ":func:" not in result.output and ":mod:" not in result.output, \
+            (command, result.output)
