@@ -31,6 +31,12 @@ from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 GROUPS = {"physics": Physics, "numerics": Numerics, "run": RunControl}
 
 
+def clean_number(value: float) -> float:
+    """``value`` to 12 significant digits: 0.30000000000000004 -> 0.3. Swept values, run lengths and
+    the points a search or refinement asks for are recorded in files and compared: the same in every run."""
+    return float(f"{value:.12g}")
+
+
 def check_type(where: str, value, kind):
     """Validate (and for numbers, coerce) one TOML value against a field type."""
     if kind is int:

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.config import check_type
+from hpcves.config import check_type, clean_number
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import PT, TT, TU
 
@@ -67,7 +67,7 @@ class Axis:
 
     def value(self, u: float) -> float:
         """The parameter at coordinate u, rounded to 12 significant digits: the same in every run."""
-        return float(f"{(math.exp(u) if self.log else u):.12g}")
+        return clean_number(math.exp(u) if self.log else u)
 
     def full_grid_points(self) -> int:
         """Values a regular grid needs on this axis to have every interval within the tolerance."""

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from hpcves.config import from_table
+from hpcves.config import clean_number, from_table
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import PT, TT, TU
 
@@ -85,15 +85,11 @@ class SearchState:
     reason: str
 
 
-def _clean(value: float) -> float:
-    return float(f"{value:.12g}")
-
-
 def between(low: float, high: float, k: int) -> tuple:
     """The k shear rates that split [low, high] into k + 1 equal ratios (k = 1: sqrt(low high))."""
     if k == 1:
-        return (_clean(math.sqrt(low * high)),)
-    return tuple(_clean(low * (high / low) ** (i / (k + 1))) for i in range(1, k + 1))
+        return (clean_number(math.sqrt(low * high)),)
+    return tuple(clean_number(low * (high / low) ** (i / (k + 1))) for i in range(1, k + 1))
 
 
 def start_rates(settings: SearchSettings) -> tuple:

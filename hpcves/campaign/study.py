@@ -65,7 +65,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.config import case_from_dict, check_type, read_text
+from hpcves.config import case_from_dict, check_type, clean_number, read_text
 from hpcves.model.params import Case, ConfigError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.analysis.refine import RefinePlan, RefineSettings
@@ -221,18 +221,13 @@ class Study:
         return (("shear_rate",) if self.search else ()) + tuple(self.sweep)
 
 
-def _round(value: float) -> float:
-    """12 significant digits: 0.30000000000000004 -> 0.3 (values are recorded, so keep them clean)."""
-    return float(f"{value:.12g}")
-
-
 def sweep_values(key: str, spec) -> tuple:
     """The values of one swept parameter from a number, a list, or {linspace|logspace = [a, b, n]};
     each value once (a value given twice would run the same cases twice)."""
     values = _sweep_values(key, spec)
     seen = {}
     for value in values:
-        seen[_round(value)] = seen.get(_round(value), 0) + 1
+        seen[clean_number(value)] = seen.get(clean_number(value), 0) + 1
     repeated = [f"{v:g} ({n} times)" for v, n in seen.items() if n > 1]
     if repeated:
         raise ConfigError(f"sweep.{key}: {', '.join(repeated)}: every value must be different "
@@ -269,7 +264,7 @@ def _sweep_values(key: str, spec) -> tuple:
             values = np.geomspace(start, stop, num)
         else:
             values = np.linspace(start, stop, num)
-        return tuple(_round(v) for v in values)
+        return tuple(clean_number(v) for v in values)
     raise ConfigError(f"{where} = {spec!r}: must be a number, a list or a linspace/logspace table")
 
 
@@ -379,13 +374,13 @@ class TimeRules:
                 if self.t_end_min > 0:
                     return self.t_end_min
                 raise ConfigError("shear_rate = 0 has no shear time: set campaign.t_end_min")
-            return _round(max(self.shear_times / shear_rate, self.t_end_min))
+            return clean_number(max(self.shear_times / shear_rate, self.t_end_min))
         return max(base, self.t_end_min)
 
     def sample_interval(self, shear_rate: float, base: float, dt: float) -> float:
         if self.samples_per_shear_time is None or shear_rate == 0:
             return base
-        return _round(max(dt, min(base, 1.0 / (self.samples_per_shear_time * shear_rate))))
+        return clean_number(max(dt, min(base, 1.0 / (self.samples_per_shear_time * shear_rate))))
 
     @classmethod
     def from_campaign(cls, campaign: dict) -> "TimeRules":

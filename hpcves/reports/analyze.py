@@ -32,7 +32,7 @@ from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
 from hpcves.model.params import LABELS
 from hpcves.reports import refinement as rc
 from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
-from hpcves.reports.tables import markdown_table
+from hpcves.reports.tables import cell, fmt, markdown_table
 from hpcves.run.verdict import DAMAGED, PARAMETERS, CaseData, analyse_case, case_data, mark
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
@@ -220,32 +220,24 @@ def read_back(path) -> list[dict]:
 
 
 # ---------------------------------------------------------------------- tables
-def _cell(value, column: str) -> str:
-    if column in TEXT_COLUMNS:
-        return str(value)
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return ""
-    return f"{value:.6g}"
-
-
 def write_csv(rows: list[dict], path: Path) -> None:
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(COLUMNS)
         for row in rows:
-            writer.writerow([_cell(row[c], c) for c in COLUMNS])
+            writer.writerow([cell(row[c]) for c in COLUMNS])
 
 
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
     header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
                                 "min theta", "amplitude", "Delta E_b", "+-", "t settle", "evidence"]
-    body = [[row["case"]] + [_cell(row[k], k) for k in keys]
-            + [row["regime"], _fmt(row["period"], ".6g"), _fmt(row["period_err"], ".2g"),
-               _dt_cell(row, "period"), _fmt(row["theta_mean"], ".4f"), _fmt(row["theta_mean_err"], ".2g"),
-               _dt_cell(row, "theta_mean"), _fmt(row["theta_min"], ".4f"), _fmt(row["theta_amplitude"], ".3g"),
-               _fmt(row["bending_gap"], ".4g"), _fmt(row["bending_gap_err"], ".2g"),
-               _fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
+    body = [[row["case"]] + [cell(row[k]) for k in keys]
+            + [row["regime"], fmt(row["period"], ".6g"), fmt(row["period_err"], ".2g"),
+               _dt_cell(row, "period"), fmt(row["theta_mean"], ".4f"), fmt(row["theta_mean_err"], ".2g"),
+               _dt_cell(row, "theta_mean"), fmt(row["theta_min"], ".4f"), fmt(row["theta_amplitude"], ".3g"),
+               fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"),
+               fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, len(header) - 1)
     return (f"# Regimes of {source.kind} {source.name!r}\n\n{source.path}: {len(rows)} cases: {summary}.\n\n"
@@ -267,11 +259,7 @@ ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error 
 def _dt_cell(row: dict, quantity: str) -> str:
     if not math.isfinite(row[quantity]):
         return ""
-    return _fmt(row[f"{quantity}_dt_err"], ".2g") or "n/e"
-
-
-def _fmt(value: float, spec: str) -> str:
-    return format(value, spec) if isinstance(value, float) and math.isfinite(value) else ""
+    return fmt(row[f"{quantity}_dt_err"], ".2g") or "n/e"
 
 
 def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str]) -> list[tuple[dict, str]]:

@@ -7,7 +7,7 @@ from pathlib import Path
 from hpcves.campaign.search_stages import ENDED_NAMES, outcomes, search_points
 from hpcves.campaign.study import SEARCHABLE, study_from_toml
 from hpcves.model.params import LABELS
-from hpcves.reports.tables import markdown_table, write_rows
+from hpcves.reports.tables import fmt, markdown_table, write_rows
 
 #: the columns of critical_shear.csv
 #: (bending_gap: Delta E_b of the case at bracket_high, the smallest phase-treading shear rate; nan if none)
@@ -46,7 +46,7 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
 def critical_table(rows: list[dict], keys) -> str:
     """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
     body = [[f"{r[k]:g}" for k in keys]
-            + [_fmt(r["S_C"]), f"[{_fmt(r['bracket_low'])}, {_fmt(r['bracket_high'])}]",
+            + [fmt(r["S_C"], ".4g"), f"[{fmt(r['bracket_low'], '.4g')}, {fmt(r['bracket_high'], '.4g')}]",
                _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
                r["status"], r["reason"]] for r in rows]
     return markdown_table([LABELS.get(k, k) for k in keys]
@@ -56,10 +56,6 @@ def critical_table(rows: list[dict], keys) -> str:
 
 def _gap(gap: float, error: float) -> str:
     return f"{gap:.4g} +- {error:.1g}" if math.isfinite(gap) else ""
-
-
-def _fmt(value: float) -> str:
-    return f"{value:.4g}" if math.isfinite(value) else ""
 
 
 def critical_markdown(name: str, searches: list[dict]) -> str:

@@ -20,10 +20,18 @@ def write_rows(rows: list[dict], columns: tuple, path: Path) -> None:
         writer = csv.writer(f)
         writer.writerow(columns)
         for row in rows:
-            writer.writerow([_cell(row[c]) for c in columns])
+            writer.writerow([cell(row[c]) for c in columns])
 
 
-def _cell(value) -> str:
-    if isinstance(value, float):
-        return f"{value:.6g}" if math.isfinite(value) else ""
-    return str(value)
+def cell(value) -> str:
+    """A table cell: a number to 6 significant digits, NaN or None as an empty cell, text as it is."""
+    if value is None:
+        return ""
+    if isinstance(value, str):
+        return value
+    return f"{value:.6g}" if math.isfinite(value) else ""
+
+
+def fmt(value, spec: str) -> str:
+    """A float in format ``spec``; NaN (or anything not a float) as an empty cell."""
+    return format(value, spec) if isinstance(value, float) and math.isfinite(value) else ""
