@@ -12,6 +12,7 @@ import math
 import signal
 import sys
 import time
+from collections import Counter
 
 import click
 
@@ -401,7 +402,8 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
         from hpcves.reports.critical import write_critical_csv
 
         if study.refine:
-            from hpcves.reports.refinement import refinement_columns, write_rows
+            from hpcves.reports.refinement import refinement_columns
+            from hpcves.reports.tables import write_rows
 
             write_rows([o.row() for o in outcomes], refinement_columns(study), refine_csv)
             if not any(o.regimes for o in outcomes):          # a new refinement: nothing found yet
@@ -518,12 +520,13 @@ def status_command(campaign_file, check, as_json):
     writing = (f"a campaign is writing it ({table.writer})" if table.writer else "no campaign is writing it")
     damaged = [r for r in rows if r["status"] == DAMAGED]
     left = None if damaged else progress(campaign_file, rows, table.writer)
+    totals = Counter(r["status"] for r in rows)            # status -> cases, in the order first seen
     if as_json:
-        _status_json(campaign_file, table, left)
+        _status_json(campaign_file, table, totals, left)
     elif not rows:
         click.echo(f"{campaign_file}: study {name!r}, no cases; {writing}")
     else:
-        _status_table(name, rows, writing, left)
+        _status_table(name, rows, totals, writing, left)
     if damaged:
         _fail(f"{campaign_file}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)} ("
               + "; ".join(f"{r['case']}: {r['message']}" for r in damaged[:3])
@@ -531,22 +534,19 @@ def status_command(campaign_file, check, as_json):
     sys.exit(left.exit_status)
 
 
-def _status_json(campaign_file, table, left) -> None:
+def _status_json(campaign_file, table, totals, left) -> None:
     """``hpcves status --json``: the file, the study, every case, the totals and what is left."""
     def plain(value):                       # JSON has no NaN: null
         return None if isinstance(value, float) and not math.isfinite(value) else value
-    totals = {}
-    for r in table.rows:
-        totals[r["status"]] = totals.get(r["status"], 0) + 1
     click.echo(json.dumps({
         "file": str(campaign_file), "study": table.name, "writer": table.writer, "cases": len(table.rows),
-        "totals": totals, "complete": None if left is None else left.complete,
+        "totals": dict(totals), "complete": None if left is None else left.complete,
         "left": "damaged cases" if left is None else left.left, "failed": totals.get("failed", 0),
         "exit_status": 2 if left is None else left.exit_status,
         "rows": [{k: plain(v) for k, v in r.items()} for r in table.rows]}, indent=1))
 
 
-def _status_table(name, rows, writing, left) -> None:
+def _status_table(name, rows, totals, writing, left) -> None:
     """The human ``hpcves status``: one line per case, the totals, what is left."""
     from hpcves.run.verdict import DAMAGED
 
@@ -562,9 +562,6 @@ def _status_table(name, rows, writing, left) -> None:
     widths = [max(len(str(x)) for x in column) for column in zip(header, *lines)]
     for line in [header, *lines]:
         click.echo("  ".join(str(x).ljust(w) for x, w in zip(line, widths)).rstrip())
-    totals = {}
-    for r in rows:
-        totals[r["status"]] = totals.get(r["status"], 0) + 1
     readable = [r for r in rows if r["status"] != DAMAGED]
     done = sum(min(r["t"], r["t_end"]) for r in readable)
     total = sum(r["t_end"] for r in readable)

@@ -8,17 +8,17 @@ every case has ended (finished, failed or at the model's limit); a staged one (`
 """
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass
 
 from hpcves.campaign.file import CampaignFile
 from hpcves.campaign.refine_stages import RefineDriver
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import study_from_toml
-from hpcves.run.store import ENDED, FAILED, STATUS_NAMES, attr_text, open_file, reading
+from hpcves.run.store import ENDED_NAMES, FAILED, STATUS_NAMES, attr_text, open_file, reading
 
 #: exit statuses of ``hpcves status`` (2: the file cannot be read, or a case is damaged)
 COMPLETE, COMPLETE_WITH_FAILURES, WORK_LEFT = 0, 1, 3
-ENDED_NAMES = tuple(STATUS_NAMES[s] for s in ENDED)
 
 
 @dataclass(frozen=True)
@@ -40,10 +40,7 @@ def progress(path, rows: list[dict], writer: str | None) -> Progress:
     if writer is not None:
         return Progress(False, "a campaign is writing the file", failed, WORK_LEFT)
     if open_cases:
-        counts = {}
-        for r in open_cases:
-            counts[r["status"]] = counts.get(r["status"], 0) + 1
-        what = ", ".join(f"{n} {s}" for s, n in counts.items())
+        what = ", ".join(f"{n} {s}" for s, n in Counter(r["status"] for r in open_cases).items())
         return Progress(False, f"{what} case{'s' * (len(open_cases) != 1)} to run", failed, WORK_LEFT)
     stage = next_stage_size(path)
     if stage:

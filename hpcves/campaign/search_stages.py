@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass
 
 from hpcves.run.verdict import analyse_case, case_data
-from hpcves.run.store import ENDED, STATUS_NAMES
+from hpcves.run.store import ENDED
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
 from hpcves.campaign.study import SEARCHABLE, Study
 
@@ -43,10 +43,6 @@ class SearchOutcome:
         return {**self.point, "S_C": self.state.critical, "bracket_low": self.state.low,
                 "bracket_high": self.state.high, "bending_gap": math.nan, "bending_gap_err": math.nan,
                 "status": self.state.status, "cases": len(self.regimes), "reason": reason}
-
-
-#: status names of the cases a search reads (those that are over)
-ENDED_NAMES = tuple(STATUS_NAMES[s] for s in ENDED)
 
 
 def outcomes(settings: SearchSettings, points: list[dict], found: list[tuple[int, float, str]],

@@ -32,7 +32,7 @@ from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
 from hpcves.model.params import LABELS
 from hpcves.reports import refinement as rc
 from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
-from hpcves.reports.tables import cell, fmt, markdown_table
+from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
 from hpcves.run.verdict import DAMAGED, PARAMETERS, CaseData, analyse_case, case_data, mark
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
@@ -424,8 +424,8 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
     if source.mode == "refine":
         study, refined = rc.source_outcomes(source, rows)
         lines = rc.boundary_rows(study, refined)
-        rc.write_rows([o.row() for o in refined], rc.refinement_columns(study), out / "refinement.csv")
-        rc.write_rows(lines, rc.boundary_columns(study), out / "boundaries.csv")
+        write_rows([o.row() for o in refined], rc.refinement_columns(study), out / "refinement.csv")
+        write_rows(lines, rc.boundary_columns(study), out / "boundaries.csv")
         (out / "refinement.md").write_text(rc.refinement_markdown(source.name, study, refined, rows, source.cases))
         written += [out / "refinement.csv", out / "boundaries.csv", out / "refinement.md"]
         axes = axes or tuple(sorted(study.refine.axes, key=lambda k: k != "shear_rate"))

@@ -4,9 +4,10 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from hpcves.campaign.search_stages import ENDED_NAMES, outcomes, search_points
+from hpcves.campaign.search_stages import outcomes, search_points
 from hpcves.campaign.study import SEARCHABLE, study_from_toml
 from hpcves.model.params import LABELS
+from hpcves.run.store import ENDED_NAMES
 from hpcves.reports.tables import fmt, markdown_table, write_rows
 
 #: the columns of critical_shear.csv

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from hpcves.analysis.refine import boundary, polylines
 from hpcves.campaign.refine_stages import RefineOutcome, outcomes
-from hpcves.campaign.search_stages import ENDED_NAMES
 from hpcves.campaign.study import Study, study_from_toml
 from hpcves.model.params import LABELS
-from hpcves.reports.tables import markdown_table, write_rows  # noqa: F401 (write_rows: the CSV files)
+from hpcves.reports.tables import markdown_table
+from hpcves.run.store import ENDED_NAMES
 
 
 def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome]]:

@@ -61,6 +61,7 @@ STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FA
 #: psi left the range where the linear bending law is physics (runner.beyond_model) -- an outcome of
 #: the model, not a fault of the numerics
 ENDED = (FINISHED, FAILED, MODEL_LIMIT)
+ENDED_NAMES = tuple(STATUS_NAMES[s] for s in ENDED)
 
 # scalars of a State, stored as one float64 vector (complex values as two entries), and the
 # arrays, per format version (version 2 files are fixed-step runs: see CaseStore.read_checkpoint)
