@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 from hpcves.analysis import accuracy
+from hpcves.reports import case_pages
 from hpcves.reports.analyze import analyze, read_source
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
@@ -36,8 +37,10 @@ STUDIES = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_
            "delta230_S_psi")
 JOBS = {"coarse": Path("jobs/reproduce"), "fine": Path("jobs/reproduce/fine")}
 FIGURES = {"coarse": Path("docs/reproduction"), "fine": Path("docs/reproduction/fine")}
-#: the studies whose case pages draw streamlines (~2 s a case): those whose pages REPRODUCTION.md shows
-STREAMLINES = ("periods", "psi048_cases")
+#: the studies whose case pages REPRODUCTION.md shows: every case gets its page, with streamlines (~3 s a
+#: page); the other studies' pages are drawn for the flagged cases only (those "What looks unconverged"
+#: lists), without streamlines (~1 s a page) -- a page for each of their ~1700 cases would take 22 min
+FULL_PAGES = ("homogeneous", "periods", "psi048_cases")
 TARGET_HOURS = 2.0           # the wall time make reproduce (coarse) should take on 2 cores
 MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 
@@ -72,12 +75,22 @@ def _add_walls(ledger: Path, walls: dict) -> dict:
     return totals
 
 
-def analyse(jobs: dict, out: Path) -> dict:
+def analyse(jobs: dict, out: Path, np_: int) -> dict:
+    """Analyze every campaign into ``out/<name>``; draw the case pages (FULL_PAGES: every case's, the
+    others: the flagged cases') in ``np_`` processes."""
     reports = {}
     for name, toml in jobs.items():
         study = load_study(toml)
         print(f"[{name}] analyze {study.output}", flush=True)
-        reports[name] = analyze(study.output, out / name, streamlines=name in STREAMLINES)
+        report = analyze(study.output, out / name, case_figures="none")
+        flagged = {case for case, _ in doubts({name: report}) if case is not None}
+        damaged = {c.case_id for c in report.damaged()}
+        rows = [r for r in report.rows if (name in FULL_PAGES or r["case"] in flagged) and r["case"] not in damaged]
+        directory = out / name / "cases"
+        shutil.rmtree(directory, ignore_errors=True)           # no page left from an earlier analysis
+        case_pages.draw_pages(report.source.path, True, rows, directory, streamlines=name in FULL_PAGES, jobs=np_)
+        print(f"[{name}] {len(rows)} case pages in {directory}", flush=True)
+        reports[name] = report
     return reports
 
 
@@ -186,28 +199,31 @@ def refinement_text(out: Path, name: str) -> list[str]:
             for line in text[1:]]
 
 
-def doubts(reports: dict) -> list[str]:
-    """Everything that looks unconverged or unresolved, one line each."""
+def doubts(reports: dict) -> list[tuple[str | None, str]]:
+    """Everything that looks unconverged or unresolved: (the case id or None, one line) each."""
     lines = []
     for name, report in reports.items():
         for r in report.rows:
             label = (f"{name} case {r['case']} (S = {r['shear_rate']:g}, psi_bar = {r['psi_bar']:g}, "
                      f"Delta = {r['excess_length']:g}, B2 = {r['B2']:g})")
+            line = None
             if r["status"] != "finished":
-                lines.append(f"{label}: {r['status']}: {r['reason']}")
+                line = f"{label}: {r['status']}: {r['reason']}"
             elif r["regime"] == "undecided":
-                lines.append(f"{label}: undecided -- {r['reason']}")
+                line = f"{label}: undecided -- {r['reason']}"
             elif r["regime"] in ("PT", "TU") and r["cycles"] < MIN_GOOD_CYCLES:
-                lines.append(f"{label}: {r['regime']} from only {r['cycles']:.1f} settled periods")
+                line = f"{label}: {r['regime']} from only {r['cycles']:.1f} settled periods"
             elif r["regime"] in ("PT", "TU") and (bar := accuracy.error_bar(r, "period"))[0] > 0.005 * r["period"]:
-                lines.append(f"{label}: period uncertain by {bar[0] / r['period']:.1%} ({bar[1]} dominates)")
+                line = f"{label}: period uncertain by {bar[0] / r['period']:.1%} ({bar[1]} dominates)"
+            if line is not None:
+                lines.append((r["case"], line))
         for s in report.searches:
             if s["status"] != "converged":
-                lines.append(f"{name}: search psi_bar = {s['psi_bar']:g}, B2 = {s['B2']:g}: {s['status']} -- "
-                             f"{s['reason']}")
+                lines.append((None, f"{name}: search psi_bar = {s['psi_bar']:g}, B2 = {s['B2']:g}: {s['status']} "
+                                    f"-- {s['reason']}"))
         for r in report.refinements:
             if r["status"] != "converged":
-                lines.append(f"{name}: refinement {r['status']} -- {r['reason']}")
+                lines.append((None, f"{name}: refinement {r['status']} -- {r['reason']}"))
     return lines
 
 
@@ -241,18 +257,14 @@ def _images(paths) -> list[str]:
 
 
 def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict, walls: dict, totals: dict,
-                 np_: int, out: Path) -> None:
+                 np_: int, out: Path, analysis_start: float) -> None:
+    """REPRODUCTION.md; ``analysis_start``: time.monotonic() when this call's analysis began."""
     directory = FIGURES[grid]
     total = sum(totals.get(n, 0.0) for n in jobs)
     lines = [
         "# Reproduction of the published studies (`make reproduce`)", "",
-        f"Written by `analysis/reproduce.py --grid {grid}` on {datetime.date.today()} "
-        f"({platform.node()}, {platform.processor() or platform.machine()}, {np_} MPI ranks). "
-        f"**Wall time of the campaigns: {total / 3600:.2f} h in all** (every call that advanced them added up; "
-        f"target for the coarse set on 2 cores: {TARGET_HOURS:g} h): "
-        + ", ".join(f"{n} {totals.get(n, 0.0) / 60:.1f} min" for n in jobs)
-        + f". In this call: {sum(walls.values()) / 60:.0f} min. The analysis (tables, figures, case pages) "
-        "comes on top.", "", "Every campaign and its numerics:", ""]
+        "(the header: written last, when the analysis time is known)",
+        "", "Every campaign and its numerics:", ""]
     compute = {name: sum(row["wall"] for row in read_table(load_study(toml).output).rows)
                for name, toml in jobs.items()}
     lines += [f"* `{toml}` ({name}): {numerics_line(toml)}; {len(reports[name].rows)} cases, "
@@ -260,7 +272,7 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
     lines += ["", f"In all {sum(compute.values()) / 3600:.2f} core-hours of cases (summed over every call that "
               f"advanced them), that is {sum(compute.values()) / np_ / 3600:.2f} h on {np_} cores.",
               "", "Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
-              f"the per-case figures and tables are in `out/reproduce/{grid}/<campaign>/`. Error bars: the "
+              f"the tables and figures of each campaign are in `out/reproduce/{grid}/<campaign>/` (case pages: see the end). Error bars: the "
               "statistical uncertainty plus the discretisation error of the time step (docs/error_rule.md); "
               "in brackets the part that dominates.", ""]
 
@@ -314,11 +326,23 @@ def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict
         lines += _images([shape_sequence(load_study(jobs[name]).output, directory, name)])
 
     found = doubts(reports)
+    pages = sum(len(list((out / name / "cases").glob("*.png"))) for name in jobs)
+    analysis = time.monotonic() - analysis_start
+    lines[2] = (
+        f"Written by `analysis/reproduce.py --grid {grid}` on {datetime.date.today()} "
+        f"({platform.node()}, {platform.processor() or platform.machine()}, {np_} MPI ranks). "
+        f"**Wall time: {(total + analysis) / 3600:.2f} h in all** (target for the coarse set on 2 cores: "
+        f"{TARGET_HOURS:g} h): the campaigns {total / 3600:.2f} h (every call that advanced them added up: "
+        + ", ".join(f"{n} {totals.get(n, 0.0) / 60:.1f} min" for n in jobs)
+        + f"; {sum(walls.values()) / 60:.0f} min of it in this call), the analysis (tables, figures, "
+        f"{pages} case pages) {analysis / 60:.0f} min.")
     lines += ["## What looks unconverged", ""]
-    lines += [f"* {line}" for line in found] if found else ["Nothing was flagged."]
+    lines += [f"* {line}" for _, line in found] if found else ["Nothing was flagged."]
     lines += ["", "Flagged: unfinished or failed cases, undecided cases, PT/TU cases with fewer than "
               f"{MIN_GOOD_CYCLES} settled periods or a period uncertain by more than 0.5 %, searches and "
-              "refinements that did not converge.", ""]
+              "refinements that did not converge. Every flagged case has its page in "
+              f"`out/reproduce/{grid}/<campaign>/cases/<case>.png` (as have all cases of "
+              f"{', '.join(FULL_PAGES)}); `hpcves analyze FILE` draws every case's page.", ""]
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -359,9 +383,10 @@ def main(argv=None):
     totals = json.loads(ledger.read_text()) if ledger.exists() else {}
     for name, toml in jobs.items():       # a clear message if a campaign is missing
         read_source(load_study(toml).output)
-    reports = analyse(jobs, out)
+    analysis_start = time.monotonic()
+    reports = analyse(jobs, out, args.np_)
     figures = copy_figures(reports, FIGURES[args.grid])
-    write_report(Path(args.out), args.grid, jobs, reports, figures, walls, totals, args.np_, out)
+    write_report(Path(args.out), args.grid, jobs, reports, figures, walls, totals, args.np_, out, analysis_start)
     print(f"wrote {args.out}")
 
 

@@ -577,6 +577,13 @@ def _status_table(name, rows, totals, writing, left) -> None:
                + f"; simulated time {share} done; {_duration(wall)} of compute; {writing}{state}")
 
 
+def _case_selection(which: str):
+    """--case-figures: a named selection, or the case ids of a comma-separated list."""
+    from hpcves.reports.case_pages import SELECTIONS
+
+    return which if which in SELECTIONS else [c.strip() for c in which.split(",") if c.strip()]
+
+
 @main.command("analyze")
 @click.argument("file", type=click.Path())
 @click.option("--out", "out", type=click.Path(),
@@ -585,11 +592,16 @@ def _status_table(name, rows, totals, writing, left) -> None:
               help="Override a threshold of the classification, e.g. --set min_cycles=5 (see [analysis]).")
 @click.option("--axes", help="The two parameters of the phase diagrams, e.g. shear_rate,psi_bar.")
 @click.option("--no-write-back", is_flag=True, help="Do not store the results in the file's analysis/ group.")
-@click.option("--no-case-figures", is_flag=True, help="Skip the one-page figure of every case.")
+@click.option("--case-figures", "which", default="all", show_default=True, metavar="all|flagged|none|ID,...",
+              help="Whose one-page figures to draw: every case's, the flagged ones' (undecided, failed, "
+                   "unfinished), none, or these case ids' (about 1 s a page).")
+@click.option("--no-case-figures", is_flag=True, help="Same as --case-figures none.")
 @click.option("--no-streamlines", is_flag=True,
               help="Case figures without the streamlines around the shapes (about 2 s a case less).")
+@click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Processes that draw the case figures.")
 @clean_errors
-def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, no_streamlines):
+def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_figures, no_streamlines, jobs):
     """Regimes (TT / PT / TU / undecided), periods, tables and figures of a campaign or run file.
 
     Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
@@ -609,8 +621,8 @@ def analyze_command(file, out, overrides, axes, no_write_back, no_case_figures, 
     line = _StatusLine()
     try:
         report = analyze(file, out, overrides=parse_overrides(overrides), write_to_file=not no_write_back,
-                         case_figures=not no_case_figures, axes=axes_pair, streamlines=not no_streamlines,
-                         progress=lambda text: line.due(0.2) and line.show(text))
+                         case_figures="none" if no_case_figures else _case_selection(which), axes=axes_pair,
+                         streamlines=not no_streamlines, jobs=jobs, progress=lambda text: line.due(0.2) and line.show(text))
     finally:
         line.close()
     rows = report.rows

@@ -194,3 +194,38 @@ def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tm
     if not animation.writers.is_available("ffmpeg"):
         result = hpcves("animate", campaign, "--case", "0001", "--out", tmp_path / "m.mp4")
         assert result.returncode == 2 and "needs ffmpeg" in result.stderr
+
+
+def test_case_pages_are_drawn_for_the_cases_asked_for_and_alike_in_parallel(campaign, tmp_path):
+    from PIL import Image
+
+    from hpcves.model.params import ConfigError
+    from hpcves.reports import case_pages
+
+    rows = [{"case": "0000", "status": "finished", "regime": "TT"},
+            {"case": "0001", "status": "finished", "regime": "undecided"},
+            {"case": "0002", "status": "failed", "regime": "failed"},
+            {"case": "0003", "status": "running", "regime": "PT"}]
+    assert [r["case"] for r in case_pages.chosen(rows, "flagged")] == ["0001", "0002", "0003"]
+    assert [r["case"] for r in case_pages.chosen(rows, ["0003", "0000"])] == ["0000", "0003"]
+    assert case_pages.chosen(rows, "none") == [] and len(case_pages.chosen(rows, "all")) == 4
+    for which, words in (("flaged", "none of all, flagged, none"), (["0007"], "no case 0007")):
+        with pytest.raises(ConfigError, match=words):
+            case_pages.chosen(rows, which)
+    with pytest.raises(ConfigError, match="no case 0009"):         # refused before any work
+        analyze(campaign, tmp_path / "refused", write_to_file=False, case_figures=["0009"])
+    assert not (tmp_path / "refused").exists()
+
+    serial = analyze(campaign, tmp_path / "serial", write_to_file=False, case_figures=["0001", "0003"],
+                     streamlines=False)
+    pooled = analyze(campaign, tmp_path / "pooled", write_to_file=False, case_figures=["0001", "0003"],
+                     streamlines=False, jobs=2)
+    for report, out in ((serial, tmp_path / "serial"), (pooled, tmp_path / "pooled")):
+        assert sorted(p.name for p in (out / "cases").iterdir()) == ["0001.png", "0003.png"]
+        assert any(str(p).endswith("<case>.png (2)") for p in report.written)
+    for name in ("0001.png", "0003.png"):          # two processes draw the same pixels as one
+        one, two = (np.asarray(Image.open(tmp_path / d / "cases" / name)) for d in ("serial", "pooled"))
+        assert one.shape == two.shape and one.shape[0] > 500 and np.array_equal(one, two)
+    analyze(campaign, tmp_path / "none", write_to_file=False, case_figures=False)
+    assert (tmp_path / "none" / "regimes.csv").read_bytes() == (tmp_path / "serial" / "regimes.csv").read_bytes()
+    assert not (tmp_path / "none" / "cases").exists()

@@ -30,6 +30,7 @@ from hpcves.files.lock import CampaignLock, real_path
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
 from hpcves.model.params import LABELS
+from hpcves.reports import case_pages
 from hpcves.reports import refinement as rc
 from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
 from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
@@ -382,11 +383,18 @@ def parse_overrides(items) -> dict:
 
 
 def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file: bool = True,
-            case_figures: bool = True, axes=None, progress=None, streamlines: bool = True) -> Report:
+            case_figures=True, axes=None, progress=None, streamlines: bool = True, jobs: int = 1) -> Report:
     """Classify every case of ``path``; write the tables and figures to ``out_dir`` (default:
-    ``<file>_analysis`` next to it) and the results back into the file."""
+    ``<file>_analysis`` next to it) and the results back into the file.
+
+    ``case_figures``: whose one-page figures to draw -- True or "all", False or "none", "flagged"
+    (the cases without a regime), or a collection of case ids; ``jobs`` processes draw them
+    (:mod:`hpcves.reports.case_pages`)."""
 
     source = read_source(path)
+    if isinstance(case_figures, bool):
+        case_figures = "all" if case_figures else "none"
+    case_pages.chosen([{"case": c.case_id} for c in source.cases], case_figures)   # refused before the work
     settings = source.settings
     if overrides:
         settings = AnalysisSettings.from_dict({**settings.__dict__, **overrides}, where="--set")
@@ -395,7 +403,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
     try:
         written, searches, refinements = _write_outputs(source, rows, out, axes, case_figures, progress,
-                                                        streamlines)
+                                                        streamlines, jobs)
     except OSError as exc:
         where = exc.filename or out
         raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
@@ -407,8 +415,8 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                   tuple(refinements))
 
 
-def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures: bool, progress,
-                   streamlines: bool = True):
+def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,
+                   streamlines: bool = True, jobs: int = 1):
     """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows,
     refinement rows)."""
     from hpcves.reports import plots
@@ -471,25 +479,12 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
             written += _save(fig, out / f"phase_diagram{suffix}")
             if source.mode == "grid":
                 written += _save(plots.period_figure(subset, y_key, x_key, title=title), out / f"periods{suffix}")
-    if case_figures:
-        directory = out / "cases"
-        directory.mkdir(exist_ok=True)
-        with open_file(source.path, "r", locking=False) as h5:
-            for i, (case, row) in enumerate(zip(source.cases, rows)):
-                if case.status == DAMAGED:
-                    continue
-                group = h5 if source.kind == "case" else h5[f"cases/{case.case_id}"]
-                store = CaseStore(group)
-                title = (f"case {case.case_id}: " if source.kind == "campaign" else "") \
-                    + plots.case_title(dict(group.attrs)) + f" -- {row['regime']}"
-                fig = plots.case_figure(case.series, store.snapshots(), title=title, kymographs=True,
-                                        t_settle=row["t_settle"], period=row["period"],
-                                        physics=store.case.physics if streamlines else None,
-                                        subtitle=_brief(row["reason"]))
-                fig.savefig(directory / f"{case.case_id}.png", dpi=90)
-                if progress is not None:
-                    progress(f"case figures {i + 1}/{len(rows)}")
-        written.append(directory / f"<case>.png ({len(rows)})")
+    pages = {r["case"] for r in case_pages.chosen(rows, case_figures)}
+    if pages:
+        live = [r for r, case in zip(rows, source.cases) if case.status != DAMAGED and r["case"] in pages]
+        case_pages.draw_pages(source.path, source.kind == "campaign", live, out / "cases", streamlines=streamlines,
+                              jobs=jobs, progress=progress)
+        written.append(out / "cases" / f"<case>.png ({len(live)})")
 
     return written, searches, [o.row() for o in refined or ()]
 
@@ -502,8 +497,4 @@ def _save(fig, stem: Path) -> list[Path]:
     return paths
 
 
-def _brief(text: str, width: int = 120) -> str:
-    """The first clause of a reason, clipped to ``width`` characters: a figure's subtitle."""
-    first = text.split("; ")[0]
-    return first if len(first) <= width else first[: width - 3].rstrip() + "..."
 
