@@ -84,7 +84,7 @@ def analyse(jobs: dict, out: Path, np_: int) -> dict:
         print(f"[{name}] analyze {study.output}", flush=True)
         report = analyze(study.output, out / name, case_figures="none")
         flagged = {case for case, _ in doubts({name: report}) if case is not None}
-        damaged = {c.case_id for c in report.damaged()}
+        damaged = {c.case_id for c in report.damaged}
         rows = [r for r in report.rows if (name in FULL_PAGES or r["case"] in flagged) and r["case"] not in damaged]
         directory = out / name / "cases"
         shutil.rmtree(directory, ignore_errors=True)           # no page left from an earlier analysis
