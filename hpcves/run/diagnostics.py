@@ -47,6 +47,44 @@ OPTIONAL_SERIES = ("tail_theta", "tail_psi")
 #: Names of the snapshot fields (one value per node).
 SNAPSHOT_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "velocity_y")
 
+#: (long_name, units) of every series and snapshot field: the attributes of its dataset (CF style:
+#: "1" is dimensionless -- the model is, with eta = B1 = 1 and the lengths of the initial ellipse of
+#: L = 2.6442, SPEC section 1)
+SERIES_ATTRS = {
+    "t": ("time", "1"),
+    "theta": ("inclination of the long principal axis against the flow direction", "rad"),
+    "area_error": ("relative error of the enclosed area", "1"),
+    "length_error": ("relative error of the membrane length", "1"),
+    "E_bending": ("bending energy 1/2 int B(psi) H^2 ds", "1"),
+    "E_phase": ("line energy (a0/eps) int (g(psi) + eps^2/2 psi_s^2) ds", "1"),
+    "centroid": ("centroid of the enclosed region (x, y)", "1"),
+    "tension_min": ("minimum over the membrane of the tension Lambda", "1"),
+    "tension_mean": ("mean over the membrane of the tension Lambda", "1"),
+    "tension_max": ("maximum over the membrane of the tension Lambda", "1"),
+    "V_psi": ("velocity of the phase pattern relative to the material, along the membrane", "1"),
+    "V_L": ("velocity of the material point alpha = 0 relative to the long axis, along the membrane", "1"),
+    "phase_position": ("circular mean of the material label weighted by psi", "1"),
+    "psi_min": ("minimum of the soft-phase concentration psi", "1"),
+    "psi_max": ("maximum of the soft-phase concentration psi", "1"),
+    "area_correction": ("running sum of the relative area corrections of the projection", "1"),
+    "tank_treading_velocity": ("mean tangential membrane velocity", "1"),
+    "stretching": ("maximum of s . du/ds over the membrane (inextensibility residual)", "1"),
+    "tail_theta": ("share of the top third of the Fourier modes in the variation of theta_tilde", "1"),
+    "tail_psi": ("share of the top third of the Fourier modes in the variation of psi", "1"),
+}
+SNAPSHOT_ATTRS = {
+    "t": ("time of the snapshot", "1"),
+    "shift": ("material shift a(t): the node at alpha carries the material label alpha - a", "1"),
+    "alpha": ("equal-arclength parameter of the node, s / L from the tracking point (node j: j / N)", "1"),
+    "x": ("x of the membrane node", "1"),
+    "y": ("y of the membrane node", "1"),
+    "psi": ("soft-phase concentration psi (1 = soft, 0 = hard)", "1"),
+    "tension": ("tension Lambda (line-energy part removed)", "1"),
+    "curvature": ("curvature H", "1"),
+    "velocity_x": ("x velocity of the membrane node", "1"),
+    "velocity_y": ("y velocity of the membrane node", "1"),
+}
+
 
 @dataclass(frozen=True)
 class Health:

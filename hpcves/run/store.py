@@ -42,7 +42,7 @@ from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_CASE, StorageError
 from hpcves.config import case_from_toml, case_to_toml
 from hpcves.run.decision import REGIMES_BY_CODE
-from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SNAPSHOT_FIELDS
+from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.model.params import Case, ConfigError
 from hpcves.run.schedule import clock
 from hpcves.run.timestepping import State
@@ -167,7 +167,7 @@ def raw_bytes(case: Case) -> int:
     n_samples, n_snapshots = capacities(case)
     N = case.numerics.N
     series = (len(SERIES) + 1) * n_samples                   # centroid has two columns
-    snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots
+    snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots + N      # + alpha
     checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
     fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8 + 3 * 8
     return 8 * (series + snapshots + checkpoints) + fixed
@@ -195,6 +195,31 @@ def _early():
     plist = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
     plist.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
     return plist
+
+
+def describe(ts, snap) -> None:
+    """``long_name`` and ``units`` on every series and snapshot field, and HDF5 dimension scales:
+    ``timeseries/t`` along the rows of every series (``centroid``'s columns labelled ``xy``),
+    ``snapshots/t`` and ``snapshots/alpha`` along the rows and columns of every field -- what
+    netCDF readers (xarray's h5netcdf engine, ncdump) take as dimensions. Static metadata, written
+    with the layout (collectively under parallel HDF5); files from before it lack them and read the same.
+    """
+    for group, table in ((ts, SERIES_ATTRS), (snap, SNAPSHOT_ATTRS)):
+        for name, (long_name, units) in table.items():
+            if name in group:
+                group[name].attrs["long_name"] = long_name
+                group[name].attrs["units"] = units
+    ts["t"].make_scale("time")
+    for name in SERIES:
+        if name != "t":
+            ts[name].dims[0].attach_scale(ts["t"])
+    ts["centroid"].dims[1].label = "xy"
+    snap["t"].make_scale("snapshot_time")
+    snap["alpha"].make_scale("alpha")
+    snap["shift"].dims[0].attach_scale(snap["t"])
+    for name in SNAPSHOT_FIELDS:
+        snap[name].dims[0].attach_scale(snap["t"])
+        snap[name].dims[1].attach_scale(snap["alpha"])
 
 
 class CaseStore:
@@ -243,6 +268,8 @@ class CaseStore:
         snap.create_dataset("shift", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
         for name in SNAPSHOT_FIELDS:
             snap.create_dataset(name, shape=(n_snapshots, N), dtype="f8", fillvalue=np.nan, dcpl=_early())
+        snap.create_dataset("alpha", data=np.arange(N) / N)
+        describe(ts, snap)
         ckpt = group.create_group("checkpoint")
         for slot in ("slot0", "slot1"):
             g = ckpt.create_group(slot)
