@@ -206,13 +206,13 @@ def test_a_diverging_run_stops_with_a_message_and_keeps_its_checkpoint(tmp_path)
 
 
 def test_a_run_at_the_model_limit_exits_0_and_is_not_resumed(tmp_path):
-    from test_stepcontrol import DEFLATED                       # the linear law: psi 1.08 near t = 2.9
+    from test_stepcontrol import DEFLATED                       # the linear law: psi 1.08 near t = 2.74-2.92
 
     out = tmp_path / "limit.h5"
     result = hpcves("run", write(tmp_path, DEFLATED), "--out", out, "--quiet")
     assert result.returncode == 0, result.stderr
     stopped = re.match(rf"{re.escape(str(out))}: model limit at t = (\d\.\d+) ", result.stdout)
-    assert stopped and 2.9 < float(stopped[1]) < 3.5, result.stdout
+    assert stopped and 2.6 < float(stopped[1]) < 3.5, result.stdout   # the time: test_stepcontrol
     assert "model limit: psi in [" in result.stdout
     again = hpcves("run", "--resume", out)
     assert again.returncode == 0 and f"model limit already (t = {stopped[1]}); nothing to do" in again.stdout, \

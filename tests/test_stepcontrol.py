@@ -254,12 +254,15 @@ def test_fallback_steps_do_not_stall_the_controller(tmp_path):
     # fallback once stalled the controller at t = 2.81 (21 rejections); now the run goes on until
     # the tip's spectral tail stops it with psi at 1.08: under the linear bending law that is the
     # model's limit, not a failure (the saturating law keeps the tip resolved:
-    # test_the_saturating_law_runs_the_deflated_case_through)
+    # test_the_saturating_law_runs_the_deflated_case_through). When it stops depends on rounding:
+    # at rtol = 1e-2 the step choices follow the last digits, the tip's growth amplifies them, and
+    # OpenBLAS's SkylakeX (AVX-512) kernels stop it at t = 2.74, its Haswell ones at t = 2.92
+    # (OPENBLAS_CORETYPE=Haswell); a stall is the status FAILED, whatever its time
     with open_file(tmp_path / "a.h5", "w-") as f:
         store = CaseStore.create(f, case_from_toml(DEFLATED))
         outcome = runner.run(store, f.flush)
         assert store.status == MODEL_LIMIT
-    assert outcome.status == MODEL_LIMIT and outcome.t > 2.9, outcome
+    assert outcome.status == MODEL_LIMIT and 2.6 < outcome.t < 3.5, outcome
     assert outcome.message.startswith("model limit: psi in [") and "stopped under-resolved" in outcome.message
 
 
