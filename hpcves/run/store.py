@@ -166,7 +166,7 @@ def raw_bytes(case: Case) -> int:
     """The bytes :meth:`CaseStore.create` allocates for a case's datasets (all of them, up front)."""
     n_samples, n_snapshots = capacities(case)
     N = case.numerics.N
-    series = (len(SERIES) + 1) * n_samples                   # centroid has two columns
+    series = (len(SERIES) + 1) * n_samples + 2               # centroid has two columns (+ xy)
     snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots + N      # + alpha
     checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
     fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8 + 3 * 8
@@ -199,7 +199,7 @@ def _early():
 
 def describe(ts, snap) -> None:
     """``long_name`` and ``units`` on every series and snapshot field, and HDF5 dimension scales:
-    ``timeseries/t`` along the rows of every series (``centroid``'s columns labelled ``xy``),
+    ``timeseries/t`` along the rows of every series (``timeseries/xy`` = 0, 1 along ``centroid``'s columns),
     ``snapshots/t`` and ``snapshots/alpha`` along the rows and columns of every field -- what
     netCDF readers (xarray's h5netcdf engine, ncdump) take as dimensions. Static metadata, written
     with the layout (collectively under parallel HDF5); files from before it lack them and read the same.
@@ -209,12 +209,15 @@ def describe(ts, snap) -> None:
             if name in group:
                 group[name].attrs["long_name"] = long_name
                 group[name].attrs["units"] = units
-    ts["t"].make_scale("time")
+    ts["t"].make_scale("t")
     for name in SERIES:
         if name != "t":
             ts[name].dims[0].attach_scale(ts["t"])
-    ts["centroid"].dims[1].label = "xy"
-    snap["t"].make_scale("snapshot_time")
+    ts.create_dataset("xy", data=np.arange(2, dtype=np.int64))
+    ts["xy"].attrs["long_name"] = "component: 0 = x, 1 = y"
+    ts["xy"].make_scale("xy")
+    ts["centroid"].dims[1].attach_scale(ts["xy"])
+    snap["t"].make_scale("t")
     snap["alpha"].make_scale("alpha")
     snap["shift"].dims[0].attach_scale(snap["t"])
     for name in SNAPSHOT_FIELDS:
