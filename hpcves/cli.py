@@ -19,6 +19,7 @@ import click
 from hpcves import __version__
 from hpcves.analysis import accuracy
 from hpcves.model.params import ConfigError
+from hpcves.files.atomic import check_output_path
 
 
 def _fail(message: str) -> None:
@@ -43,22 +44,6 @@ def clean_errors(func):
         except OSError as exc:              # a full disk, permissions, a directory where a file belongs
             _fail(os_error_text(exc))
     return wrapper
-
-
-def check_output_path(path) -> None:
-    """Refuse an output path that cannot be a file before any work: a directory, or under a file."""
-    from pathlib import Path
-
-    from hpcves.run.store import FileFormatError
-
-    path = Path(path)
-    if path.is_dir():
-        raise FileFormatError(f"{path}: is a directory, not a file")
-    for parent in path.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise FileFormatError(f"{path}: {parent} is not a directory")
-            break
 
 
 class _StatusLine:
@@ -158,11 +143,9 @@ def main():
 @clean_errors
 def run_command(case_file, out, resume, overwrite, quiet):
     """Run one case: hpcves run CASE.toml --out case.h5, or continue one: hpcves run --resume case.h5."""
-    from hpcves.run import runner
-    from hpcves.files.atomic import StorageError
-    from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, FileFormatError, open_file, \
-        safe_flush
     from hpcves.config import load_case
+    from hpcves.run.casefile import create_case_file, open_for_resume, run_file
+    from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
 
     if resume and (case_file or out):
         raise click.UsageError("--resume FILE takes the case from the file; give no CASE_FILE or --out")
@@ -171,27 +154,17 @@ def run_command(case_file, out, resume, overwrite, quiet):
 
     if resume:
         path = resume
-        check_output_path(path)
-        h5 = open_file(path, "r+")
-        try:
-            store = CaseStore.open(h5, where=path)
-            problems = store.problems()
-            if problems:
-                raise FileFormatError(f"{path}: damaged, not resumed ({'; '.join(problems[:3])}"
-                                      + (f"; {len(problems) - 3} more" if len(problems) > 3 else "") + ")")
-        except BaseException:
-            h5.close()
-            raise
+        h5 = open_for_resume(path)
+        store = CaseStore(h5)
         if store.status in (FINISHED, MODEL_LIMIT):
             t_done, ended = store.progress[0], STATUS_NAMES[store.status]
             h5.close()
             click.echo(f"{path}: {ended} already (t = {t_done:.6g}); nothing to do.")
             return
     else:
-        case = load_case(case_file)
         path = out
-        h5 = create_case_file(path, case, overwrite)
-        store = CaseStore.open(h5, where=path)
+        h5 = create_case_file(path, load_case(case_file), overwrite)
+        store = CaseStore(h5)
     case = store.case
     step = f"rtol = {case.numerics.rtol:g}" if case.numerics.adaptive else f"dt = {case.numerics.dt:g}"
     click.echo(f"{path}: N = {case.numerics.N}, {step}, t_end = {case.run.t_end:g}, "
@@ -201,18 +174,10 @@ def run_command(case_file, out, resume, overwrite, quiet):
     progress = None if quiet else ProgressLine()
     try:
         with StopFlag() as stop:
-            outcome = runner.run(store, safe_flush(h5), resume=bool(resume), progress=progress,
-                                 stop_requested=stop)
-    except StorageError as exc:
-        raise StorageError(f"{exc}; stopped, the last valid checkpoint is kept: free some space, then "
-                           f"hpcves run --resume {path}") from None
+            outcome = run_file(h5, resume=bool(resume), progress=progress, stop_requested=stop)
     finally:
         if progress is not None:
             progress.close()
-        try:
-            h5.close()
-        except (OSError, RuntimeError):
-            pass                    # a refused write, reported above
     rate = outcome.steps / outcome.wall if outcome.wall > 0 else 0.0
     summary = (f"{path}: {STATUS_NAMES[outcome.status]} at t = {outcome.t:.6g} "
                f"({outcome.steps} steps in {_duration(outcome.wall)}, {rate:,.0f} steps/s)")
@@ -226,43 +191,6 @@ def run_command(case_file, out, resume, overwrite, quiet):
     elif outcome.message:                       # a finished run says why only when it stopped early (decided)
         summary += f"\n{outcome.message}"
     click.echo(summary)
-
-
-def create_case_file(path, case, overwrite: bool):
-    """The new file of one run, open r+: laid out under ``<path>.partial``, then renamed to ``path``
-    (atomic.py), so a kill or a full disk never leaves a half-made file at ``path``."""
-    from pathlib import Path
-
-    from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, new_partial, publish, remove_partial
-    from hpcves.run.store import CaseStore, FileFormatError, open_file, storage_bytes
-
-    path = Path(path)
-    check_output_path(path)
-    if path.exists() and not overwrite:
-        raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
-    if path.exists():                       # replaced only if no run writes it (HDF5's own lock)
-        try:
-            open_file(path, "r+").close()
-        except FileFormatError as exc:
-            if "in use" in str(exc):
-                raise
-    partial = new_partial(path, storage_bytes(case) + METADATA_BYTES_PER_FILE,
-                          "the run's file (every sample and snapshot preallocated)")
-    try:
-        h5 = open_file(partial, "r+")
-        try:
-            CaseStore.create(h5, case)
-        finally:
-            h5.close()
-        publish(partial, path)
-    except (OSError, RuntimeError) as exc:
-        remove_partial(path)
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).splitlines()[0]
-        raise StorageError(f"{path}: cannot create it ({reason}); nothing was written") from None
-    except BaseException:
-        remove_partial(path)
-        raise
-    return open_file(path, "r+")
 
 
 class CampaignProgress(_StatusLine):

@@ -177,3 +177,15 @@ def copy_for_change(path, extra_bytes: float, what: str) -> Path:
         remove_partial(path)
         raise StorageError(f"{path}: cannot copy it for {what} ({exc.strerror}); the file is unchanged") from None
     return partial
+
+
+def check_output_path(path) -> None:
+    """Refuse an output path that cannot be a file before any work: a directory, or under a file."""
+    path = Path(path)
+    if path.is_dir():
+        raise StorageError(f"{path}: is a directory, not a file")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise StorageError(f"{path}: {parent} is not a directory")
+            break
