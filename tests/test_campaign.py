@@ -319,8 +319,8 @@ excess_length = [0.194, 1.3]
 
 def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed(tmp_path):
     # Delta = 1.3 under the linear bending law: the soft phase sharpens a tip until psi = 1.08 and
-    # the spectral tail stops the run near t = 2.9 (test_stepcontrol.py; the step sequence, and with
-    # it the moment, moves with the sampling rule); Delta = 0.194 runs through
+    # the spectral tail stops the run between t = 2.7 and 2.9 (the moment follows rounding: OpenBLAS's
+    # SkylakeX kernels give 2.74, its Haswell ones 2.92; test_stepcontrol.py); Delta = 0.194 runs through
     from hpcves.reports.analyze import analyze
     from hpcves.run.store import MODEL_LIMIT
 
@@ -335,7 +335,7 @@ def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed
     status = hpcves("status", output)
     assert status.returncode == 0 and "1 finished, 1 model limit" in status.stdout.splitlines()[-1]
     stopped = re.search(r"model limit  (\d\.\d\d) / 3\.5", status.stdout)
-    assert stopped and 2.9 < float(stopped[1]) < 3.5, status.stdout
+    assert stopped and 2.6 < float(stopped[1]) < 3.5, status.stdout
     report = analyze(output, tmp_path / "out", case_figures=False)
     limit = next(r for r in report.rows if r["case"] == "0001")
     assert limit["regime"] == "model limit" and limit["reason"].startswith(f"stopped at t = {stopped[1]}")
