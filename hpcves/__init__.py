@@ -1,7 +1,12 @@
 """hpcves: two-phase (multicomponent) vesicles in shear flow.
 
 A spectral boundary-integral solver (:mod:`hpcves.run.timestepping`) and the
-machinery around it: case files, HDF5 output with checkpoints, the command line.
+machinery around it: case files, HDF5 output with checkpoints, campaigns on MPI,
+the analysis, the command line. The Python API (:mod:`hpcves.api`) is reachable
+from here -- ``hpcves.load_case``, ``run_case``, ``load_study``, ``run_campaign``,
+``analyze``, ``classify``, ``open_case``, ``open_campaign`` -- and imported on
+first use, so that ``import hpcves`` (and every module's ``from hpcves import
+__version__``) stays light and no module below the API depends on it.
 
 One case runs on one core: :func:`hpcves.run.runner.run` holds the BLAS and
 OpenMP thread pools at one thread while it runs (threadpoolctl), whatever was
@@ -9,3 +14,20 @@ imported first.
 """
 
 __version__ = "0.1.0"
+
+API = ("load_case", "load_study", "run_case", "run_campaign", "analyze", "classify", "open_case",
+       "open_campaign", "AnalysisSettings")
+__all__ = ("__version__",) + API
+
+
+def __getattr__(name):
+    """The names of the Python API, from :mod:`hpcves.api` on first use (PEP 562)."""
+    if name in API:
+        from hpcves import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'hpcves' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(API))

@@ -1,7 +1,8 @@
 """The package's layers: each module imports only from its own layer or the ones below it.
 
 Order, bottom to top (README, "Code layout"): numerics, model, config, analysis, files, run,
-campaign, reports, cli. Read from the source with ast, function-level imports included, so
+campaign, reports, api, cli. The root package (hpcves/__init__.py: the version, and the API's
+names fetched from hpcves.api on first use) imports nothing at import time. Read from the source with ast, function-level imports included, so
 a cycle cannot hide inside a function.
 """
 import ast
@@ -11,7 +12,7 @@ import pytest
 
 import hpcves
 
-LAYERS = ("numerics", "model", "config", "analysis", "files", "run", "campaign", "reports", "cli")
+LAYERS = ("numerics", "model", "config", "analysis", "files", "run", "campaign", "reports", "api", "cli")
 ROOT = pathlib.Path(hpcves.__file__).parent
 
 
@@ -52,8 +53,25 @@ def test_every_module_lives_in_a_layer():
         assert name == "hpcves" or layer_of(name) in LAYERS, f"{name}: not in a layer of {LAYERS}"
 
 
+def test_the_root_package_imports_only_the_api_and_only_on_first_use():
+    path = ROOT / "__init__.py"
+    tree = ast.parse(path.read_text())
+    at_import = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
+    assert not at_import, f"hpcves/__init__.py imports at import time: line {at_import[0].lineno}"
+    assert {m for _, m in imports_of(path, "hpcves")} == {"hpcves.api"}
+    import subprocess
+    import sys
+    code = ("import sys, hpcves; assert 'hpcves.api' not in sys.modules and 'xarray' not in sys.modules; "
+            "hpcves.open_case; assert 'hpcves.api' in sys.modules; print(sorted(hpcves.API))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+    assert "open_campaign" in result.stdout
+
+
 @pytest.mark.parametrize("name, path", list(modules()), ids=lambda v: v if isinstance(v, str) else "")
 def test_no_module_imports_from_a_layer_above_its_own(name, path):
+    if name == "hpcves":
+        return                       # the root package: the test above
     here = LAYERS.index(layer_of(name)) if layer_of(name) else -1
     upward = [f"line {line}: {target}" for line, target in imports_of(path, name)
               if layer_of(target) is not None and LAYERS.index(layer_of(target)) > here]

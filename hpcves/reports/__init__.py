@@ -1,2 +1,2 @@
-"""What people read: ``hpcves analyze`` (tables, CSV, the analysis group), figures of a case
-or a campaign, shape sequences and animations."""
+"""What people and tools read: ``hpcves analyze`` (tables, CSV, the analysis group), figures of a
+case or a campaign (case pages, shape sequences, animations), and the files as xarray Datasets."""

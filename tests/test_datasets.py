@@ -1,0 +1,126 @@
+"""The files as any scientific-Python tool reads them: hpcves.open_case / open_campaign (xarray),
+the raw groups through h5netcdf (dimension scales, units), and plain h5py agreeing with both."""
+import h5py
+import numpy as np
+import pytest
+
+import hpcves
+from hpcves.campaign.study import study_from_toml
+from hpcves.run.store import FileFormatError
+
+STUDY = """
+[campaign]
+name = "xr"
+output = "{output}"
+t_end = 0.4
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast)
+sample_interval = 0.01
+snapshot_interval = 0.1
+checkpoint_interval = 0.2
+[sweep]
+shear_rate = [40, 80]
+psi_bar = [0.0, 0.3]
+"""
+
+CASE = """
+[physics]
+shear_rate = 80
+psi_bar = 0.3
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+t_end = 0.2
+max_spectral_tail = 1.0
+sample_interval = 0.01
+snapshot_interval = 0.05
+checkpoint_interval = 0.1
+"""
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("datasets")
+    study = study_from_toml(STUDY.format(output=tmp / "xr.h5"))
+    assert hpcves.run_campaign(study).counts["finished"] == 4
+    hpcves.analyze(study.output, tmp / "analysis", case_figures=False)
+    return study.output
+
+
+def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_reads_it(campaign):
+    ds = hpcves.open_campaign(campaign)
+    assert dict(ds.sizes) == {"case": 4, "sample": 41, "xy": 2}            # t = 0, 0.01, ..., 0.4
+    assert list(ds["case"].values) == ["0000", "0001", "0002", "0003"]
+    assert list(ds["shear_rate"].values) == [40, 40, 80, 80] and list(ds["psi_bar"].values) == [0, 0.3, 0, 0.3]
+    assert set(ds["status"].values) == {"finished"} and set(ds["regime"].values) <= {"TT", "PT", "TU", "undecided"}
+    assert ds["theta"].attrs["units"] == "rad" and "inclination" in ds["theta"].attrs["long_name"]
+    assert not np.isnan(ds["theta"]).any() and not np.isnan(ds["t"]).any()  # nothing beyond what was computed
+    with h5py.File(campaign, "r") as h5:
+        for i, case in enumerate(ds["case"].values):
+            group = h5[f"cases/{case}/timeseries"]
+            n = int(group["length"][()])
+            assert n == 41 and np.isnan(group["theta"][n:]).all()         # the raw file: NaN padded
+            assert np.array_equal(ds["theta"].values[i], group["theta"][:n])
+            assert np.array_equal(ds["centroid"].values[i], group["centroid"][:n])
+            assert np.array_equal(ds["t"].values[i], group["t"][:n])
+        regimes = [r.decode() if isinstance(r, bytes) else r for r in h5["analysis/regime"][:]]
+    assert list(ds["regime"].values) == regimes
+    # selection by parameter, the xarray way
+    pt = ds.where((ds.shear_rate == 80) & (ds.psi_bar == 0.3), drop=True)
+    assert list(pt["case"].values) == ["0003"]
+    few = hpcves.open_campaign(campaign, variables=["theta"])
+    assert list(few.data_vars) == ["theta", "regime", "period", "period_err", "period_dt_err", "theta_mean",
+                                   "theta_mean_err", "theta_mean_dt_err", "t_settle", "cycles", "bending_gap",
+                                   "reason"]
+    with pytest.raises(FileFormatError, match="no series thetta"):
+        hpcves.open_campaign(campaign, variables=["thetta"])
+
+
+def test_one_case_of_a_campaign_and_its_raw_groups_through_h5netcdf(campaign):
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("h5netcdf")
+    one = hpcves.open_case(campaign, "0003")
+    assert dict(one.sizes) == {"time": 41, "xy": 2, "snapshot": 5, "alpha": 32}
+    assert float(one["shear_rate"]) == 80 and one.attrs["status"] == "finished"
+    assert one["psi"].dims == ("snapshot", "alpha") and one["alpha"].values[1] == 1 / 32
+    # the raw groups: the dimension scales are netCDF dimensions, the attributes come along
+    raw = xr.open_dataset(campaign, engine="h5netcdf", group="cases/0003/timeseries", phony_dims="sort")
+    assert raw["theta"].dims == ("t",) and raw["centroid"].dims == ("t", "xy")
+    assert raw["theta"].attrs["units"] == "rad"
+    n = int(raw["length"])
+    assert np.array_equal(raw["theta"].values[:n], one["theta"].values)
+    snaps = xr.open_dataset(campaign, engine="h5netcdf", group="cases/0003/snapshots", phony_dims="sort")
+    assert snaps["psi"].dims == ("t", "alpha") and snaps["psi"].attrs["long_name"].startswith("soft-phase")
+    raw.close()
+    snaps.close()
+    for args, words in (((campaign,), "name the case"), ((campaign, "0009"), "no case '0009'")):
+        with pytest.raises(FileFormatError, match=words):
+            hpcves.open_case(*args)
+
+
+def test_the_python_api_runs_resumes_opens_and_classifies_a_case(tmp_path):
+    toml = tmp_path / "case.toml"
+    toml.write_text(CASE)
+    path = tmp_path / "case.h5"
+    first = hpcves.run_case(toml, path, max_steps=120)                  # stops part way, resumable
+    assert first.steps == 120 and first.t < 0.2
+    with pytest.raises(FileFormatError, match="exists already"):
+        hpcves.run_case(toml, path)
+    done = hpcves.run_case(None, path, resume=True)
+    assert done.t == pytest.approx(0.2)
+    whole = tmp_path / "whole.h5"
+    hpcves.run_case(hpcves.load_case(toml), whole)
+    a, b = hpcves.open_case(path), hpcves.open_case(whole)
+    assert a.attrs["status"] == "finished" and a.sizes["time"] == 21
+    assert np.array_equal(a["theta"].values, b["theta"].values)          # resumed = uninterrupted, bitwise
+    found = hpcves.classify(a)
+    assert found.regime in ("TT", "PT", "TU", "undecided") and found.reason
+    series = {k: a[k].values for k in ("theta", "V_psi", "V_L", "tank_treading_velocity")}
+    again = hpcves.classify({"t": a["time"].values, **series})
+    assert (again.regime, again.reason) == (found.regime, found.reason)
+    with pytest.raises(FileFormatError, match="not a campaign file"):
+        hpcves.open_campaign(path)
