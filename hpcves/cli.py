@@ -243,8 +243,19 @@ def _mpi_world():
               help="How several ranks write the file: mpio (parallel HDF5, every rank writes its cases), "
                    "relay (rank 0 writes for everyone: for an h5py without MPI, or a file system where "
                    "MPI-IO misbehaves), auto (mpio if h5py has MPI).")
-def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io):
+@click.option("--plan", "show_plan", is_flag=True,
+              help="Run nothing: time a step at each N here, then print the cases, the core-hours, and "
+                   "the wall time on a suggested number of ranks (without mpirun).")
+@click.option("--slurm", "slurm_file", type=click.Path(),
+              help="With --plan: also write a SLURM batch script sized from the plan to this file.")
+@click.option("--max-time", type=float, default=24.0, show_default=True,
+              help="With --plan: the longest job to ask for, in hours (the script resubmits itself "
+                   "while work is left).")
+def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io, show_plan, slurm_file, max_time):
     """Run a study: mpirun -n P hpcves campaign STUDY.toml (or without mpirun, on one core).
+
+    With --plan nothing runs: the cases, core-hours, ranks and wall time it will take (and with
+    --slurm a batch script sized from them).
 
     Exit status: 0 every case finished or at the model's limit (or the campaign was stopped by a signal
     and can be resumed), 1 some case failed, 2 bad input.
@@ -254,6 +265,15 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io
     comm = _mpi_world()
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
+    if slurm_file and not show_plan:
+        _fail("--slurm goes with --plan (hpcves campaign STUDY.toml --plan --slurm job.sh)")
+    if show_plan:
+        if size > 1:
+            if rank == 0:
+                click.echo("Error: --plan runs nothing in parallel: leave out mpirun", err=True)
+            sys.exit(2)
+        _plan(study_file, out and Path(out), slurm_file and Path(slurm_file), max_time)
+        return
     try:
         _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out and Path(out), quiet, io)
     except SystemExit:
@@ -369,6 +389,100 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
             click.echo(f"Error: {summary.not_written}; the campaign stopped and every case keeps its last "
                        "valid checkpoint: free some space, then continue with --resume", err=True)
     sys.exit(summary.exit_status)
+
+
+def _plan(study_file, out, slurm_file, max_time) -> None:
+    """``hpcves campaign --plan``: what the study will cost, and a batch script sized from it."""
+    import shutil
+    from pathlib import Path
+
+    from hpcves.campaign.plan import plan
+    from hpcves.campaign.slurm import JobSize, slurm_script
+    from hpcves.campaign.study import load_study
+    from hpcves.run.timing import StepCost
+
+    try:
+        study = load_study(study_file)
+    except ConfigError as exc:
+        _fail(str(exc))
+    if not max_time > 0:
+        _fail(f"--max-time {max_time:g}: must be > 0 hours")
+    if slurm_file:
+        check_output_path(slurm_file)
+    estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)))
+    basis = estimate.likely or estimate              # what the run will likely take: ranks and time from it
+    ranks = basis.suggested_ranks()
+    wall = basis.wall(ranks)
+    ask = min(_job_seconds(wall), max_time * 3600.0)
+    path = Path(out or study.output).absolute()
+    click.echo(_plan_text(estimate, study, ranks))
+    click.echo(f"suggested: {ranks} rank{'s' * (ranks != 1)} (srun -n {ranks} / mpirun -n {ranks}), "
+               f"a job of {_duration(ask)}" + (" (capped by --max-time; the job resubmits itself)"
+                                                if ask < _job_seconds(wall) else ""))
+    click.echo(f"output: {path}")
+    if not slurm_file:
+        return
+    hpcves = shutil.which("hpcves") or str(Path(sys.executable).with_name("hpcves"))
+    likely = f"likely {basis.core_seconds / 3600:.3g}, " if estimate.likely else ""
+    text = slurm_script(script=Path(slurm_file), study_name=study.name, study_file=Path(study_file), output=path,
+                        size=JobSize(ranks, ask), hpcves=Path(hpcves), python=Path(sys.executable),
+                        workdir=Path.cwd(), stop_timeout=study.stop_timeout,
+                        summary=f"{estimate.cases} cases at most; core-hours {likely}at most "
+                                f"{estimate.core_seconds / 3600:.3g}; {_duration(wall)} on {ranks} ranks")
+    try:
+        Path(slurm_file).write_text(text)
+        Path(slurm_file).chmod(0o755)
+    except OSError as exc:
+        _fail(f"{slurm_file}: {os_error_text(exc)}")
+    click.echo(f"batch script: {slurm_file} (set --account and --partition in it, then sbatch {slurm_file})")
+
+
+def _job_seconds(wall: float) -> float:
+    """What to ask of the batch system for an estimate ``wall``: 1.5 x it plus 10 minutes (start-up,
+    a shared node, the estimate's spread: docs/numerics.md), in whole quarter hours."""
+    return 900.0 * math.ceil((1.5 * wall + 600.0) / 900.0)
+
+
+def _plan_text(estimate, study, suggested: int) -> str:
+    """The plan as tables: each stage's cases and core-hours, then the wall time against ranks."""
+    from hpcves.reports.tables import markdown_table
+
+    from hpcves.campaign.plan import DECIDED_AFTER
+
+    likely = estimate.likely
+    kind = {"grid": "a grid", "search": f"{estimate.units} critical-shear search{'es' * (estimate.units != 1)}",
+            "refine": f"{estimate.units} refinement{'s' * (estimate.units != 1)}"}[estimate.mode]
+    per_step = ", ".join(f"N = {n}: {1e3 * a:.2g}" + (f" to {1e3 * b:.2g}" if f"{a:.2g}" != f"{b:.2g}" else "")
+                         + " ms" for n, (a, b) in sorted(estimate.step_seconds.items()))
+    lines = [f"{study.name}: {kind}; a step takes {per_step} here (samples and snapshots included)"]
+    header = ["stage", "cases", "core-hours"] + (["core-hours if run to t_end"] if likely else [])
+    rows = []
+    for i, stage in enumerate(estimate.stages):
+        rounds = f" (x {stage.rounds})" if stage.rounds > 1 else ""
+        note = "" if i == 0 else " at most"
+        rows.append([stage.name + rounds, f"{stage.cases}{note}"]
+                    + ([f"{likely.stages[i].core_seconds / 3600:.3g}"] if likely else [])
+                    + [f"{stage.core_seconds / 3600:.3g}"])
+    staged = len(estimate.stages) > 1
+    rows.append(["in all", f"{estimate.cases}{' at most' * staged}"]
+                + ([f"{likely.core_seconds / 3600:.3g}"] if likely else []) + [f"{estimate.core_seconds / 3600:.3g}"])
+    lines.append(markdown_table(header, rows))
+    if likely:
+        lines.append(f"until_decided: core-hours are what cases typically take to be decided ({DECIDED_AFTER:g} x "
+                     "decided_shear_times shear times; 0.8 to 1.7 x for 80 % of the cases measured); the last "
+                     "column if none stops early")
+    if estimate.mode == "refine":
+        lines.append("a refinement's later stages spend at most its budget (max_cases); how much depends on "
+                     "the boundaries it finds")
+    basis = likely or estimate
+    ranks = sorted({1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, suggested, basis.widest}
+                   & set(range(1, basis.widest + 1)))
+    body = [[f"{p}" + (" (suggested)" if p == suggested else ""), _duration(basis.wall(p)),
+             f"{100 * basis.core_seconds / (p * basis.wall(p)):.0f} %"]
+            + ([_duration(estimate.wall(p))] if likely else []) for p in ranks]
+    lines.append(markdown_table(["ranks", "wall time", "ranks busy"] + (["if run to t_end"] if likely else []),
+                                body))
+    return "\n".join(lines)
 
 
 def _search_brief(outcome) -> str:

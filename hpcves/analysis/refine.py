@@ -104,6 +104,12 @@ class RefineSettings:
         """Cases of the regular grid that brackets every boundary to the tolerances everywhere."""
         return self.x.full_grid_points() * self.y.full_grid_points()
 
+    def stages_needed(self) -> int:
+        """Stages a refinement takes at most: the coarse grid, then one per halving of its widest
+        coarse interval (a split halves a mixed cell along every axis still wider than its tolerance)."""
+        return 1 + max(_halvings(a.u(hi) - a.u(lo), a.tolerance)
+                       for a in (self.x, self.y) for lo, hi in zip(a.values, a.values[1:]))
+
 
 @dataclass(frozen=True)
 class Cell:

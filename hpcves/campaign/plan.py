@@ -1,0 +1,204 @@
+"""What a study will cost before it runs: cases, core-hours, ranks and wall time (``--plan``).
+
+A case is expected to take ``Case.estimated_steps`` steps (t_end over the step the
+sampling, dt_max and the shear rate allow: model/params.py), each of the seconds
+measured for its N on this machine (run/timing.py). A run with ``until_decided``
+usually stops long before t_end, so for it the figure is a ceiling. Search and
+refine studies gain their cases stage by stage: the first stage is known, the
+rest is bounded by the budget -- a search converges within
+``SearchSettings.cases_needed()`` cases (at most ``max_cases``), a refinement
+spends at most ``max_cases`` -- and those later cases are priced at the mean of
+the known ones (a search's at the shear rates it may visit). For ``until_decided``
+the plan also gives the likely cost, each case ended when cases typically are
+decided (DECIDED_AFTER, measured).
+
+The wall time on P ranks replays the scheduler (driver.py): every rank computes,
+cases go out most expensive first to whichever rank is free, and a stage starts
+when the one before has ended. The suggested P is the fewest ranks that finish
+within 10 % of the wall time with a rank for every case of the widest stage whose
+width is known (a refinement's later stages are as wide as the boundaries it
+finds make them: only its coarse grid counts).
+"""
+from __future__ import annotations
+
+import dataclasses
+import heapq
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+from hpcves.analysis.refine import coarse_points
+from hpcves.analysis.search import start_rates
+from hpcves.campaign.study import Study
+
+#: the plan's wall time is within this factor of the fastest possible one
+NEAR_FASTEST = 1.10
+#: a case that runs until decided ends, typically, after this many times ``decided_shear_times``
+#: shear times: the median over 308 cases of seven studies that stopped early (docs/numerics.md,
+#: "Planning a campaign"; 10 % to 90 % of them: 0.8 to 1.7)
+DECIDED_AFTER = 1.13
+
+
+@dataclass(frozen=True)
+class Stage:
+    """``rounds`` stages alike: each of ``cases`` cases of the given seconds (known or typical)."""
+
+    name: str
+    seconds: tuple              # one entry per case of one such stage
+    rounds: int = 1
+    sized: bool = True          # its width is known (not a budget spread over the stages)
+
+    @property
+    def cases(self) -> int:
+        return len(self.seconds) * self.rounds
+
+    @property
+    def core_seconds(self) -> float:
+        return sum(self.seconds) * self.rounds
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A study's expected cost: the stages at most, what is known up front, and what N costs here."""
+
+    study: str
+    mode: str                   # grid, search, refine
+    stages: tuple               # Stage, in order; the first is known, the others are bounds
+    step_seconds: dict          # N -> (fewest, most) seconds per step over the study's cases, measured here
+    ceiling: bool               # until_decided: cases usually stop before t_end
+    units: int                  # searches or refinements (1 for a grid)
+    likely: "Plan | None" = None   # until_decided: the same with each case ended when typically decided
+
+    @property
+    def first(self) -> Stage:
+        return self.stages[0]
+
+    @property
+    def cases(self) -> int:
+        """Cases at most."""
+        return sum(s.cases for s in self.stages)
+
+    @property
+    def core_seconds(self) -> float:
+        """Core-seconds at most."""
+        return sum(s.core_seconds for s in self.stages)
+
+    @property
+    def widest(self) -> int:
+        """The most cases a stage of known width runs side by side (a refinement's later stages
+        depend on the boundaries it finds: their width is not known before)."""
+        return max(len(s.seconds) for s in self.stages if s.sized)
+
+    def wall(self, ranks: int) -> float:
+        """Wall seconds on ``ranks`` ranks: each stage as the scheduler runs it, one after the other."""
+        return sum(makespan(s.seconds, ranks) * s.rounds for s in self.stages)
+
+    def fastest(self) -> float:
+        """The wall time with a rank for every case of the widest stage: no more ranks help."""
+        return self.wall(self.widest)
+
+    def suggested_ranks(self) -> int:
+        """The fewest ranks whose wall time is within NEAR_FASTEST of :meth:`fastest`."""
+        target = NEAR_FASTEST * self.fastest()
+        low, high = 1, self.widest            # wall(ranks) falls with ranks (LPT: up to rounding)
+        while low < high:
+            middle = (low + high) // 2
+            if self.wall(middle) <= target:
+                high = middle
+            else:
+                low = middle + 1
+        return low
+
+
+def makespan(seconds, ranks: int) -> float:
+    """When the last of the cases ends on ``ranks`` ranks: longest first, each to the rank free
+    first (the scheduler's rule, driver.py), all ranks computing."""
+    ordered = sorted(seconds, reverse=True)
+    if ranks >= len(ordered):
+        return ordered[0] if ordered else 0.0
+    free = [0.0] * ranks
+    for s in ordered:
+        heapq.heapreplace(free, free[0] + s)
+    return max(free)
+
+
+def plan(study: Study, step_seconds: Callable) -> Plan:
+    """The :class:`Plan` of ``study``; ``step_seconds(case)`` is a step's wall seconds (timing.py).
+
+    Every case priced to its t_end; with ``until_decided``, ``likely`` prices it to
+    DECIDED_AFTER x decided_shear_times shear times (at most t_end)."""
+    ceiling = _plan(study, lambda case: case.estimated_steps * step_seconds(case), step_seconds)
+    if not study.base.run.until_decided:
+        return ceiling
+    likely = _plan(study, lambda case: case.estimated_steps * step_seconds(case) * decided_share(case), step_seconds)
+    return dataclasses.replace(ceiling, likely=likely)
+
+
+def decided_share(case) -> float:
+    """The share of its run to t_end that a case running until decided typically takes."""
+    S, run = case.physics.shear_rate, case.run
+    if S <= 0:
+        return 1.0
+    return min(1.0, DECIDED_AFTER * run.decided_shear_times / (S * run.t_end))
+
+
+def _plan(study: Study, seconds: Callable, step_seconds: Callable) -> Plan:
+    if study.mode == "grid":
+        stages = (Stage("grid", tuple(seconds(c.case) for c in study.cases)),)
+        units = 1
+    elif study.mode == "search":
+        stages, units = _search_stages(study, seconds), len(study.searches)
+    else:
+        stages, units = _refine_stages(study, seconds), len(study.refinements)
+    used = {}
+    for case in _sample_cases(study):
+        low, high = used.get(case.numerics.N, (math.inf, 0.0))
+        s = step_seconds(case)
+        used[case.numerics.N] = (min(low, s), max(high, s))
+    return Plan(study.name, study.mode, stages, used, study.base.run.until_decided, units)
+
+
+def _sample_cases(study: Study):
+    if study.mode == "grid":
+        return [c.case for c in study.cases]
+    if study.mode == "search":
+        return [study.search_case(i, s, "plan").case for i in range(len(study.searches))
+                for s in start_rates(study.search)]
+    settings = study.refine_settings
+    return [study.refine_case(i, x, y, "plan").case for i in range(len(study.refinements))
+            for x, y in coarse_points(settings)]
+
+
+def _search_stages(study: Study, seconds) -> tuple:
+    search = study.search
+    first = tuple(seconds(study.search_case(i, s, "plan").case)
+                  for i in range(len(study.searches)) for s in start_rates(search))
+    most = min(search.cases_needed(), search.max_cases)
+    later_rounds = math.ceil((most - search.points - 1) / search.points)
+    if later_rounds <= 0:
+        return (Stage("start", first),)
+    # a later case may sit anywhere in [low, high]: price it at the mean over a geometric ladder
+    ladder = [search.low * (search.high / search.low) ** (j / 8) for j in range(9)]
+    typical = [sum(seconds(study.search_case(i, s, "plan").case) for s in ladder) / len(ladder)
+               for i in range(len(study.searches))]
+    later = tuple(t for t in typical for _ in range(search.points))
+    return Stage("start", first), Stage("splits", later, later_rounds)
+
+
+def _refine_stages(study: Study, seconds) -> tuple:
+    settings = study.refine_settings
+    points = coarse_points(settings)
+    first = tuple(seconds(study.refine_case(i, x, y, "plan").case)
+                  for i in range(len(study.refinements)) for x, y in points)
+    spare = settings.max_cases - len(points)
+    rounds = min(settings.stages_needed() - 1, spare)
+    if rounds <= 0:
+        return (Stage("coarse grid", first),)
+    n = len(points)             # the budget left, spread evenly over the splits, at each refinement's mean
+    mean = [sum(first[i * n:(i + 1) * n]) / n for i in range(len(study.refinements))]
+    each, more = divmod(spare, rounds)
+    stages = [Stage("coarse grid", first)]
+    if more:
+        stages.append(Stage("splits", tuple(m for m in mean for _ in range(each + 1)), more, sized=False))
+    stages.append(Stage("splits", tuple(m for m in mean for _ in range(each)), rounds - more, sized=False))
+    return tuple(stages)

@@ -1,0 +1,72 @@
+"""What a time step of a case costs on this machine, measured through the real run loop.
+
+``hpcves campaign --plan`` multiplies these by the steps a case is expected to take
+(campaign/plan.py). A step's cost depends on N, on whether the vesicle has a phase
+field, and on how often it samples and snapshots; not on the shear rate or the step size
+as such.
+"""
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from pathlib import Path
+
+from hpcves.model.params import Case
+
+
+def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
+    """Wall seconds a step of ``case`` takes here: the fewest over ``repeats`` fresh runs of
+    ``steps`` steps into scratch files (each run's wall leaves out its set-up; the fewest, as
+    a shared machine only ever adds time). Samples and snapshots are written as in a campaign.
+
+    The runs take fixed steps of the size the case is expected to settle at (t_end over
+    ``Case.estimated_steps``): an adaptive run's first steps are tiny, so they sample far
+    less often than the long stretch at the settled step that makes up a run. A run that
+    stops early is timed over what it ran. Call it once first on a throw-away case if
+    nothing ran in this process yet (:class:`StepCost` does): the first run pays for
+    loading libraries and planning FFTs."""
+    from hpcves.run.casefile import create_case_file, run_file
+
+    dt = case.run.t_end / case.estimated_steps
+    numerics = dataclasses.replace(case.numerics, dt=dt, rtol=None)
+    case = dataclasses.replace(case, numerics=numerics, run=dataclasses.replace(case.run, until_decided=False))
+    best = float("inf")
+    with tempfile.TemporaryDirectory(prefix="hpcves-timing-") as scratch:
+        for i in range(repeats):
+            outcome = run_file(create_case_file(Path(scratch) / f"t{i}.h5", case), resume=False, max_steps=steps)
+            best = min(best, outcome.wall / max(outcome.steps, 1))
+    return best
+
+
+class StepCost:
+    """``seconds_per_step`` measured once per kind of step and remembered: ``cost(case)`` for
+    every case of a study, ``measured`` for a report.
+
+    A step's cost is the solve (N; with or without a phase field) plus what it writes: a
+    sample of every series costs about as much as the solve, a snapshot more (h5py's
+    per-dataset overhead; docs/numerics.md). So the kind is N, the phase field, and the
+    shares of steps that sample and snapshot at the settled step -- the same for most cases
+    of a study, since the step, the sampling and t_end all scale as 1 / S."""
+
+    def __init__(self, steps: int = 150, announce=lambda text: None):
+        self.steps, self.announce = steps, announce
+        self.measured: dict = {}             # kind (kind_of) -> seconds per step
+
+    @staticmethod
+    def kind_of(case: Case) -> tuple:
+        """(N, homogeneous, samples per step, snapshots per step), the shares to 2 digits."""
+        dt = case.run.t_end / case.estimated_steps
+        share = lambda interval: float(f"{min(1.0, dt / interval):.2g}")       # noqa: E731
+        return (case.numerics.N, case.physics.homogeneous, share(case.run.sample_interval),
+                share(case.run.snapshot_interval))
+
+    def __call__(self, case: Case) -> float:
+        kind = self.kind_of(case)
+        if kind not in self.measured:
+            N, homogeneous, samples, snapshots = kind
+            self.announce(f"timing a step at N = {N}" + (" (homogeneous)" if homogeneous else "")
+                          + f", sampling every {1 / samples:.3g} steps ...")
+            if not self.measured:              # the first run in a process loads and plans: not timed
+                seconds_per_step(case, steps=20, repeats=1)
+            self.measured[kind] = seconds_per_step(case, self.steps)
+        return self.measured[kind]

@@ -1,0 +1,177 @@
+"""hpcves campaign --plan: cases, core-hours, ranks and wall time; the SLURM script sized from it."""
+import os
+import stat
+import subprocess
+
+import pytest
+from jobs import hpcves
+
+from hpcves.campaign.driver import run_campaign
+from hpcves.campaign.plan import Plan, Stage, makespan, plan
+from hpcves.campaign.study import load_study, study_from_toml
+from hpcves.run.timing import StepCost
+
+TINY = """
+[campaign]
+name = "{name}"
+output = "{output}"
+t_end = 0.2
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+max_spectral_tail = 1.0
+sample_interval = 0.01
+snapshot_interval = 0.1
+checkpoint_interval = 0.1
+"""
+
+
+def per_step(case):                      # a step of a fixed cost: the plan's arithmetic alone
+    return 1e-3 * (case.numerics.N / 32) ** 2
+
+
+def test_the_settled_step_shrinks_as_the_cube_root_of_rtol(tmp_path):
+    text = TINY.replace("dt = 1e-3", "rtol = RTOL").replace("sample_interval = 0.01", "sample_interval = 1.0")
+    steps = [study_from_toml(text.format(name="e", output=tmp_path / "e.h5").replace("RTOL", str(rtol))
+                             + "[sweep]\nshear_rate = [40]\n").cases[0].case.estimated_steps
+             for rtol in (1e-2, 1e-3)]
+    assert steps[0] == pytest.approx(0.2 / (0.05 / 40))                 # t_end over the settled step at S = 40
+    assert steps[1] / steps[0] == pytest.approx(10 ** (1 / 3))
+
+
+def test_makespan_replays_the_scheduler_longest_first_to_the_rank_free_first():
+    assert makespan([3, 3, 2, 2, 2], 2) == 7          # LPT: {3, 2, 2} and {3, 2}; the optimum is 6
+    assert makespan([5, 1, 1, 1], 2) == 5
+    assert makespan([2, 2], 5) == 2 and makespan([], 3) == 0.0
+    assert makespan([1.0] * 10, 1) == 10.0
+
+
+def test_the_suggested_ranks_are_the_fewest_near_the_fastest():
+    # one long case and ten short ones: two ranks do as well as eleven
+    assert Plan("x", "grid", (Stage("grid", (10.0,) + (1.0,) * 10),), {}, False, 1).suggested_ranks() == 2
+    equal = Plan("x", "grid", (Stage("grid", (1.0,) * 12),), {}, False, 1)
+    assert equal.suggested_ranks() == 12 and equal.wall(12) == 1.0 and equal.wall(5) == 3.0
+    # stages run one after the other: their walls add up
+    staged = Plan("x", "search", (Stage("start", (2.0,) * 4), Stage("splits", (1.0,) * 2, rounds=3)), {}, False, 2)
+    assert staged.cases == 10 and staged.core_seconds == 14.0
+    assert staged.wall(2) == 4.0 + 3 * 1.0 and staged.wall(4) == 2.0 + 3 * 1.0
+    assert staged.suggested_ranks() == 4 and staged.widest == 4
+
+
+def test_a_grid_plan_prices_every_case(tmp_path):
+    study = study_from_toml(TINY.format(name="g", output=tmp_path / "g.h5")
+                            + "[sweep]\nshear_rate = [10, 20, 40]\npsi_bar = [0.3, 0.5]\n")
+    estimate = plan(study, per_step)
+    assert estimate.mode == "grid" and estimate.cases == 6 and len(estimate.stages) == 1
+    assert estimate.core_seconds == pytest.approx(sum(c.case.estimated_steps for c in study.cases) * 1e-3)
+    assert estimate.step_seconds == {32: (1e-3, 1e-3)} and not estimate.ceiling
+
+
+def test_a_search_plan_bounds_the_cases_by_convergence_and_budget(tmp_path):
+    text = TINY.format(name="s", output=tmp_path / "s.h5") + """
+[search]
+low = 10.0
+high = 160.0
+rel_tol = 0.05
+max_cases = 12
+points = {points}
+[sweep]
+psi_bar = [0.3, 0.5, 0.7]
+"""
+    for points in (1, 2):
+        study = study_from_toml(text.format(points=points))
+        settings = study.search
+        estimate = plan(study, per_step)
+        most = min(settings.cases_needed(), settings.max_cases)
+        assert estimate.first.cases == 3 * (points + 1)
+        assert estimate.cases == 3 * (points + 1 + estimate.stages[1].rounds * points) >= 3 * most
+        assert estimate.cases - 3 * most < 3 * points          # the last round may be partial
+        assert 1 + estimate.stages[1].rounds == settings.stages_needed()
+        assert estimate.widest == 3 * (points + 1)
+
+
+def test_a_refine_plan_spends_the_budget_over_the_halvings(tmp_path):
+    study = study_from_toml(TINY.format(name="r", output=tmp_path / "r.h5") + """
+[refine]
+tolerance = { shear_rate = 0.1, psi_bar = 0.05 }
+max_cases = 40
+[sweep]
+shear_rate = [10, 40, 160]
+psi_bar = [0.3, 0.5, 0.7]
+B2 = [0.1, 0.8]
+""")
+    estimate = plan(study, per_step)
+    settings = study.refine_settings
+    assert estimate.units == 2 and estimate.first.cases == 2 * 9
+    assert estimate.cases == 2 * 40                            # at most: the budget of each refinement
+    # the widest coarse interval on either axis: S from 10 to 40 is log 4 = 14.5 tolerances, 4 halvings
+    assert sum(s.rounds for s in estimate.stages[1:]) == settings.stages_needed() - 1 == 4
+    assert estimate.widest == 18 and estimate.suggested_ranks() <= 18   # later widths are not known
+
+
+def test_step_cost_is_measured_once_per_kind_of_step(tmp_path):
+    study = study_from_toml(TINY.format(name="c", output=tmp_path / "c.h5")
+                            + "[sweep]\nshear_rate = [10, 20]\npsi_bar = [0.3, 0.5]\n")
+    said = []
+    cost = StepCost(steps=20, announce=said.append)
+    seconds = [cost(c.case) for c in study.cases]
+    assert all(s > 0 for s in seconds)
+    # dt is 1e-3 in every case and every 10th step samples: one kind, timed once
+    assert len(cost.measured) == 1 and len(said) == 1 and "N = 32" in said[0]
+    assert len(set(seconds)) == 1
+
+
+def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):
+    study_file = tmp_path / "p.toml"
+    study_file.write_text(TINY.format(name="p", output=tmp_path / "p.h5")
+                          + "[sweep]\nshear_rate = [10, 20]\npsi_bar = [0.3, 0.5]\n")
+    script = tmp_path / "job.sh"
+    result = hpcves("campaign", study_file, "--plan", "--slurm", script)
+    assert result.returncode == 0, result.stderr
+    assert "timing a step at N = 32" in result.stderr
+    assert "| in all | 4 |" in result.stdout and "(suggested)" in result.stdout
+    ranks = int(result.stdout.split("suggested: ")[1].split()[0])
+    assert not (tmp_path / "p.h5").exists()                     # a plan runs nothing
+    text = script.read_text()
+    assert f"#SBATCH --ntasks={ranks}\n" in text and "#SBATCH --account=CHANGE_ME" in text
+    assert f"STUDY={study_file.resolve()}\n" in text and f"OUT={(tmp_path / 'p.h5').resolve()}\n" in text
+    assert os.stat(script).st_mode & stat.S_IXUSR
+    assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
+    wrong = hpcves("campaign", study_file, "--slurm", script)
+    assert wrong.returncode == 2 and "--slurm goes with --plan" in wrong.stderr
+
+
+def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
+    """The script with stand-ins for srun and sbatch: a job that ran nothing resubmits; one that
+    finished the campaign does not."""
+    study_file = tmp_path / "w.toml"
+    output = tmp_path / "w.h5"
+    study_file.write_text(TINY.format(name="w", output=output) + "[sweep]\nshear_rate = [10, 20]\n")
+    script = tmp_path / "job.sh"
+    assert hpcves("campaign", study_file, "--plan", "--slurm", script).returncode == 0
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    submitted = tmp_path / "submitted"
+    (bin_dir / "sbatch").write_text(f'#!/bin/bash\necho "$@" >> {submitted}\n')
+    (bin_dir / "srun").write_text("#!/bin/bash\n" + ('shift\nexec "$@"\n'))      # drop --kill-on-bad-exit
+    (bin_dir / "idle-srun").write_text("#!/bin/bash\nexit 0\n")                    # a job cut before it ran
+    for f in bin_dir.iterdir():
+        f.chmod(0o755)
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}")
+
+    # the campaign file exists, no case has run (stopped at once): work is left
+    run_campaign(load_study(study_file), output, stop_flag=lambda: True)
+    idle = script.read_text().replace('srun --kill-on-bad-exit=0', 'idle-srun --kill-on-bad-exit=0')
+    (tmp_path / "idle.sh").write_text(idle)
+    first = subprocess.run(["bash", str(tmp_path / "idle.sh")], env=env, capture_output=True, text=True,
+                           cwd=tmp_path, timeout=300)
+    assert first.returncode == 0, first.stderr
+    assert "work left: submitting the next job" in first.stdout
+    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
+
+    second = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True, cwd=tmp_path,
+                            timeout=300)
+    assert second.returncode == 0, second.stderr
+    assert "submitting" not in second.stdout and "status: complete" in second.stdout
+    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]    # not again
