@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
 import math
 import signal
 import sys
@@ -127,10 +128,44 @@ class StopFlag:
         return False
 
 
+class _TerminalLog(logging.Handler):
+    """The library's log records (``logging.getLogger("hpcves")``) on stderr: INFO and up, one line
+    each, ``[rank R]`` in front when the job has several ranks, on a line of its own after a status
+    line being rewritten on a terminal."""
+
+    def __init__(self, stream=None):
+        super().__init__(logging.INFO)
+        self.stream = stream or sys.stderr
+
+    @staticmethod
+    def _rank() -> str:
+        mpi = sys.modules.get("mpi4py.MPI")          # only if a command started MPI: never start it here
+        if mpi is None or not mpi.Is_initialized() or mpi.Is_finalized() or mpi.COMM_WORLD.Get_size() == 1:
+            return ""
+        return f"[rank {mpi.COMM_WORLD.Get_rank()}] "
+
+    def emit(self, record):
+        try:
+            lead = "\n" if self.stream.isatty() else ""
+            self.stream.write(f"{lead}{self._rank()}{record.getMessage()}\n")
+            self.stream.flush()
+        except Exception:                            # noqa: BLE001  (logging's rule: never raise)
+            self.handleError(record)
+
+
+def _log_to_terminal() -> None:
+    library = logging.getLogger("hpcves")
+    if not any(isinstance(h, _TerminalLog) for h in library.handlers):
+        library.addHandler(_TerminalLog())
+        library.setLevel(logging.INFO)
+        library.propagate = False
+
+
 @click.group()
 @click.version_option(__version__, prog_name="hpcves")
 def main():
     """Two-phase vesicles in shear flow: simulations, campaigns, analysis."""
+    _log_to_terminal()
 
 
 @main.command("run")

@@ -62,15 +62,20 @@ def check_type(where: str, value, kind):
     raise ConfigError(f"{where}: unsupported parameter type {kind}")   # pragma: no cover
 
 
+def refuse_unknown(values: dict, known, where: str) -> None:
+    """ConfigError naming every key of ``values`` not in ``known`` (and the known ones), e.g.
+    ``[physics]: unknown keys shear, tension (known: ...)``: the one check of every table."""
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
+                          f"(known: {', '.join(known)})")
+
+
 def from_table(cls, values: dict, where: str, prefix: str):
     """A settings dataclass from a TOML table: unknown keys refused, every value type-checked
     (messages name ``where``, e.g. "[search]", and ``prefix.key``)."""
     types = typing.get_type_hints(cls)
-    known = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
-                          f"(known: {', '.join(sorted(known))})")
+    refuse_unknown(values, sorted(f.name for f in dataclasses.fields(cls)), where)
     return cls(**{key: check_type(f"{prefix}.{key}", value, types[key]) for key, value in values.items()})
 
 
@@ -80,11 +85,7 @@ def group_from_dict(name: str, values: dict, base=None):
     if not isinstance(values, dict):
         raise ConfigError(f"[{name}] must be a table, got {type(values).__name__}")
     types = typing.get_type_hints(cls)
-    fields = [f.name for f in dataclasses.fields(cls)]
-    unknown = sorted(set(values) - set(fields))
-    if unknown:
-        raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [{name}]: "
-                          + ", ".join(unknown) + f" (known: {', '.join(fields)})")
+    refuse_unknown(values, [f.name for f in dataclasses.fields(cls)], f"[{name}]")
     kwargs = {key: check_type(f"{name}.{key}", value, types[key]) for key, value in values.items()}
     if name == "numerics" and "rtol" in kwargs and "dt" in kwargs:
         raise ConfigError(f"[numerics] sets both dt = {kwargs['dt']:g} (a fixed step) and rtol = {kwargs['rtol']:g} "

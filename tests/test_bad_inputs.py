@@ -21,10 +21,10 @@ BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nmax_spectral_tail = 1.0\nt_end
 
 #: case files: (text, words the one line must hold)
 CASE_FILES = {
-    "unknown key": ("[physics]\nshear = 3\n", "unknown key in [physics]: shear"),
+    "unknown key": ("[physics]\nshear = 3\n", "[physics]: unknown key shear"),
     "unknown table": ("[physic]\nshear_rate = 3\n", "unknown table: [physic]"),
     "a table that is a number": ("physics = 3\n", "[physics] must be a table"),
-    "nested table": ("[physics.more]\nx = 1\n", "unknown key in [physics]: more"),
+    "nested table": ("[physics.more]\nx = 1\n", "[physics]: unknown key more"),
     "float for N": ("[numerics]\nN = 64.5\n", "numerics.N = 64.5: must be an integer"),
     "bool for N": ("[numerics]\nN = true\n", "numerics.N = True: must be an integer"),
     "string for a number": ('[run]\nt_end = "5"\n', "run.t_end = '5': must be a number"),
@@ -73,7 +73,7 @@ STUDY_HEAD = '[campaign]\nname = "bad"\nt_end = 0.02\n' + BASE_RUN
 
 #: study files: (text, words); ``{head}`` is a sound [campaign] table with the tiny numerics
 STUDY_FILES = {
-    "unknown campaign key": ('[campaign]\nnmae = "x"\n', "unknown key in [campaign]: nmae"),
+    "unknown campaign key": ('[campaign]\nnmae = "x"\n', "[campaign]: unknown key nmae"),
     "campaign not a table": ("campaign = 3\n", "[campaign] must be a table"),
     "empty name": ('[campaign]\nname = ""\n', "campaign.name = '': must be a non-empty string"),
     "name a number": ("[campaign]\nname = 3\n", "campaign.name = 3"),

@@ -291,6 +291,9 @@ def test_a_diverging_case_fails_alone_under_mpi(tmp_path, io):
     assert result.returncode == 1, result.stderr
     assert statuses(output) == {"0000": FINISHED, "0001": FINISHED, "0002": FAILED, "0003": FAILED}
     assert "case 0002 failed: diverged" in result.stderr
+    # rank 0's log record as it happened, with its rank (cli._TerminalLog)
+    assert re.search(r"^\[rank 0\] case 0002 \(shear_rate = 20000, psi_bar = 0.3\) failed on rank [01]: diverged",
+                     result.stderr, re.M), result.stderr
     status = hpcves("status", output)
     assert "2 finished, 2 failed" in status.stdout.splitlines()[-1]
     assert status.returncode == 1 and "complete, 2 failed (--resume --retry-failed" in status.stdout

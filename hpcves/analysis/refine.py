@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.config import check_type, clean_number
+from hpcves.config import check_type, clean_number, refuse_unknown
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import PT, TT, TU
 
@@ -176,11 +176,7 @@ class RefinePlan:
     @classmethod
     def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
         """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
-        known = ("axes", "tolerance", "max_cases")
-        unknown = sorted(set(values) - set(known))
-        if unknown:
-            raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
-                              f"(known: {', '.join(known)})")
+        refuse_unknown(values, ("axes", "tolerance", "max_cases"), where)
         swept = [k for k, v in sweep.items() if len(v) > 1]
         axes = values.get("axes", swept[:2])
         if (not isinstance(axes, list | tuple) or len(axes) != 2

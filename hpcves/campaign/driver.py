@@ -40,7 +40,6 @@ checkpoint, and ends with exit status 2 and the reason.
 from __future__ import annotations
 
 import logging
-import sys
 import threading
 import time
 import traceback
@@ -307,7 +306,7 @@ class Master:
         """The file system refused a write: stop the campaign, keep the reason for the summary."""
         if not self.not_written:
             self.not_written = why
-            print(f"\ncannot write the campaign file: {why}", file=sys.stderr)
+            log.warning("cannot write the campaign file: %s", why)
         self.begin_stop("the file system refused a write")
 
     def record(self, result: CaseResult) -> None:
@@ -320,11 +319,11 @@ class Master:
             result.case_id, 0.0)
         if result.status == FAILED:
             first = result.message.splitlines()[0] if result.message else ""
-            print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) failed on rank "
-                  f"{result.rank}: {first}", file=sys.stderr)
+            log.warning("case %s (%s) failed on rank %d: %s", result.case_id,
+                        self.study.by_id(result.case_id).label(), result.rank, first)
         elif result.status == MODEL_LIMIT:
-            print(f"\ncase {result.case_id} ({self.study.by_id(result.case_id).label()}) reached the model's "
-                  f"limit at t = {result.t:.4g}: {runner.model_limit_cause(result.message)}", file=sys.stderr)
+            log.info("case %s (%s) reached the model's limit at t = %.4g: %s", result.case_id,
+                     self.study.by_id(result.case_id).label(), result.t, runner.model_limit_cause(result.message))
         if result.status == INTERRUPTED and not self.stopping:
             self.begin_stop(f"rank {result.rank} was stopped")
 
@@ -333,7 +332,7 @@ class Master:
         if self.stopping:
             return
         self.stopping = True
-        print(f"\nstopping ({why}): checkpointing the running cases", file=sys.stderr)
+        log.info("stopping (%s): checkpointing the running cases", why)
         if self.size > 1:
             for rank in self.busy:
                 if rank != 0:
@@ -342,8 +341,8 @@ class Master:
 
     def _watchdog(self) -> None:
         time.sleep(self.stop_timeout)
-        print(f"\nthe campaign did not stop within {self.stop_timeout:g} s of the stop request; aborting "
-              "(every case keeps its last valid checkpoint)", file=sys.stderr, flush=True)
+        log.error("the campaign did not stop within %g s of the stop request; aborting (every case keeps "
+                  "its last valid checkpoint)", self.stop_timeout)
         self.comm.Abort(3)
 
     def cost_done(self) -> float:
@@ -527,7 +526,7 @@ def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, dis
             if refused:
                 not_written = refused
                 if rank == 0:
-                    print(f"\ncannot add the next stage's cases: {refused}", file=sys.stderr)
+                    log.warning("cannot add the next stage's cases: %s", refused)
                 h5, campaign, flush = _open(path, comm, io)
                 break
             h5, campaign, flush = _open(path, comm, io)
@@ -611,7 +610,7 @@ def _collective_failure(comm, io: str, what: str, exc: BaseException, partial: P
         except OSError:
             pass
     reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    print(f"Error: {what}: {reason}; the file at its path is unchanged", file=sys.stderr, flush=True)
+    log.error("Error: %s: %s; the file at its path is unchanged", what, reason)
     comm.Abort(2)
 
 

@@ -65,13 +65,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.config import case_from_dict, check_type, clean_number, read_text
-from hpcves.model.params import Case, ConfigError
+from hpcves.config import case_from_dict, check_type, clean_number, read_text, refuse_unknown
+from hpcves.model.params import SWEEPABLE, Case, ConfigError     # SWEEPABLE: what [sweep] may vary
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.analysis.refine import RefinePlan, RefineSettings
 from hpcves.analysis.search import SearchSettings
 
-SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
 CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "samples_per_shear_time", "stop_timeout")
 #: more cases than this in one study is surely a mistake (checked before any case is built: building
@@ -295,10 +294,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         if not isinstance(value, dict):
             raise ConfigError(f"[{table}] must be a table")
     campaign, sweep_spec = tables["campaign"], tables["sweep"]
-    unknown = sorted(set(campaign) - set(CAMPAIGN_KEYS))
-    if unknown:
-        raise ConfigError(f"unknown key{'s' if len(unknown) > 1 else ''} in [campaign]: {', '.join(unknown)} "
-                          f"(known: {', '.join(CAMPAIGN_KEYS)})")
+    refuse_unknown(campaign, CAMPAIGN_KEYS, "[campaign]")
     try:
         base = case_from_dict(data)
     except ConfigError as exc:

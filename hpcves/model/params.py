@@ -44,6 +44,11 @@ def _require(condition: bool, message: str) -> None:
         raise ConfigError(message)
 
 
+#: the physics parameters a campaign may vary from case to case ([sweep]), in the order of a
+#: case's row (campaign/study.py, run/verdict.py, reports/)
+SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
+
+
 @dataclass(frozen=True)
 class Physics:
     """The dimensionless model (SPEC section 1).

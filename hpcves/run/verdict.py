@@ -17,9 +17,8 @@ from hpcves.analysis.regimes import UNDECIDED, AnalysisSettings, Classification,
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.runner import MODEL_LIMIT_PREFIX
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
+from hpcves.model.params import SWEEPABLE as PARAMETERS      # the columns of a case's parameters in a row
 
-#: the four sweepable physics parameters of a case's row
-PARAMETERS = ("shear_rate", "psi_bar", "excess_length", "B2")
 #: the status of a campaign case whose data cannot be read
 DAMAGED = "damaged"
 
