@@ -29,7 +29,7 @@ demo: setup
 	@mkdir -p $(DEMO)
 	$(MPIRUN) -n 2 $(HPCVES) campaign jobs/demo.toml --overwrite
 	$(HPCVES) status $(DEMO)/demo.h5
-	$(HPCVES) analyze $(DEMO)/demo.h5 --out $(DEMO)/analysis
+	$(HPCVES) analyze $(DEMO)/demo.h5 --out $(DEMO)/analysis --jobs 2
 	$(PY) analysis/plot_campaign.py $(DEMO)/demo.h5 --out $(DEMO)/overview.png
 	@echo "demo: $(DEMO)/demo.h5; regimes in $(DEMO)/analysis/regimes.md, phase diagram $(DEMO)/analysis/phase_diagram.png, overview $(DEMO)/overview.png"
 

@@ -83,8 +83,12 @@ def draw_pages(path: Path, campaign: bool, rows: list[dict], directory: Path, *,
             draw_page(*task)
             tick()
     else:     # spawn: a fresh interpreter per worker, no HDF5 handle or lock inherited from this one
-        with ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            for _ in pool.map(draw_page, *zip(*tasks), chunksize=4):
+        workers = min(jobs, len(tasks))
+        # chunks of up to 4 pages (fewer messages), but at least two chunks per worker, so that a
+        # few pages are shared out evenly (6 pages in chunks of 4 left one worker 4 and the other 2)
+        chunk = max(1, min(4, len(tasks) // (2 * workers)))
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            for _ in pool.map(draw_page, *zip(*tasks), chunksize=chunk):
                 tick()
     return [Path(task[-1]) for task in tasks]
 
