@@ -36,8 +36,25 @@ class ConfigError(ValueError):
     """A parameter or input file is invalid; the message says which and why."""
 
 
-#: the symbol of each sweepable parameter in tables and figures
-LABELS = {"shear_rate": "S", "psi_bar": "psi_bar", "excess_length": "Delta", "B2": "B2"}
+@dataclass(frozen=True)
+class ParameterName:
+    """How tables and figures name a sweepable parameter: ``text`` in tables and files, ``symbol``
+    (matplotlib mathtext) in figure titles, ``axis`` on a figure's axis."""
+
+    text: str
+    symbol: str
+    axis: str
+
+
+#: the one table of the four sweepable parameters' names
+PARAMETER_NAMES = {
+    "shear_rate": ParameterName("S", "S", "shear rate $S$"),
+    "psi_bar": ParameterName("psi_bar", r"$\bar\psi$", r"mean composition $\bar\psi$"),
+    "excess_length": ParameterName("Delta", r"$\Delta$", r"excess length $\Delta$"),
+    "B2": ParameterName("B2", r"$B_2$", r"bending rigidity $B_2$"),
+}
+#: the symbol of each sweepable parameter in tables
+LABELS = {key: name.text for key, name in PARAMETER_NAMES.items()}
 
 def _require(condition: bool, message: str) -> None:
     if not condition:

@@ -20,6 +20,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from hpcves.analysis import accuracy
+from hpcves.model.params import PARAMETER_NAMES
 
 PSI_CMAP = "coolwarm"      # blue: hard phase (psi = 0), red: soft phase (psi = 1)
 
@@ -274,14 +275,15 @@ REGIME_STYLE = {            # colour, marker, label
     "model limit": ("tab:purple", "D", r"model limit ($\psi$ left [0, 1])"),
     "failed": ("k", "X", "failed"),
 }
-SHORT_NAMES = {"shear_rate": "S", "psi_bar": r"$\bar\psi$", "excess_length": r"$\Delta$", "B2": r"$B_2$"}
+SHORT_NAMES = {key: name.symbol for key, name in PARAMETER_NAMES.items()}
+
+
 def parameter_text(fixed: dict) -> str:
     """``$\\bar\\psi$ = 0.48, $B_2$ = 0.1``: fixed parameters in a figure's title."""
     return ", ".join(f"{SHORT_NAMES.get(k, k)} = {v:g}" for k, v in fixed.items())
 
 
-AXIS_LABELS = {"shear_rate": "shear rate $S$", "psi_bar": r"mean composition $\bar\psi$",
-               "excess_length": r"excess length $\Delta$", "B2": r"bending rigidity $B_2$"}
+AXIS_LABELS = {key: name.axis for key, name in PARAMETER_NAMES.items()}
 
 
 def _log_scale(values) -> bool:
