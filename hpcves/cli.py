@@ -444,6 +444,8 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
         _fail(f"--max-time {max_time:g}: must be > 0 hours")
     if slurm_file:
         check_output_path(slurm_file)
+        if not Path(slurm_file).absolute().parent.is_dir():        # say so before the timing, not after
+            _fail(f"{slurm_file}: its directory {Path(slurm_file).absolute().parent} does not exist")
     estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)))
     basis = estimate.likely or estimate              # what the run will likely take: ranks and time from it
     ranks = basis.suggested_ranks()
@@ -468,7 +470,7 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
         Path(slurm_file).write_text(text)
         Path(slurm_file).chmod(0o755)
     except OSError as exc:
-        _fail(f"{slurm_file}: {os_error_text(exc)}")
+        _fail(f"cannot write the batch script: {os_error_text(exc)}")
     click.echo(f"batch script: {slurm_file} (set --account and --partition in it, then sbatch {slurm_file})")
 
 

@@ -140,6 +140,8 @@ def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):
     assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
     wrong = hpcves("campaign", study_file, "--slurm", script)
     assert wrong.returncode == 2 and "--slurm goes with --plan" in wrong.stderr
+    nowhere = hpcves("campaign", study_file, "--plan", "--slurm", tmp_path / "no" / "job.sh")
+    assert nowhere.returncode == 2 and "does not exist" in nowhere.stderr and "timing" not in nowhere.stderr
 
 
 def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
