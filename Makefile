@@ -23,7 +23,7 @@ setup:
 	@./scripts/bootstrap.sh
 
 test: setup
-	$(PY) -m pytest -m "not slow and not faults" -q
+	$(PY) -m pytest -m "not slow and not faults" -q --durations=15
 
 demo: setup
 	@mkdir -p $(DEMO)

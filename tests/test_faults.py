@@ -79,7 +79,7 @@ MANY = "{ linspace = [10, 400, 40] }"          # 40 x 3 = 120 cases: creating th
 
 # ---------------------------------------------------------------------- 1. a kill while the file is created
 @needs_mpi
-@pytest.mark.parametrize("io", ["mpio", "relay"])
+@pytest.mark.parametrize("io", ["mpio", pytest.param("relay", marks=pytest.mark.faults)])   # relay: make faults
 def test_a_kill_while_the_file_is_created_leaves_nothing_that_blocks_a_resume(tmp_path, io):
     path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
     partial = output.with_name(output.name + ".partial")
@@ -642,6 +642,7 @@ def test_analyze_killed_before_storing_its_results_leaves_the_file_as_it_was(tmp
 
 
 @needs_mpi
+@pytest.mark.faults           # make faults runs it, then the 40 random kills it stands for (24 s: out of make test)
 def test_two_random_kills_of_the_fault_injection_harness(tmp_path, harness_reference):
     """What `make faults` does 40 times: here once during creation, once at the end (mpirun's group
     only: the resume starts at once and must wait for the ranks), at random moments of those phases."""
