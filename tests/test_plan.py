@@ -49,11 +49,11 @@ def test_makespan_replays_the_scheduler_longest_first_to_the_rank_free_first():
 
 def test_the_suggested_ranks_are_the_fewest_near_the_fastest():
     # one long case and ten short ones: two ranks do as well as eleven
-    assert Plan("x", "grid", (Stage("grid", (10.0,) + (1.0,) * 10),), {}, False, 1).suggested_ranks() == 2
-    equal = Plan("x", "grid", (Stage("grid", (1.0,) * 12),), {}, False, 1)
+    assert Plan("x", "grid", (Stage("grid", (10.0,) + (1.0,) * 10),), {}, 1).suggested_ranks() == 2
+    equal = Plan("x", "grid", (Stage("grid", (1.0,) * 12),), {}, 1)
     assert equal.suggested_ranks() == 12 and equal.wall(12) == 1.0 and equal.wall(5) == 3.0
     # stages run one after the other: their walls add up
-    staged = Plan("x", "search", (Stage("start", (2.0,) * 4), Stage("splits", (1.0,) * 2, rounds=3)), {}, False, 2)
+    staged = Plan("x", "search", (Stage("start", (2.0,) * 4), Stage("splits", (1.0,) * 2, rounds=3)), {}, 2)
     assert staged.cases == 10 and staged.core_seconds == 14.0
     assert staged.wall(2) == 4.0 + 3 * 1.0 and staged.wall(4) == 2.0 + 3 * 1.0
     assert staged.suggested_ranks() == 4 and staged.widest == 4

@@ -65,9 +65,13 @@ class Plan:
     mode: str                   # grid, search, refine
     stages: tuple               # Stage, in order; the first is known, the others are bounds
     step_seconds: dict          # N -> (fewest, most) seconds per step over the study's cases, measured here
-    ceiling: bool               # until_decided: cases usually stop before t_end
     units: int                  # searches or refinements (1 for a grid)
     likely: "Plan | None" = None   # until_decided: the same with each case ended when typically decided
+
+    @property
+    def ceiling(self) -> bool:
+        """Whether the stages are ceilings that cases usually stay below (until_decided)."""
+        return self.likely is not None
 
     @property
     def first(self) -> Stage:
@@ -127,10 +131,19 @@ def plan(study: Study, step_seconds: Callable) -> Plan:
 
     Every case priced to its t_end; with ``until_decided``, ``likely`` prices it to
     DECIDED_AFTER x decided_shear_times shear times (at most t_end)."""
-    ceiling = _plan(study, lambda case: case.estimated_steps * step_seconds(case), step_seconds)
+    first = _first_cases(study)
+    used = {}
+    for case in first:
+        low, high = used.get(case.numerics.N, (math.inf, 0.0))
+        s = step_seconds(case)
+        used[case.numerics.N] = (min(low, s), max(high, s))
+    units = {"grid": 1, "search": len(study.searches), "refine": len(study.refinements)}[study.mode]
+    ceiling = Plan(study.name, study.mode, _stages(study, first, lambda case: case.estimated_steps
+                                                   * step_seconds(case)), used, units)
     if not study.base.run.until_decided:
         return ceiling
-    likely = _plan(study, lambda case: case.estimated_steps * step_seconds(case) * decided_share(case), step_seconds)
+    likely = dataclasses.replace(ceiling, stages=_stages(study, first, lambda case: case.estimated_steps
+                                                         * step_seconds(case) * decided_share(case)))
     return dataclasses.replace(ceiling, likely=likely)
 
 
@@ -142,37 +155,29 @@ def decided_share(case) -> float:
     return min(1.0, DECIDED_AFTER * run.decided_shear_times / (S * run.t_end))
 
 
-def _plan(study: Study, seconds: Callable, step_seconds: Callable) -> Plan:
-    if study.mode == "grid":
-        stages = (Stage("grid", tuple(seconds(c.case) for c in study.cases)),)
-        units = 1
-    elif study.mode == "search":
-        stages, units = _search_stages(study, seconds), len(study.searches)
-    else:
-        stages, units = _refine_stages(study, seconds), len(study.refinements)
-    used = {}
-    for case in _sample_cases(study):
-        low, high = used.get(case.numerics.N, (math.inf, 0.0))
-        s = step_seconds(case)
-        used[case.numerics.N] = (min(low, s), max(high, s))
-    return Plan(study.name, study.mode, stages, used, study.base.run.until_decided, units)
-
-
-def _sample_cases(study: Study):
+def _first_cases(study: Study) -> list:
+    """The cases of the first stage, search by search (refinement by refinement): every case of
+    a grid, the start of each search's range, each refinement's coarse grid."""
     if study.mode == "grid":
         return [c.case for c in study.cases]
     if study.mode == "search":
         return [study.search_case(i, s, "plan").case for i in range(len(study.searches))
                 for s in start_rates(study.search)]
-    settings = study.refine_settings
     return [study.refine_case(i, x, y, "plan").case for i in range(len(study.refinements))
-            for x, y in coarse_points(settings)]
+            for x, y in coarse_points(study.refine_settings)]
 
 
-def _search_stages(study: Study, seconds) -> tuple:
+def _stages(study: Study, first: list, seconds: Callable) -> tuple:
+    known = tuple(seconds(case) for case in first)
+    if study.mode == "grid":
+        return (Stage("grid", known),)
+    if study.mode == "search":
+        return _search_stages(study, known, seconds)
+    return _refine_stages(study, known)
+
+
+def _search_stages(study: Study, first: tuple, seconds) -> tuple:
     search = study.search
-    first = tuple(seconds(study.search_case(i, s, "plan").case)
-                  for i in range(len(study.searches)) for s in start_rates(search))
     most = min(search.cases_needed(), search.max_cases)
     later_rounds = math.ceil((most - search.points - 1) / search.points)
     if later_rounds <= 0:
@@ -185,16 +190,14 @@ def _search_stages(study: Study, seconds) -> tuple:
     return Stage("start", first), Stage("splits", later, later_rounds)
 
 
-def _refine_stages(study: Study, seconds) -> tuple:
+def _refine_stages(study: Study, first: tuple) -> tuple:
     settings = study.refine_settings
-    points = coarse_points(settings)
-    first = tuple(seconds(study.refine_case(i, x, y, "plan").case)
-                  for i in range(len(study.refinements)) for x, y in points)
-    spare = settings.max_cases - len(points)
+    n = len(coarse_points(settings))
+    spare = settings.max_cases - n
     rounds = min(settings.stages_needed() - 1, spare)
     if rounds <= 0:
         return (Stage("coarse grid", first),)
-    n = len(points)             # the budget left, spread evenly over the splits, at each refinement's mean
+    # the budget left, spread evenly over the splits, at each refinement's mean
     mean = [sum(first[i * n:(i + 1) * n]) / n for i in range(len(study.refinements))]
     each, more = divmod(spare, rounds)
     stages = [Stage("coarse grid", first)]

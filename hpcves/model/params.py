@@ -316,20 +316,27 @@ class Case:
         return max(1, round(self.run.t_end / self.numerics.dt))
 
     @property
-    def estimated_steps(self) -> float:
-        """Steps the run will take: n_steps, or for an adaptive run a guess (for ordering work
-        and for ``hpcves campaign --plan``).
+    def settled_step(self) -> float:
+        """The step the run takes once past its start: dt, or for an adaptive run a guess.
 
         Steps never cross sample times, and the accurate step shrinks about as 1 / S and
         as rtol^(1/3) (docs/numerics.md, "Planning a campaign": 2.0-2.4 times the steps for
         rtol = 1e-3 as for 1e-2), so the guess is
-        t_end / min(sample_interval, dt_max, 0.05 (rtol / 0.01)^(1/3) / S).
+        min(sample_interval, dt_max, 0.05 (rtol / 0.01)^(1/3) / S).
         """
         if not self.numerics.adaptive:
-            return float(self.n_steps)
+            return self.numerics.dt
         S = max(self.physics.shear_rate, 1.0)
-        settled = 0.05 * (self.numerics.rtol / 0.01) ** (1.0 / 3.0) / S
-        return self.run.t_end / min(self.run.sample_interval, self.numerics.dt_max, settled)
+        accurate = 0.05 * (self.numerics.rtol / 0.01) ** (1.0 / 3.0) / S
+        return min(self.run.sample_interval, self.numerics.dt_max, accurate)
+
+    @property
+    def estimated_steps(self) -> float:
+        """Steps the run will take: n_steps, or for an adaptive run t_end / :attr:`settled_step`
+        (for ordering work and for ``hpcves campaign --plan``)."""
+        if not self.numerics.adaptive:
+            return float(self.n_steps)
+        return self.run.t_end / self.settled_step
 
     def every(self, interval: float) -> int:
         """An interval in simulated time as a whole number of steps (>= 1)."""

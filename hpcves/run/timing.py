@@ -19,16 +19,15 @@ def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
     ``steps`` steps into scratch files (each run's wall leaves out its set-up; the fewest, as
     a shared machine only ever adds time). Samples and snapshots are written as in a campaign.
 
-    The runs take fixed steps of the size the case is expected to settle at (t_end over
-    ``Case.estimated_steps``): an adaptive run's first steps are tiny, so they sample far
+    The runs take fixed steps of the size the case is expected to settle at
+    (``Case.settled_step``): an adaptive run's first steps are tiny, so they sample far
     less often than the long stretch at the settled step that makes up a run. A run that
     stops early is timed over what it ran. Call it once first on a throw-away case if
     nothing ran in this process yet (:class:`StepCost` does): the first run pays for
     loading libraries and planning FFTs."""
     from hpcves.run.casefile import create_case_file, run_file
 
-    dt = case.run.t_end / case.estimated_steps
-    numerics = dataclasses.replace(case.numerics, dt=dt, rtol=None)
+    numerics = dataclasses.replace(case.numerics, dt=case.settled_step, rtol=None)
     case = dataclasses.replace(case, numerics=numerics, run=dataclasses.replace(case.run, until_decided=False))
     best = float("inf")
     with tempfile.TemporaryDirectory(prefix="hpcves-timing-") as scratch:
@@ -55,7 +54,7 @@ class StepCost:
     @staticmethod
     def kind_of(case: Case) -> tuple:
         """(N, homogeneous, samples per step, snapshots per step), the shares to 2 digits."""
-        dt = case.run.t_end / case.estimated_steps
+        dt = case.settled_step
         share = lambda interval: float(f"{min(1.0, dt / interval):.2g}")       # noqa: E731
         return (case.numerics.N, case.physics.homogeneous, share(case.run.sample_interval),
                 share(case.run.snapshot_interval))
