@@ -105,8 +105,9 @@ B2 = [0.1, 0.8]
     settings = study.refine_settings
     assert estimate.units == 2 and estimate.first.cases == 2 * 9
     assert estimate.cases == 2 * 40                            # at most: the budget of each refinement
-    # the widest coarse interval on either axis: S from 10 to 40 is log 4 = 14.5 tolerances, 4 halvings
-    assert sum(s.rounds for s in estimate.stages[1:]) == settings.stages_needed() - 1 == 4
+    # the widest coarse interval on each axis, one after the other: S from 10 to 40 is log 4 = 14.5
+    # tolerances, 4 halvings; psi_bar from 0.3 to 0.5 is 4 tolerances, 2 halvings
+    assert sum(s.rounds for s in estimate.stages[1:]) == settings.stages_needed() - 1 == 4 + 2
     assert estimate.widest == 18 and estimate.suggested_ranks() <= 18   # later widths are not known
 
 

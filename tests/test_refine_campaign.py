@@ -148,11 +148,22 @@ def test_analyze_writes_the_boundaries_as_polylines_on_the_phase_diagram(refined
     ("[refine]\ntolerance = { B2 = 0.1 }\n", "tolerance for B2, which is not an axis"),
     ("[refine]\nmax_cases = 3\n", "fewer than the 4 points of the coarse grid"),
     ("[refine]\nbudget = 3\n", "unknown key budget"),
+    ("[refine]\nstraight_span = 0.5\n", "straight_span = 0.5: must be >= 1"),
+    ("[refine]\nstraight_span = \"long\"\n", "straight_span"),
     ("[refine]\n[search]\nlow = 1.0\nhigh = 2.0\n", "give one"),
 ])
 def test_bad_refine_tables_are_refused(table, message):
     with pytest.raises(ConfigError, match=message):
         study_from_toml("[sweep]\nshear_rate = [10.0, 100.0]\npsi_bar = [0.3, 0.5]\n" + table)
+
+
+def test_the_straight_span_is_part_of_the_fingerprint_and_1_is_that_of_files_from_before_it():
+    base = "[sweep]\nshear_rate = [10.0, 100.0]\npsi_bar = [0.3, 0.5]\n[refine]\n"
+    default, quadtree, same = (study_from_toml(base + extra).fingerprint
+                               for extra in ("", "straight_span = 1\n", "straight_span = 4\n"))
+    assert default == same and default != quadtree
+    # what the version before the key (a quadtree) wrote for this study: such files resume with 1
+    assert quadtree == "1c9577def711829504cb056c9951399787ffbcc8cf99f82e34db4b3801baed90"
 
 
 def test_a_refine_axis_with_one_value_is_refused():

@@ -9,21 +9,32 @@ asks for the same points in every run.
   a linear one (psi_bar, Delta, B2); tolerances are widths in u (log(1 + rel) for
   a relative one).
 * Start: the coarse grid, every pair of its x and y values.
-* Cells: the rectangles of the coarse grid, each split in two along every axis on
-  which it is wider than its tolerance (a quadtree), as long as it is **mixed**:
+* Cells: the rectangles of the coarse grid, split in two while they are **mixed**:
   the outcomes at the known points on it (its corners, the points that its
   neighbours' splits put on its edges, any inside it) are not all one regime of
   TT, PT, TU -- two regimes, or one point undecided, failed or at the model's
-  limit. A split asks for the new corners (edge midpoints and centre, in u); once
-  they are known its halves are refined the same way.
-* Stop when no mixed cell is wider than the tolerance (``converged``: every
-  boundary bracketed to it), or when ``max_cases`` points are spent (``budget
+  limit. A mixed cell is split along an axis on which it is wider than its
+  tolerance when an edge along that axis **changes** (two neighbouring known
+  points on it differ, or one is not TT, PT or TU): a boundary crosses that edge
+  and must be bracketed on it. A boundary that enters and leaves a cell through
+  its two opposite edges along the other axis needs no split along this one;
+  it is taken as straight across the cell as long as the cell is at most
+  ``straight_span`` tolerances wide along it (default 4; 1 splits every mixed
+  cell along every wide axis, a quadtree). Where the boundary turns by more
+  than a tolerance across a cell, the split puts points of different outcomes
+  on the new middle edge, which then changes, and the halves split along it too.
+  A split asks for the new corners (edge midpoints, and the centre when it
+  splits both ways, in u); once they are known its halves are refined the same way.
+* Stop when no mixed cell needs a split (``converged``: every crossing
+  bracketed to the tolerances), or when ``max_cases`` points are spent (``budget
   spent``: the widest mixed cells are split first, so the budget goes where
   the brackets are widest).
 
 What it cannot see: a region that falls between the points of a cell whose
 known outcomes all agree (an island smaller than a coarse cell that no coarse
-point hits). The coarse grid sets the smallest feature that is found.
+point hits): the coarse grid sets the smallest feature that is found; and along
+a boundary, a bulge narrower than ``straight_span`` tolerances between two
+crossings at the same height.
 
 The boundary (:func:`boundary`) is read off the finest cells: every cell edge
 whose two ends have different outcomes brackets a crossing, located at the
@@ -82,11 +93,12 @@ def _halvings(width: float, tolerance: float) -> int:
 
 @dataclass(frozen=True)
 class RefineSettings:
-    """The plane, the tolerances and the budget of one refinement."""
+    """The plane, the tolerances, the budget of one refinement, and how far a boundary is taken as straight."""
 
     x: Axis
     y: Axis
     max_cases: int = 200
+    straight_span: float = 4.0    # widest a cell stays along a boundary that crosses it, in tolerances
 
     def __post_init__(self):
         if self.x.key == self.y.key:
@@ -95,6 +107,9 @@ class RefineSettings:
         if self.max_cases < coarse:
             raise ConfigError(f"refine.max_cases = {self.max_cases}: fewer than the {coarse} points of the "
                               "coarse grid")
+        if not self.straight_span >= 1:
+            raise ConfigError(f"refine.straight_span = {self.straight_span}: must be >= 1 (1: every mixed cell "
+                              "is split to the tolerances both ways)")
 
     def log_keys(self) -> tuple:
         """The parameters of the plane on a log scale."""
@@ -105,10 +120,12 @@ class RefineSettings:
         return self.x.full_grid_points() * self.y.full_grid_points()
 
     def stages_needed(self) -> int:
-        """Stages a refinement takes at most: the coarse grid, then one per halving of its widest
-        coarse interval (a split halves a mixed cell along every axis still wider than its tolerance)."""
-        return 1 + max(_halvings(a.u(hi) - a.u(lo), a.tolerance)
-                       for a in (self.x, self.y) for lo, hi in zip(a.values, a.values[1:]))
+        """Stages a refinement takes, about: the coarse grid, then one per halving of a coarse cell on
+        the way to its finest cells -- along both axes for a quadtree (``straight_span = 1``), one after
+        the other otherwise (a cell splits along a boundary only once the boundary shows it turns)."""
+        halvings = [max(_halvings(a.u(hi) - a.u(lo), a.tolerance) for lo, hi in zip(a.values, a.values[1:]))
+                    for a in (self.x, self.y)]
+        return 1 + (max(halvings) if self.straight_span == 1 else sum(halvings))
 
 
 @dataclass(frozen=True)
@@ -123,14 +140,18 @@ class Cell:
     def corners(self, settings: RefineSettings) -> tuple:
         return tuple(point(settings, x, y) for x in (self.x0, self.x1) for y in (self.y0, self.y1))
 
-    def splits(self, settings: RefineSettings) -> tuple[bool, bool]:
-        """Along which axes the cell is wider than its tolerance."""
-        return (self.x1 - self.x0 > settings.x.tolerance * (1 + 1e-9),
-                self.y1 - self.y0 > settings.y.tolerance * (1 + 1e-9))
+    def wide(self, settings: RefineSettings, tolerances: float = 1.0) -> tuple[bool, bool]:
+        """Along which axes the cell is wider than ``tolerances`` times its tolerance."""
+        return (self.x1 - self.x0 > tolerances * settings.x.tolerance * (1 + 1e-9),
+                self.y1 - self.y0 > tolerances * settings.y.tolerance * (1 + 1e-9))
 
-    def halves(self, settings: RefineSettings) -> tuple:
-        """The cells it splits into (2 or 4), and the new points that split needs."""
-        split_x, split_y = self.splits(settings)
+    def edges(self) -> tuple:
+        """((the two edges along x), (the two along y)), each as its two ends in u."""
+        return ((((self.x0, self.y0), (self.x1, self.y0)), ((self.x0, self.y1), (self.x1, self.y1))),
+                (((self.x0, self.y0), (self.x0, self.y1)), ((self.x1, self.y0), (self.x1, self.y1))))
+
+    def halves(self, split_x: bool, split_y: bool) -> tuple:
+        """The cells it splits into (2 or 4) along the axes asked for."""
         xs = (self.x0, 0.5 * (self.x0 + self.x1), self.x1) if split_x else (self.x0, self.x1)
         ys = (self.y0, 0.5 * (self.y0 + self.y1), self.y1) if split_y else (self.y0, self.y1)
         return tuple(Cell(a, b, c, d) for a, b in zip(xs, xs[1:]) for c, d in zip(ys, ys[1:]))
@@ -154,6 +175,7 @@ class RefinePlan:
         axes = ["shear_rate", "psi_bar"]               # default: the first two swept keys
         tolerance = { shear_rate = 0.1, psi_bar = 0.05 }   # relative on S, absolute otherwise
         max_cases = 150                                # per refinement (coarse grid included)
+        straight_span = 4       # a boundary crossing a cell is taken as straight over at most 4 tolerances
 
     The coarse grid is the ``[sweep]`` values of the two axes; every combination of the
     other swept keys gets a refinement of its own.
@@ -162,6 +184,7 @@ class RefinePlan:
     axes: tuple               # (x key, y key)
     tolerance: tuple          # ((key, tolerance), ...) for the two axes, in the user's terms
     max_cases: int = 200
+    straight_span: float = 4.0
 
     def settings(self, sweep: dict) -> RefineSettings:
         """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
@@ -171,12 +194,12 @@ class RefinePlan:
             log = key in LOG_KEYS
             return Axis(key, tuple(sorted(sweep[key])), math.log1p(tolerance[key]) if log else tolerance[key], log)
 
-        return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases)
+        return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases, self.straight_span)
 
     @classmethod
     def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
         """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
-        refuse_unknown(values, ("axes", "tolerance", "max_cases"), where)
+        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span"), where)
         swept = [k for k, v in sweep.items() if len(v) > 1]
         axes = values.get("axes", swept[:2])
         if (not isinstance(axes, list | tuple) or len(axes) != 2
@@ -206,7 +229,8 @@ class RefinePlan:
                                   + (" (relative: 0.1 brackets S to 10 %)" if key in LOG_KEYS else ""))
             tolerance.append((key, value))
         max_cases = check_type("refine.max_cases", values.get("max_cases", 200), int)
-        plan = cls(tuple(axes), tuple(tolerance), max_cases)
+        straight_span = check_type("refine.straight_span", values.get("straight_span", 4.0), float)
+        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span)
         try:
             plan.settings(sweep)
         except ConfigError as exc:
@@ -269,22 +293,40 @@ def _mixed(outcomes: set) -> bool:
     return len(outcomes) > 1 or not outcomes <= set(DECIDED)
 
 
+def _changes(settings, results: dict, known: list, edge) -> bool:
+    """Whether a boundary crosses the edge: two neighbouring known points on it differ, or one is
+    not TT, PT or TU."""
+    return any(results[p] != results[q] or results[p] not in DECIDED
+               for p, q in _edge_pieces(settings, known, *edge))
+
+
+def _splits(cell: Cell, settings: RefineSettings, results: dict, known: list) -> tuple[bool, bool]:
+    """Along which axes a mixed cell is split: where it is wider than the tolerance and an edge along
+    that axis changes, or it is wider than straight_span tolerances."""
+    wide = cell.wide(settings)
+    too_long = cell.wide(settings, settings.straight_span)
+    return tuple(w and (long or any(_changes(settings, results, known, e) for e in edges))
+                 for w, long, edges in zip(wide, too_long, cell.edges()))
+
+
 def _mixed_leaves(settings: RefineSettings, results: dict):
-    """(the finest mixed cells, [(size, cell, its split's points)] for the mixed cells still too wide
-    whose split has points not yet run)."""
-    known = [(ux, uy, results[p]) for ux, uy, p in _coordinates(settings, results)]
+    """(the finest mixed cells, [(size, cell, its split's points)] for the mixed cells that need a
+    split whose points have not all been run)."""
+    known = _coordinates(settings, results)
+    outcomes = [(ux, uy, results[p]) for ux, uy, p in known]
     xs = [settings.x.u(v) for v in settings.x.values]
     ys = [settings.y.u(v) for v in settings.y.values]
     todo = [Cell(a, b, c, d) for a, b in zip(xs, xs[1:]) for c, d in zip(ys, ys[1:])]
     leaves, wanted = [], []
     while todo:
         cell = todo.pop()
-        if not _mixed(_outcomes_on(cell, settings, known)):
+        if not _mixed(_outcomes_on(cell, settings, outcomes)):
             continue
-        if not any(cell.splits(settings)):
+        splits = _splits(cell, settings, results, known)
+        if not any(splits):
             leaves.append(cell)
             continue
-        halves = cell.halves(settings)
+        halves = cell.halves(*splits)
         needed = sorted({p for half in halves for p in half.corners(settings)} - set(results))
         if needed:
             leaves.append(cell)
@@ -324,9 +366,8 @@ def _crossings(settings, results, cells):
     found, per_cell = {}, []
     for cell in cells:
         mine = []
-        for (ax, ay), (bx, by) in (((cell.x0, cell.y0), (cell.x1, cell.y0)), ((cell.x0, cell.y1), (cell.x1, cell.y1)),
-                                   ((cell.x0, cell.y0), (cell.x0, cell.y1)), ((cell.x1, cell.y0), (cell.x1, cell.y1))):
-            for a, b in _edge_pieces(settings, known, (ax, ay), (bx, by)):
+        for edge in (e for along in cell.edges() for e in along):
+            for a, b in _edge_pieces(settings, known, *edge):
                 ra, rb = results[a], results[b]
                 if ra == rb:
                     continue

@@ -46,6 +46,7 @@ swept parameters (refine.py, docs/analysis.md)::
     axes = ["shear_rate", "psi_bar"]                  # default: the first two swept keys
     tolerance = { shear_rate = 0.1, psi_bar = 0.05 }  # relative on S, absolute on the others
     max_cases = 150                                   # per refinement
+    straight_span = 4                                 # along a boundary, cells up to 4 tolerances wide
 
 The ``[sweep]`` values of the two axes are the coarse grid; every combination
 of the other swept keys is a refinement of its own. Cases are made stage by
@@ -147,6 +148,8 @@ class Study:
         """
         if self.refine is not None:          # not max_cases: a refinement continues with a larger budget
             plan = {k: v for k, v in dataclasses.asdict(self.refine).items() if k != "max_cases"}
+            if plan["straight_span"] == 1:   # the quadtree: as files made before the key existed
+                del plan["straight_span"]
             payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
                        "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
                        "refine": plan, "analysis": dataclasses.asdict(self.analysis)}

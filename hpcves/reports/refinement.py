@@ -68,9 +68,13 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
     keys = list(study.refinements[0])
     text = [f"# Regime boundaries of {name!r}\n",
             f"Refined over {LABELS.get(x.key, x.key)} x {LABELS.get(y.key, y.key)} from a coarse grid of "
-            f"{len(x.values)} x {len(y.values)} points, splitting every mixed cell until it is within "
-            f"{tol(x)} in {LABELS.get(x.key, x.key)} and {tol(y)} in {LABELS.get(y.key, y.key)} "
-            f"(at most {settings.max_cases} cases per refinement). A crossing lies between two cases of "
+            f"{len(x.values)} x {len(y.values)} points, splitting every mixed cell until every crossing is "
+            f"bracketed to {tol(x)} in {LABELS.get(x.key, x.key)} and {tol(y)} in {LABELS.get(y.key, y.key)} "
+            f"(at most {settings.max_cases} cases per refinement)"
+            + (". " if settings.straight_span == 1 else
+               f"; a boundary that crosses a cell from side to side is taken as straight over at most "
+               f"{settings.straight_span:g} tolerances along it (refine.straight_span). ")
+            + "A crossing lies between two cases of "
             "different outcomes, on the edge of a finest cell; it is blurry when one of them is undecided, "
             "failed or at the model's limit. The full grid is the regular grid that brackets every boundary "
             "to the same tolerances everywhere. boundaries.csv holds the polylines.\n"]
