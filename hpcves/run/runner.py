@@ -1,5 +1,12 @@
 """Drive one case: step, sample, snapshot, checkpoint, stop cleanly.
 
+The loop is short: take the state's rates, its sample when one is due, check
+its health; then hand the state to a list of **cadences** in order -- each a
+small object with ``due(moment)`` and a call that may end the run (as Dedalus's
+evaluator runs its handlers): Checkpoints, Interruption, Samples, Snapshots,
+Decisions (run.until_decided), End, SampleFlush, Ticks (the progress display);
+then step.
+
 Everything here is deterministic in the state -- samples, snapshots and
 checkpoints when the clock (schedule.py: whole steps for a fixed dt, simulated
 time for an adaptive one) says so, plus extra checkpoints on a wall-clock timer
@@ -132,111 +139,236 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis) ->
     if state is None:
         state = solver.initial_state()
         store.truncate(0, 0)
-    deciding = case.run.until_decided
-    if deciding:          # what the decisions read: every sample so far (the same numbers after a resume)
-        recorded = store.timeseries()
-        history = {name: list(recorded[name]) for name in decision.SERIES}
-    store.set_decision(*checkpoint_module.NOT_DECIDED)
-
     clock = schedule.clock(case)
-    wall_interval = case.run.checkpoint_wall
-
+    record = _Record(store, flush, solver, state.step, wall_before)
+    samples = Samples(record)
+    cadences = [Checkpoints(record, clock, case.run.checkpoint_wall), Interruption(record), samples,
+                Snapshots(record, clock)]
+    if case.run.until_decided:
+        cadences.append(Decisions(record, analysis))
+    store.set_decision(*checkpoint_module.NOT_DECIDED)
+    cadences += [End(record), SampleFlush(record)]
+    if progress is not None:
+        cadences.append(Ticks(record, clock, progress, state, samples))
     store.set_status(RUNNING, "", "")
     flush()
-    start_wall = last_checkpoint_wall = last_flush_wall = last_tick = time.perf_counter()
-    start_step, start_fraction = state.step, clock.fraction(state)
-    rows: list[dict] = []
-    theta_now = np.nan
     last_correction = 0.0          # relative area correction made by the last step
-
-    def write_rows(s: State | None = None):
-        """Write buffered samples (and, given the current state, the progress)."""
-        nonlocal last_flush_wall
-        store.append_samples(rows)
-        rows.clear()
-        last_flush_wall = time.perf_counter()
-        if s is not None:
-            store.set_progress(*_progress(s, last_flush_wall))
-
-    def _progress(s: State, now: float):
-        wall = now - start_wall
-        rate = (s.step - start_step) / wall if wall > 0 else 0.0
-        return solver.time(s), case.run.t_end, wall_before + wall, rate
-
-    def checkpoint(s: State):
-        nonlocal last_checkpoint_wall
-        write_rows(s)
-        store.write_checkpoint(s, flush)
-        last_checkpoint_wall = time.perf_counter()
-
-    def finish(status, message, s):
-        now = time.perf_counter()
-        store.set_progress(*_progress(s, now))
-        store.set_status(status, message)
-        flush()
-        if status == FINISHED:
-            faults.point("finished")
-        return Outcome(status, message, solver.time(s), s.step - start_step, now - start_wall)
-
     try:
         while True:
-            n = state.step
             rates = solver.rates(state)
             row = diagnostics.sample(solver, state, rates) if clock.sample_due(state) else None
             verdict = diagnostics.health(solver, state, row, last_correction)
             if not verdict.ok:
                 if row is not None:
-                    rows.append(row)
+                    record.rows.append(row)
                 raise (UnderResolved if verdict.under_resolved else Diverged)(verdict.reason)
-            # State n is sound. A checkpoint of it counts only what was recorded
-            # *before* it, so a resumed run records state n again, once.
-            now = time.perf_counter()
-            done = clock.done(state)
-            stop = stop_requested() or (max_steps is not None and n - start_step >= max_steps)
-            if n > start_step and (stop or done or clock.checkpoint_due(state)
-                                   or (wall_interval > 0 and now - last_checkpoint_wall >= wall_interval)):
-                checkpoint(state)
-            if stop and not done:
-                return finish(INTERRUPTED, f"stopped at t = {solver.time(state):.6g}; resume to continue",
-                              state)
-            if row is not None:
-                rows.append(row)
-                theta_now = row["theta"]
-            if clock.snapshot_due(state):
-                store.append_snapshot(diagnostics.snapshot(solver, state, rates))
-            if deciding and row is not None:
-                for name in decision.SERIES:
-                    history[name].append(row[name])
-                if len(history["t"]) % case.run.decision_samples == 0:
-                    decided = decision.decide({name: np.asarray(v) for name, v in history.items()},
-                                              case.physics.shear_rate, case.run, analysis)
-                    if decided is not None:
-                        write_rows()
-                        store.set_decision(decision.CODES[decided.regime], state.t, state.step)
-                        return finish(FINISHED, decided.message(), state)
-            if done:
-                write_rows()
-                return finish(FINISHED, "", state)
-            if len(rows) >= SAMPLE_BUFFER_ROWS or now - last_flush_wall >= SAMPLE_FLUSH_SECONDS:
-                write_rows(state)
-                flush()
-            if progress is not None and now - last_tick >= 0.5:
-                last_tick = now
-                rate = (n - start_step) / (now - start_wall) if now > start_wall else 0.0
-                done_fraction = clock.fraction(state)
-                pace = (done_fraction - start_fraction) / (now - start_wall) if now > start_wall else 0.0
-                eta = (1.0 - done_fraction) / pace if pace > 0 else float("inf")
-                progress(Tick(solver.time(state), case.run.t_end, rate, eta, theta_now))
+            # State n is sound: the cadences act on it, in order, until one ends the run.
+            moment = Moment(state, rates, row, time.perf_counter(), clock.done(state),
+                            stop_requested() or (max_steps is not None and state.step - record.start_step >= max_steps))
+            for cadence in cadences:
+                if cadence.due(moment) and (ended := cadence(moment)) is not None:
+                    return ended
             before = state.area_correction
             state, _ = clock.take_step(solver, state, rates)
             last_correction = state.area_correction - before
     except (Diverged, TensionSolveError, ArithmeticError, FloatingPointError) as exc:
-        write_rows()
+        record.write_rows()
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
         what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"
         limit = "" if case.physics.homogeneous else beyond_model(state, case.physics.bending_law)
         if limit:
-            return finish(MODEL_LIMIT, f"{MODEL_LIMIT_PREFIX}{limit}{STOPPED_BY}{what}: {reason} ({kept})", state)
-        return finish(FAILED, f"{what}: {reason} ({kept})", state)
+            return record.finish(MODEL_LIMIT, f"{MODEL_LIMIT_PREFIX}{limit}{STOPPED_BY}{what}: {reason} ({kept})",
+                                 state)
+        return record.finish(FAILED, f"{what}: {reason} ({kept})", state)
+
+
+# ---------------------------------------------------------------------- the cadences
+@dataclass(frozen=True)
+class Moment:
+    """What the cadences read about state n, once it is known to be sound."""
+
+    state: State
+    rates: object              # the solver's rates at the state (its snapshot reads them)
+    row: dict | None           # the state's sample, when one is due
+    wall: float                # time.perf_counter() then
+    done: bool                 # the end time is reached
+    stop: bool                 # a stop was asked for (a signal, or max_steps in this call)
+
+
+class _Record:
+    """What one call of run writes besides the checkpoints: buffered samples, the progress
+    numbers (t, t_end, wall, steps per second), the final status."""
+
+    def __init__(self, store: CaseStore, flush: Callable[[], None], solver: Solver, start_step: int,
+                 wall_before: float):
+        self.store, self.flush, self.solver = store, flush, solver
+        self.start_step, self.wall_before = start_step, wall_before
+        self.rows: list[dict] = []
+        self.start_wall = self.last_flush_wall = time.perf_counter()
+
+    def write_rows(self, state: State | None = None):
+        """Write the buffered samples (and, given the current state, the progress)."""
+        self.store.append_samples(self.rows)
+        self.rows.clear()
+        self.last_flush_wall = time.perf_counter()
+        if state is not None:
+            self.store.set_progress(*self.progress(state, self.last_flush_wall))
+
+    def progress(self, state: State, now: float) -> tuple:
+        wall = now - self.start_wall
+        rate = (state.step - self.start_step) / wall if wall > 0 else 0.0
+        return self.solver.time(state), self.store.case.run.t_end, self.wall_before + wall, rate
+
+    def finish(self, status: int, message: str, state: State) -> Outcome:
+        now = time.perf_counter()
+        self.store.set_progress(*self.progress(state, now))
+        self.store.set_status(status, message)
+        self.flush()
+        if status == FINISHED:
+            faults.point("finished")
+        return Outcome(status, message, self.solver.time(state), state.step - self.start_step,
+                       now - self.start_wall)
+
+
+class Checkpoints:
+    """State n written whole on the clock's checkpoint grid, every run.checkpoint_wall seconds, at a
+    stop and at the end -- never the state a call starts from (it is on file). A checkpoint of state
+    n counts only what was recorded *before* it, so a run resumed from it records state n again, once."""
+
+    def __init__(self, record: _Record, clock, wall_interval: float):
+        self.record, self.clock, self.wall_interval = record, clock, wall_interval
+        self.last_wall = record.start_wall
+
+    def due(self, m: Moment) -> bool:
+        return m.state.step > self.record.start_step and (
+            m.stop or m.done or self.clock.checkpoint_due(m.state)
+            or (self.wall_interval > 0 and m.wall - self.last_wall >= self.wall_interval))
+
+    def __call__(self, m: Moment):
+        self.record.write_rows(m.state)
+        self.record.store.write_checkpoint(m.state, self.record.flush)
+        self.last_wall = time.perf_counter()
+
+
+class Interruption:
+    """A stop before the end: INTERRUPTED, to be resumed (Checkpoints has just written the state)."""
+
+    def __init__(self, record: _Record):
+        self.record = record
+
+    def due(self, m: Moment) -> bool:
+        return m.stop and not m.done
+
+    def __call__(self, m: Moment) -> Outcome:
+        t = self.record.solver.time(m.state)
+        return self.record.finish(INTERRUPTED, f"stopped at t = {t:.6g}; resume to continue", m.state)
+
+
+class Samples:
+    """The state's sample into the buffer (SampleFlush writes it out)."""
+
+    def __init__(self, record: _Record):
+        self.record = record
+        self.theta = np.nan          # the latest sample's theta, for the progress line
+
+    def due(self, m: Moment) -> bool:
+        return m.row is not None
+
+    def __call__(self, m: Moment):
+        self.record.rows.append(m.row)
+        self.theta = m.row["theta"]
+
+
+class Snapshots:
+    """The state's fields (snapshots group) on the clock's snapshot grid."""
+
+    def __init__(self, record: _Record, clock):
+        self.record, self.clock = record, clock
+
+    def due(self, m: Moment) -> bool:
+        return self.clock.snapshot_due(m.state)
+
+    def __call__(self, m: Moment):
+        self.record.store.append_snapshot(diagnostics.snapshot(self.record.solver, m.state, m.rates))
+
+
+class Decisions:
+    """run.until_decided: every run.decision_samples samples, classify the whole record so far
+    (decision.py, thresholds ``analysis``) and end the run FINISHED once it is decided. It reads
+    every sample from the start, on file or new: the same numbers after a resume."""
+
+    def __init__(self, record: _Record, analysis: AnalysisSettings):
+        self.record, self.analysis = record, analysis
+        recorded = record.store.timeseries()
+        self.history = {name: list(recorded[name]) for name in decision.SERIES}
+
+    def due(self, m: Moment) -> bool:
+        return m.row is not None
+
+    def __call__(self, m: Moment) -> Outcome | None:
+        for name in decision.SERIES:
+            self.history[name].append(m.row[name])
+        case = self.record.store.case
+        if len(self.history["t"]) % case.run.decision_samples:
+            return None
+        decided = decision.decide({name: np.asarray(v) for name, v in self.history.items()},
+                                  case.physics.shear_rate, case.run, self.analysis)
+        if decided is None:
+            return None
+        self.record.write_rows()
+        self.record.store.set_decision(decision.CODES[decided.regime], m.state.t, m.state.step)
+        return self.record.finish(FINISHED, decided.message(), m.state)
+
+
+class End:
+    """The end time: the last samples out, FINISHED."""
+
+    def __init__(self, record: _Record):
+        self.record = record
+
+    def due(self, m: Moment) -> bool:
+        return m.done
+
+    def __call__(self, m: Moment) -> Outcome:
+        self.record.write_rows()
+        return self.record.finish(FINISHED, "", m.state)
+
+
+class SampleFlush:
+    """The buffered samples and the progress to the file when SAMPLE_BUFFER_ROWS have gathered or
+    SAMPLE_FLUSH_SECONDS have passed, so that a running case can be watched."""
+
+    def __init__(self, record: _Record):
+        self.record = record
+
+    def due(self, m: Moment) -> bool:
+        return (len(self.record.rows) >= SAMPLE_BUFFER_ROWS
+                or m.wall - self.record.last_flush_wall >= SAMPLE_FLUSH_SECONDS)
+
+    def __call__(self, m: Moment):
+        self.record.write_rows(m.state)
+        self.record.flush()
+
+
+class Ticks:
+    """A Tick for the progress display every half second of wall time."""
+
+    def __init__(self, record: _Record, clock, progress: Callable[[Tick], None], start: State, samples: Samples):
+        self.record, self.clock, self.progress, self.samples = record, clock, progress, samples
+        self.last = record.start_wall
+        self.start_fraction = clock.fraction(start)
+
+    def due(self, m: Moment) -> bool:
+        return m.wall - self.last >= 0.5
+
+    def __call__(self, m: Moment):
+        self.last = now = m.wall
+        elapsed = now - self.record.start_wall
+        rate = (m.state.step - self.record.start_step) / elapsed if elapsed > 0 else 0.0
+        fraction = self.clock.fraction(m.state)
+        pace = (fraction - self.start_fraction) / elapsed if elapsed > 0 else 0.0
+        eta = (1.0 - fraction) / pace if pace > 0 else float("inf")
+        self.progress(Tick(self.record.solver.time(m.state), self.record.store.case.run.t_end, rate, eta,
+                           self.samples.theta))
