@@ -15,6 +15,7 @@ import pytest
 from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, job_pids,
                   running_cases, start_job, thaw, wait_until)
 
+from hpcves.campaign import access
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
 from hpcves.files.lock import CampaignLock
@@ -227,10 +228,10 @@ def test_without_mpi_in_h5py_the_ranks_write_through_rank_0(monkeypatch):
         mpi = False
 
     monkeypatch.setattr(h5py, "get_config", lambda: NoMPI())
-    assert campaign_module.choose_io("auto", 2) == "relay"
-    assert campaign_module.choose_io("auto", 1) == "serial"
+    assert access.choose_io("auto", 2) == "relay"
+    assert access.choose_io("auto", 1) == "serial"
     with pytest.raises(ConfigError, match="built without MPI"):
-        campaign_module.choose_io("mpio", 2)
+        access.choose_io("mpio", 2)
 
 
 @needs_mpi

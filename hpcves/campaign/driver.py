@@ -29,7 +29,8 @@ writes to preallocated datasets, which reach the file in program order -- the
 order the checkpoint protocol needs). A search or refine stage's new cases are added
 the same way, to a copy that replaces the file. Without MPI in h5py (or with
 ``io="relay"``) only rank 0 opens the file and applies the other ranks'
-writes, which they send it in order (relay.py).
+writes, which they send it in order (relay.py). Each mode is one object with
+the same methods (access.py); the driver asks it, never tests the mode.
 
 Who writes. Every rank holds its part of the file's lock (lock.py) for the
 whole campaign, so no second campaign starts while any rank of this one
@@ -54,11 +55,13 @@ from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_
 from hpcves.campaign.file import CampaignFile
 from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
                          FileFormatError,
-                         attr_text, open_file, reading, safe_flush, storage_bytes)
+                         attr_text, open_file, reading, storage_bytes)
 from hpcves.files.lock import CampaignLock, LockError, real_path
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import AnalysisSettings
-from hpcves.campaign.relay import Relay, RemoteCampaign
+from hpcves.campaign.access import FileAccess, choose_io, file_access
+from hpcves.campaign.polling import Backoff, bcast, wait
+from hpcves.campaign.relay import Relay
 from hpcves.campaign.refine_stages import RefineDriver
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
@@ -70,7 +73,6 @@ TAG_REQUEST = 11      # worker -> rank 0: ("ready",) | ("done", CaseResult) | ("
 TAG_TASK = 12         # rank 0 -> worker: (case_id, resume) or None (no more work)
 TAG_STOP = 13         # rank 0 -> worker: checkpoint the running case and report
 TAG_REPLY = 14        # rank 0 -> worker: the answer to a file read (--io relay only)
-IO_MODES = ("auto", "mpio", "relay")
 PROGRESS_SECONDS = 2.0
 #: CaseResult.status of a case stopped because the file system refused a write (never stored in the file)
 NOT_WRITTEN = -1
@@ -102,40 +104,6 @@ class Summary:
     @property
     def exit_status(self) -> int:
         return 2 if self.not_written else 1 if self.failed else 0
-
-
-# ---------------------------------------------------------------------- helpers
-class Backoff:
-    """Sleep 1 ms, doubling to 50 ms, while there is nothing to do; reset on activity."""
-
-    def __init__(self, start=1e-3, limit=0.05):
-        self.start, self.limit, self.delay = start, limit, start
-
-    def reset(self):
-        self.delay = self.start
-
-    def sleep(self):
-        time.sleep(self.delay)
-        self.delay = min(2.0 * self.delay, self.limit)
-
-
-def wait_until(ready: Callable[[], bool]) -> None:
-    """Poll ``ready`` with a backoff until it is true (MPI's own waits keep a core spinning)."""
-    backoff = Backoff()
-    while not ready():
-        backoff.sleep()
-
-
-def wait(request) -> None:
-    """Complete a non-blocking MPI request without spinning."""
-    wait_until(request.Test)
-
-
-def bcast(comm, value, root: int = 0):
-    """``comm.bcast`` without spinning: a non-blocking barrier polled with a backoff first, so that
-    ranks waiting for rank 0's serial work (reading, copying, classifying) leave their cores alone."""
-    wait(comm.Ibarrier())
-    return comm.bcast(value, root=root)
 
 
 def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> str:
@@ -443,7 +411,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
     start = time.perf_counter()
-    io = choose_io(io, size)
+    access = file_access(choose_io(io, size), comm, TAG_REQUEST, TAG_REPLY)
     given, path = Path(path), real_path(path)         # every change goes to the file itself, not a symlink
     lock = CampaignLock(given)
     verdict = None
@@ -470,24 +438,25 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
             problems = [p for p in comm.allgather(refused if rank > 0 else "") if p]
             if problems:
                 raise LockError(problems[0])
-        return _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, display, announce,
+        return _run_locked(study, path, comm, mode, access, start, retry_failed, stop_flag, display, announce,
                            on_stage)
     finally:
         lock.release()
 
 
-def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, display, announce, on_stage):
+def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed, stop_flag, display, announce,
+                on_stage):
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
     if mode == "create":
         if rank == 0:
             announce(f"creating {path} ({len(study.cases)} cases, "
                      f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, 0)
-        _create(study, path, comm, io)
+        _create(study, path, comm, access)
         mode_seen = "create"
     else:
         mode_seen = "continue"
-    h5, campaign, flush = _open(path, comm, io)
+    h5, campaign, flush = access.open(path)
     not_written = ""
     try:
         results, outcomes = [], []
@@ -498,17 +467,13 @@ def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, dis
                 study = driver.cases_from_file(study, campaign)
         stage = 0
         while True:
-            ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, io, mode_seen, stage,
+            ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, access, mode_seen, stage,
                                                retry_failed and stage == 0, stop_flag, display, announce)
             results += ran
             not_written = not_written or refused
             if not study.staged:
                 break
-            if io == "mpio":
-                # Rank 0 is about to read the cases the others wrote: MPI-IO makes their writes
-                # visible after a sync by the writers (H5Fflush, collective) and a barrier.
-                h5.flush()
-                comm.Barrier()
+            access.sync(h5)                  # rank 0 is about to read the cases the others wrote
             plan = ("stop",)
             if rank == 0 and not stopped:
                 outcomes, new = driver.next_stage(study, campaign)
@@ -522,14 +487,14 @@ def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, dis
             if h5 is not None:
                 h5.close()
                 h5 = None
-            refused = _add_stage(path, comm, io, plan[1], stage + 1, study.source)
+            refused = _add_stage(path, comm, access, plan[1], stage + 1, study.source)
             if refused:
                 not_written = refused
                 if rank == 0:
                     log.warning("cannot add the next stage's cases: %s", refused)
-                h5, campaign, flush = _open(path, comm, io)
+                h5, campaign, flush = access.open(path)
                 break
-            h5, campaign, flush = _open(path, comm, io)
+            h5, campaign, flush = access.open(path)
             stage += 1
         summary = None
         if rank == 0:
@@ -552,8 +517,8 @@ def _run_locked(study, path, comm, mode, io, start, retry_failed, stop_flag, dis
     return summary
 
 
-def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed, stop_flag, display,
-               announce) -> tuple[list[CaseResult], bool, str]:
+def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, stage, retry_failed, stop_flag,
+               display, announce) -> tuple[list[CaseResult], bool, str]:
     """Run every unfinished case of the file on every rank: (results, whether it was stopped, why the
     file system refused a write or "") on rank 0."""
     size = 1 if comm is None else comm.Get_size()
@@ -564,11 +529,11 @@ def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed
         statuses = campaign.statuses()
         finished = sum(1 for s in statuses.values() if s == FINISHED)
         if stage == 0:
-            announce(_announcement(study, path, statuses, size, mode, io), None, finished)
+            announce(_announcement(study, path, statuses, size, mode, access), None, finished)
         if todo or not study.staged:
             announce(_stage_line(study, statuses, todo, stage), len(statuses), finished)
-        relay = Relay(campaign, flush, TAG_REPLY) if io == "relay" else None
-        master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display, relay)
+        master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display,
+                        access.relay(campaign, flush))
         results = master.run()
         stopped, refused = master.stopping, master.not_written
     else:
@@ -578,97 +543,44 @@ def _run_stage(study, path, comm, campaign, flush, io, mode, stage, retry_failed
     return results, stopped, refused
 
 
-def choose_io(io: str, size: int) -> str:
-    """The file access of a campaign on ``size`` ranks: "serial", "mpio" or "relay"."""
-    if io not in IO_MODES:
-        raise ConfigError(f"io = {io!r}: choose one of {', '.join(IO_MODES)}")
-    if size == 1:
-        return "serial"
-    import h5py
-
-    has_mpi = h5py.get_config().mpi
-    if io == "auto":
-        return "mpio" if has_mpi else "relay"
-    if io == "mpio" and not has_mpi:
-        raise ConfigError("--io mpio: this h5py was built without MPI (make setup builds one with it); "
-                          "--io relay works without")
-    return io
-
-
-def _open_h5(path: Path, mode: str, comm, io: str):
-    if io == "mpio":
-        return open_file(path, mode, driver="mpio", comm=comm)
-    return open_file(path, mode)
-
-
-def _collective_failure(comm, io: str, what: str, exc: BaseException, partial: Path | None) -> None:
-    """A rank failed inside a collective change of the file: the others may wait in HDF5 for ever, so
-    say why in one line and end the job (the file at its path is untouched: the change was a copy)."""
-    if partial is not None:
-        try:
-            partial.unlink()
-        except OSError:
-            pass
-    reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    log.error("Error: %s: %s; the file at its path is unchanged", what, reason)
-    comm.Abort(2)
-
-
-def _create(study: Study, path: Path, comm, io: str) -> None:
+def _create(study: Study, path: Path, comm, access: FileAccess) -> None:
     """Lay out the whole file under ``<path>.partial`` (collectively under mpio), then rename it to ``path``.
 
     Rank 0 first reserves the space on disk (atomic.new_partial), so that a full disk refuses
     here, before HDF5 writes anything.
     """
-    rank = 0 if comm is None else comm.Get_rank()
-    size = 1 if comm is None else comm.Get_size()
-    partial = partial_path(path)
-    failure = None
-    if rank == 0:
-        try:
-            new_partial(path, METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases),
-                        f"the campaign file ({len(study.cases)} cases, every sample and snapshot preallocated)")
-        except StorageError as exc:
-            failure = str(exc)
-    if size > 1:
-        failure = bcast(comm, failure)
-    if failure:
-        raise StorageError(failure)
-    if io != "relay" or rank == 0:
-        try:
-            h5 = _open_h5(partial, "r+", comm, io)
-            try:
-                CampaignFile.create(h5, study)
-            finally:
-                h5.close()                        # (collective under mpio) the structure is on disk
-        except (*HDF5_ERRORS, ConfigError) as exc:
-            if io == "mpio":
-                _collective_failure(comm, io, f"creating {path}", exc, partial if rank == 0 else None)
-            remove_partial(path)
-            failure = f"{path}: cannot create it ({str(exc).strip().splitlines()[0] if str(exc).strip() else exc}); " \
-                      "nothing was written"
-        if rank == 0 and failure is None:
-            try:
-                publish(partial, path)
-            except OSError as exc:
-                remove_partial(path)
-                failure = f"{path}: cannot rename {partial.name} to it ({exc.strerror})"
-    if comm is not None and comm.Get_size() > 1:
-        failure = bcast(comm, failure)
+    def reserve():
+        new_partial(path, METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases),
+                    f"the campaign file ({len(study.cases)} cases, every sample and snapshot preallocated)")
+
+    failure = _change(path, comm, access, reserve, lambda h5: CampaignFile.create(h5, study),
+                      f"creating {path}", "cannot create it", "nothing was written")
     if failure:
         raise StorageError(failure)
 
 
-def _add_stage(path: Path, comm, io: str, cases, stage: int, source: str) -> str:
+def _add_stage(path: Path, comm, access: FileAccess, cases, stage: int, source: str) -> str:
     """Add a search (refine) stage's cases to a copy of the file that then replaces it, with the
     campaign file's text ``source`` (a refinement's budget may have been raised); "" or why it could not be."""
+    def reserve():
+        copy_for_change(path, sum(storage_bytes(c.case) for c in cases), f"adding stage {stage}'s {len(cases)} cases")
+
+    return _change(path, comm, access, reserve, lambda h5: CampaignFile(h5).add_cases(cases, source),
+                   f"adding stage {stage}'s cases to {path}", f"cannot add stage {stage}'s cases",
+                   "the file is unchanged")
+
+
+def _change(path: Path, comm, access: FileAccess, reserve, change, what: str, cannot: str, after: str) -> str:
+    """A change of the file's structure, made whole or not at all: rank 0 reserves the space of
+    ``<path>.partial`` (``reserve``: a new file or a copy), the ranks that take part apply
+    ``change(h5)`` to it (collectively under mpio), and rank 0 renames it to ``path``.
+    "" or why not ("<path>: <cannot> (<reason>); <after>"), the same on every rank."""
     rank = 0 if comm is None else comm.Get_rank()
     size = 1 if comm is None else comm.Get_size()
-    partial, refused = None, ""
+    refused = ""
     if rank == 0:
         try:
-            partial = copy_for_change(path, sum(storage_bytes(c.case) for c in cases),
-                                      f"adding stage {stage}'s {len(cases)} cases")
+            reserve()
         except StorageError as exc:
             refused = str(exc)
     if size > 1:
@@ -676,67 +588,31 @@ def _add_stage(path: Path, comm, io: str, cases, stage: int, source: str) -> str
     if refused:
         return refused
     partial = partial_path(path)
-    if io != "relay" or rank == 0:
+    if access.takes_part():
         try:
-            h5 = _open_h5(partial, "r+", comm, io)
+            h5 = access.open_h5(partial, "r+")
             try:
-                CampaignFile(h5).add_cases(cases, source)
+                change(h5)
             finally:
-                h5.close()
+                h5.close()                        # (collective under mpio) the structure is on disk
         except (*HDF5_ERRORS, ConfigError) as exc:
-            if io == "mpio":
-                _collective_failure(comm, io, f"adding stage {stage}'s cases to {path}", exc,
-                                    partial if rank == 0 else None)
+            access.collective_failure(what, exc, partial)
             remove_partial(path)
-            refused = f"{path}: cannot add stage {stage}'s cases ({exc}); the file is unchanged"
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else str(exc)
+            refused = f"{path}: {cannot} ({reason}); {after}"
         if rank == 0 and not refused:
             try:
                 publish(partial, path)
             except OSError as exc:
                 remove_partial(path)
-                refused = f"{path}: cannot rename {partial.name} to it ({exc.strerror}); the file is unchanged"
+                refused = f"{path}: cannot rename {partial.name} to it ({exc.strerror}); {after}"
     if size > 1:
         refused = bcast(comm, refused)
     return refused
 
 
-def _open(path: Path, comm, io: str):
-    """(h5 or None, campaign, flush) on this rank for the existing file at ``path``.
-
-    serial: this process alone. mpio: every rank opens the file; raw writes
-    reach the file at once, in program order, so ``flush`` has nothing to do
-    (File.flush would be collective). relay: rank 0 opens it and tells the
-    others whether that worked; they get a RemoteCampaign.
-    """
-    rank = 0 if comm is None else comm.Get_rank()
-    if io == "relay" and rank > 0:
-        opened = bcast(comm, None)
-        if opened is not None:
-            raise FileFormatError(opened)
-        remote = RemoteCampaign(comm, TAG_REQUEST, TAG_REPLY, wait_until)
-        return None, remote, remote.flush
-    h5 = None
-    try:
-        h5 = _open_h5(path, "r+", comm, io)
-        campaign = CampaignFile(h5)
-    except ConfigError as exc:
-        if h5 is not None:
-            h5.close()
-        if io == "relay":
-            bcast(comm, str(exc))
-        raise
-    if io == "relay":
-        bcast(comm, None)
-    return h5, campaign, (safe_flush(h5) if io != "mpio" else _nothing)
-
-
-def _nothing() -> None:
-    pass
-
-
-def _announcement(study, path, statuses, size, mode, io) -> str:
+def _announcement(study, path, statuses, size, mode, access: FileAccess) -> str:
     """The first line of a campaign: what, where, on how many ranks."""
-    access = {"serial": "serial HDF5", "mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}[io]
     verb = "new file" if mode == "create" else "continuing"
     if study.refine:
         x, y = study.refine_settings.x, study.refine_settings.y
@@ -751,7 +627,7 @@ def _announcement(study, path, statuses, size, mode, io) -> str:
         what = (f"{n} critical-shear search{'es' * (n != 1)} over S in [{study.search.low:g}, "
                 f"{study.search.high:g}] to {study.search.rel_tol:g} (at most {study.search.max_cases} cases each), "
                 f"{len(statuses)} cases so far")
-    return f"campaign {study.name!r} -> {path} ({verb}): {what}; {size} rank{'s' * (size > 1)}, {access}"
+    return f"campaign {study.name!r} -> {path} ({verb}): {what}; {size} rank{'s' * (size > 1)}, {access.description}"
 
 
 def _stage_line(study, statuses, todo, stage) -> str:
