@@ -415,78 +415,141 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
                   tuple(refinements))
 
 
-def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,
-                   streamlines: bool = True, jobs: int = 1):
-    """The tables and figures of an analysis into ``out``: (paths written, critical_shear rows,
-    refinement rows)."""
-    from hpcves.reports import plots
+@dataclass(frozen=True)
+class Findings:
+    """What the writers of an analysis draw on: the classified rows and what is derived from them."""
 
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
+    source: Source
+    rows: list
+    x_key: str                  # the axes of the phase diagrams
+    y_key: str
+    others: list                # the other swept keys: one facet per combination
+    searches: list              # critical-shear rows (search campaigns)
+    refined: list               # RefineOutcome of every refinement (refine campaigns)
+    study: object = None        # the Study of a refine campaign
+    lines: list = ()            # boundaries.csv rows (refine campaigns)
 
-    write_csv(rows, out / "regimes.csv")
-    (out / "regimes.md").write_text(regimes_markdown(source, rows))
-    written += [out / "regimes.csv", out / "regimes.md"]
+    @property
+    def diagrams(self) -> bool:
+        """Whether there is a plane to draw: a campaign of several cases."""
+        return self.source.kind == "campaign" and len(self.rows) > 1
 
-    refined, lines = None, []
+
+def findings(source: Source, rows: list[dict], axes=None) -> Findings:
+    """The critical shear rates of a search, the boundaries of a refinement, the diagram's axes."""
+    study, refined, lines = None, [], []
     if source.mode == "refine":
         study, refined = rc.source_outcomes(source, rows)
         lines = rc.boundary_rows(study, refined)
-        write_rows([o.row() for o in refined], rc.refinement_columns(study), out / "refinement.csv")
-        write_rows(lines, rc.boundary_columns(study), out / "boundaries.csv")
-        (out / "refinement.md").write_text(rc.refinement_markdown(source.name, study, refined, rows, source.cases))
-        written += [out / "refinement.csv", out / "boundaries.csv", out / "refinement.md"]
         axes = axes or tuple(sorted(study.refine.axes, key=lambda k: k != "shear_rate"))
     x_key, y_key, others = grid_axes(source, rows, axes)
-    searches = []
-    if source.mode == "search":
-        searches = critical_rows(source, rows)
-        write_critical_csv(searches, out / "critical_shear.csv")
-        (out / "critical_shear.md").write_text(critical_markdown(source.name, searches))
-        written += [out / "critical_shear.csv", out / "critical_shear.md"]
-        varied = [k for k in source.sweep_keys if k != "shear_rate" and len({r[k] for r in searches}) > 1]
-        if varied:
-            for fixed, subset in facets(searches, varied[1:]):
-                fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
-                    shared_parameters(subset, (varied[0], "shear_rate"))))
-                written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
-    if source.kind == "campaign" and len(rows) > 1 and source.mode == "grid":
-        tables = period_tables(rows, y_key, x_key, others)
-        text = [f"# Periods of {source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
-                "phase-treads (PT) or tumbles (TU); otherwise its regime. The uncertainty is the statistical "
-                "one plus the discretisation error of the time step; in brackets the one that dominates "
-                "(stat or dt; dt n/e: not estimated, for a fixed-step run or a tumbling case -- a tumbling "
-                "period can be 1 % off at rtol >= 1e-3, docs/error_rule.md). regimes.md has both.\n"]
-        for fixed, table in tables:
-            if fixed:
-                text.append(f"## {facet_label(fixed)}\n")
-            text.append(table + "\n")
-        (out / "periods.md").write_text("\n".join(text))
-        written.append(out / "periods.md")
-    if source.kind == "campaign" and len(rows) > 1:
-        for fixed, subset in facets(rows, others):
-            suffix = facet_suffix(fixed)
-            title = plots.parameter_text(shared_parameters(subset, (x_key, y_key)))
-            fig = plots.phase_diagram(subset, x_key, y_key, title=title, annotate_periods=source.mode == "grid",
-                                      nearest="point" if refined else "row",
-                                      log_keys=study.refine_settings.log_keys() if refined else None)
-            if searches and "shear_rate" in (x_key, y_key):
-                plots.mark_critical(fig.axes[0], [r for r in searches if all(r[k] == v for k, v in fixed.items())],
-                                    y_key if x_key == "shear_rate" else x_key, s_on_x=x_key == "shear_rate")
-            if refined and {x_key, y_key} == set(study.refine.axes):
-                plots.mark_boundaries(fig.axes[0], [r for r in lines if all(r[k] == v for k, v in fixed.items())],
-                                      x_key, y_key)
-            written += _save(fig, out / f"phase_diagram{suffix}")
-            if source.mode == "grid":
-                written += _save(plots.period_figure(subset, y_key, x_key, title=title), out / f"periods{suffix}")
+    searches = critical_rows(source, rows) if source.mode == "search" else []
+    return Findings(source, rows, x_key, y_key, others, searches, refined, study, lines)
+
+
+def regime_tables(f: Findings, out: Path) -> list[Path]:
+    """regimes.csv and regimes.md: one row per case."""
+    write_csv(f.rows, out / "regimes.csv")
+    (out / "regimes.md").write_text(regimes_markdown(f.source, f.rows))
+    return [out / "regimes.csv", out / "regimes.md"]
+
+
+def refinement_tables(f: Findings, out: Path) -> list[Path]:
+    """refinement.csv / .md (the verdict of every refinement) and boundaries.csv (the polylines)."""
+    if not f.refined:
+        return []
+    write_rows([o.row() for o in f.refined], rc.refinement_columns(f.study), out / "refinement.csv")
+    write_rows(f.lines, rc.boundary_columns(f.study), out / "boundaries.csv")
+    (out / "refinement.md").write_text(rc.refinement_markdown(f.source.name, f.study, f.refined, f.rows,
+                                                              f.source.cases))
+    return [out / "refinement.csv", out / "boundaries.csv", out / "refinement.md"]
+
+
+def critical_shear_tables(f: Findings, out: Path) -> list[Path]:
+    """critical_shear.csv / .md: S_C of every search with its bracket."""
+    if f.source.mode != "search":
+        return []
+    write_critical_csv(f.searches, out / "critical_shear.csv")
+    (out / "critical_shear.md").write_text(critical_markdown(f.source.name, f.searches))
+    return [out / "critical_shear.csv", out / "critical_shear.md"]
+
+
+def critical_shear_figures(f: Findings, out: Path) -> list[Path]:
+    """S_C against the first parameter the searches vary, one figure per value of the others."""
+    from hpcves.reports import plots
+
+    varied = [k for k in f.source.sweep_keys if k != "shear_rate" and len({r[k] for r in f.searches}) > 1]
+    written = []
+    for fixed, subset in (facets(f.searches, varied[1:]) if varied else ()):
+        fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
+            shared_parameters(subset, (varied[0], "shear_rate"))))
+        written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
+    return written
+
+
+def period_table(f: Findings, out: Path) -> list[Path]:
+    """periods.md: the period (or regime) of every case of a grid, one table per facet."""
+    if not (f.diagrams and f.source.mode == "grid"):
+        return []
+    text = [f"# Periods of {f.source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
+            "phase-treads (PT) or tumbles (TU); otherwise its regime. The uncertainty is the statistical "
+            "one plus the discretisation error of the time step; in brackets the one that dominates "
+            "(stat or dt; dt n/e: not estimated, for a fixed-step run or a tumbling case -- a tumbling "
+            "period can be 1 % off at rtol >= 1e-3, docs/error_rule.md). regimes.md has both.\n"]
+    for fixed, table in period_tables(f.rows, f.y_key, f.x_key, f.others):
+        if fixed:
+            text.append(f"## {facet_label(fixed)}\n")
+        text.append(table + "\n")
+    (out / "periods.md").write_text("\n".join(text))
+    return [out / "periods.md"]
+
+
+def phase_diagrams(f: Findings, out: Path) -> list[Path]:
+    """The regimes over the plane, one per facet, with the critical shear rates of a search or the
+    boundaries of a refinement drawn over them; for a grid also the periods against its rows."""
+    from hpcves.reports import plots
+
+    if not f.diagrams:
+        return []
+    written = []
+    for fixed, subset in facets(f.rows, f.others):
+        suffix = facet_suffix(fixed)
+        title = plots.parameter_text(shared_parameters(subset, (f.x_key, f.y_key)))
+        fig = plots.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
+                                  nearest="point" if f.refined else "row",
+                                  log_keys=f.study.refine_settings.log_keys() if f.refined else None)
+        if f.searches and "shear_rate" in (f.x_key, f.y_key):
+            plots.mark_critical(fig.axes[0], [r for r in f.searches if all(r[k] == v for k, v in fixed.items())],
+                                f.y_key if f.x_key == "shear_rate" else f.x_key, s_on_x=f.x_key == "shear_rate")
+        if f.refined and {f.x_key, f.y_key} == set(f.study.refine.axes):
+            plots.mark_boundaries(fig.axes[0], [r for r in f.lines if all(r[k] == v for k, v in fixed.items())],
+                                  f.x_key, f.y_key)
+        written += _save(fig, out / f"phase_diagram{suffix}")
+        if f.source.mode == "grid":
+            written += _save(plots.period_figure(subset, f.y_key, f.x_key, title=title), out / f"periods{suffix}")
+    return written
+
+
+#: the writers of an analysis, in the order they run: each writes its artefacts (or none) into the
+#: output folder and returns their paths
+WRITERS = (regime_tables, refinement_tables, critical_shear_tables, critical_shear_figures, period_table,
+           phase_diagrams)
+
+
+def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,
+                   streamlines: bool = True, jobs: int = 1):
+    """The tables and figures of an analysis into ``out`` (every writer of WRITERS, then the case
+    pages asked for): (paths written, critical_shear rows, refinement rows)."""
+    out.mkdir(parents=True, exist_ok=True)
+    found = findings(source, rows, axes)
+    written = [path for writer in WRITERS for path in writer(found, out)]
     pages = {r["case"] for r in case_pages.chosen(rows, case_figures)}
     if pages:
         live = [r for r, case in zip(rows, source.cases) if case.status != DAMAGED and r["case"] in pages]
         case_pages.draw_pages(source.path, source.kind == "campaign", live, out / "cases", streamlines=streamlines,
                               jobs=jobs, progress=progress)
         written.append(out / "cases" / f"<case>.png ({len(live)})")
-
-    return written, searches, [o.row() for o in refined or ()]
+    return written, found.searches, [o.row() for o in found.refined]
 
 
 def _save(fig, stem: Path) -> list[Path]:
