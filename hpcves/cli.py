@@ -23,8 +23,16 @@ from hpcves.model.params import ConfigError
 from hpcves.files.atomic import check_output_path
 
 
+def _error(message) -> None:
+    """``Error: <problem>`` on stderr, a line for each problem (a file's problems come together:
+    config.Problems)."""
+    for line in str(message).splitlines() or [""]:
+        click.echo(f"Error: {line}", err=True)
+
+
 def _fail(message: str) -> None:
-    click.echo(f"Error: {message}", err=True)
+    """_error, and exit status 2."""
+    _error(message)
     sys.exit(2)
 
 
@@ -345,7 +353,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
         loaded = comm.bcast(loaded, root=0)
     if loaded[0] == "error":
         if rank == 0:
-            click.echo(f"Error: {loaded[1]}", err=True)
+            _error(loaded[1])
         sys.exit(2)
     study = loaded[1]
     path = out or study.output
@@ -361,7 +369,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
         verdict = comm.bcast(verdict, root=0)
     if verdict:
         if rank == 0:
-            click.echo(f"Error: {verdict}", err=True)
+            _error(verdict)
         sys.exit(2)
     display = None
 
@@ -409,7 +417,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
                                    display=show, announce=announce, on_stage=on_stage)
     except ConfigError as exc:
         if rank == 0:
-            click.echo(f"Error: {exc}", err=True)
+            _error(exc)
         sys.exit(2)
     finally:
         if display is not None:
@@ -591,7 +599,7 @@ def status_command(campaign_file, check, as_json):
             click.echo(json.dumps({"file": str(campaign_file), "complete": False, "left": str(exc),
                                    "exit_status": WORK_LEFT}))
         elif isinstance(exc, CreationInterrupted):
-            click.echo(f"Error: {exc}", err=True)
+            _error(exc)
         else:
             click.echo(str(exc))
         sys.exit(WORK_LEFT)

@@ -21,6 +21,7 @@ Unknown tables or keys, wrong types and out-of-range values raise
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import tomllib
 import typing
@@ -62,6 +63,36 @@ def check_type(where: str, value, kind):
     raise ConfigError(f"{where}: unsupported parameter type {kind}")   # pragma: no cover
 
 
+class Problems:
+    """Every problem of one input file, so that a user mends them all in one go.
+
+    Each independent part is checked inside ``with problems.check():`` -- a ConfigError
+    there is noted and the rest is still checked -- and :meth:`raise_any` raises one
+    ConfigError holding them all, a line each (the CLI prints each line as an ``Error:``).
+    Parts that need an earlier one to be sound (the cases of a sweep need its values) are
+    checked after ``raise_any``; a range check inside one table stops at its first.
+    """
+
+    def __init__(self):
+        self.found: list[str] = []
+
+    @contextlib.contextmanager
+    def check(self, prefix: str = ""):
+        try:
+            yield
+        except ConfigError as exc:
+            self.found += [prefix + line for line in str(exc).splitlines()]
+
+    def raise_any(self) -> None:
+        if self.found:
+            raise ConfigError("\n".join(self.found))
+
+
+def with_prefix(prefix: str, exc: ConfigError) -> ConfigError:
+    """A ConfigError of ``exc``'s problems with ``prefix`` before each (one line per problem)."""
+    return ConfigError("\n".join(prefix + line for line in str(exc).splitlines()))
+
+
 def refuse_unknown(values: dict, known, where: str) -> None:
     """ConfigError naming every key of ``values`` not in ``known`` (and the known ones), e.g.
     ``[physics]: unknown keys shear, tension (known: ...)``: the one check of every table."""
@@ -85,8 +116,15 @@ def group_from_dict(name: str, values: dict, base=None):
     if not isinstance(values, dict):
         raise ConfigError(f"[{name}] must be a table, got {type(values).__name__}")
     types = typing.get_type_hints(cls)
-    refuse_unknown(values, [f.name for f in dataclasses.fields(cls)], f"[{name}]")
-    kwargs = {key: check_type(f"{name}.{key}", value, types[key]) for key, value in values.items()}
+    problems = Problems()
+    with problems.check():
+        refuse_unknown(values, [f.name for f in dataclasses.fields(cls)], f"[{name}]")
+    kwargs = {}
+    for key, value in values.items():
+        if key in types:
+            with problems.check():
+                kwargs[key] = check_type(f"{name}.{key}", value, types[key])
+    problems.raise_any()
     if name == "numerics" and "rtol" in kwargs and "dt" in kwargs:
         raise ConfigError(f"[numerics] sets both dt = {kwargs['dt']:g} (a fixed step) and rtol = {kwargs['rtol']:g} "
                           "(an adaptive one): keep one; dt_max bounds the adaptive step")
@@ -96,12 +134,17 @@ def group_from_dict(name: str, values: dict, base=None):
 
 def case_from_dict(data: dict, base: Case | None = None) -> Case:
     """A :class:`Case` from a nested dict such as a parsed TOML document."""
+    problems = Problems()
     unknown = sorted(set(data) - set(GROUPS))
     if unknown:
-        raise ConfigError("unknown table" + ("s" if len(unknown) > 1 else "") + ": "
-                          + ", ".join(f"[{u}]" for u in unknown) + " (known: [physics], [numerics], [run])")
+        problems.found.append("unknown table" + ("s" if len(unknown) > 1 else "") + ": "
+                              + ", ".join(f"[{u}]" for u in unknown) + " (known: [physics], [numerics], [run])")
     base = base if base is not None else Case()
-    groups = {name: group_from_dict(name, data.get(name, {}), getattr(base, name)) for name in GROUPS}
+    groups = {}
+    for name in GROUPS:
+        with problems.check():
+            groups[name] = group_from_dict(name, data.get(name, {}), getattr(base, name))
+    problems.raise_any()
     return Case(**groups)
 
 
@@ -147,7 +190,7 @@ def case_from_toml(text: str, source: str = "<string>", stored: bool = False) ->
     try:
         return case_from_dict(data)
     except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc}") from None
+        raise with_prefix(f"{source}: ", exc) from None
 
 
 def case_to_toml(case: Case) -> str:

@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.config import case_from_dict, check_type, clean_number, read_text, refuse_unknown
+from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_text, refuse_unknown, with_prefix
 from hpcves.model.params import SWEEPABLE, Case, ConfigError     # SWEEPABLE: what [sweep] may vary
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.analysis.refine import RefinePlan, RefineSettings
@@ -278,7 +278,7 @@ def study_from_toml(text: str, source: str = "<string>", default_name: str = "ca
     try:
         return _study_from_dict(data, default_name, text)
     except ConfigError as exc:
-        raise ConfigError(f"{source}: {exc}") from None
+        raise with_prefix(f"{source}: ", exc) from None
 
 
 def load_study(path: str | Path) -> Study:
@@ -297,33 +297,43 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         if not isinstance(value, dict):
             raise ConfigError(f"[{table}] must be a table")
     campaign, sweep_spec = tables["campaign"], tables["sweep"]
-    refuse_unknown(campaign, CAMPAIGN_KEYS, "[campaign]")
-    try:
+    problems = Problems()              # the tables are independent: every problem of them at once
+    with problems.check():
+        refuse_unknown(campaign, CAMPAIGN_KEYS, "[campaign]")
+    with problems.check("base case: "):
         base = case_from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"base case: {exc}") from None
-
     name = campaign.get("name", default_name)
-    if not isinstance(name, str) or not name.strip():
-        raise ConfigError(f"campaign.name = {name!r}: must be a non-empty string")
+    with problems.check():
+        if not isinstance(name, str) or not name.strip():
+            raise ConfigError(f"campaign.name = {name!r}: must be a non-empty string")
     output = campaign.get("output", f"{name}.h5")
-    if not isinstance(output, str) or not output:
-        raise ConfigError(f"campaign.output = {output!r}: must be a file path")
-    stop_timeout = check_type("campaign.stop_timeout", campaign.get("stop_timeout", 10.0), float)
-    if not stop_timeout > 0:
-        raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
-    times = TimeRules.from_campaign(campaign)
-    analysis = AnalysisSettings.from_dict(tables["analysis"])
-    search = SearchSettings.from_dict(tables["search"]) if is_search else None
-
-    allowed = SEARCHABLE if search else SWEEPABLE
-    unknown = [k for k in sweep_spec if k not in allowed]
-    if unknown:
-        if search and unknown == ["shear_rate"]:
-            raise ConfigError("[search] runs along the shear rate: leave shear_rate out of [sweep] "
-                              "(the search range is [search] low and high)")
-        raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
-    sweep = {key: sweep_values(key, spec) for key, spec in sweep_spec.items()}
+    with problems.check():
+        if not isinstance(output, str) or not output:
+            raise ConfigError(f"campaign.output = {output!r}: must be a file path")
+    with problems.check():
+        stop_timeout = check_type("campaign.stop_timeout", campaign.get("stop_timeout", 10.0), float)
+        if not stop_timeout > 0:
+            raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
+    with problems.check():
+        times = TimeRules.from_campaign(campaign)
+    with problems.check():
+        analysis = AnalysisSettings.from_dict(tables["analysis"])
+    search = None
+    with problems.check():
+        search = SearchSettings.from_dict(tables["search"]) if is_search else None
+    with problems.check():
+        allowed = SEARCHABLE if is_search else SWEEPABLE
+        unknown = [k for k in sweep_spec if k not in allowed]
+        if unknown:
+            if is_search and unknown == ["shear_rate"]:
+                raise ConfigError("[search] runs along the shear rate: leave shear_rate out of [sweep] "
+                                  "(the search range is [search] low and high)")
+            raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
+        sweep = {}
+        for key, spec in sweep_spec.items():
+            with problems.check():
+                sweep[key] = sweep_values(key, spec)
+    problems.raise_any()
     refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
     others = [k for k in sweep if refine and k not in refine.axes]
     refinements = tuple(dict(zip(others, values)) for values in itertools.product(*(sweep[k] for k in others)))
