@@ -335,6 +335,67 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io
         sys.exit(1)
 
 
+def _on_rank_0(comm, size, rank, work):
+    """``work()`` on rank 0, its value on every rank; a ConfigError there ends every rank with its
+    message (on rank 0) and exit status 2."""
+    result = None
+    if rank == 0:
+        try:
+            result = ("ok", work())
+        except ConfigError as exc:
+            result = ("error", str(exc))
+    if size > 1:
+        result = comm.bcast(result, root=0)
+    if result[0] == "error":
+        if rank == 0:
+            _error(result[1])
+        sys.exit(2)
+    return result[1]
+
+
+class _CampaignTerminal:
+    """What a campaign shows on rank 0's terminal: its lines, a progress display per stage (unless
+    quiet), and after each stage of a search or refinement its CSV and a line of where it stands."""
+
+    def __init__(self, study, path, quiet: bool):
+        self.study, self.quiet, self.display = study, quiet, None
+        self.critical_csv = path.with_name(path.stem + "_critical_shear.csv")
+        self.refine_csv = path.with_name(path.stem + "_refinement.csv")
+
+    def announce(self, text, n_cases, finished_before):
+        self.close()
+        click.echo(text, err=True)
+        if n_cases is not None and not self.quiet:
+            self.display = CampaignProgress(n_cases, finished_before)
+
+    def show(self, master):
+        if self.display is not None:
+            self.display(master)
+
+    def close(self):
+        if self.display is not None:
+            self.display.close()
+            self.display = None
+
+    def on_stage(self, outcomes):
+        if self.study.refine:
+            from hpcves.reports.refinement import refinement_columns
+            from hpcves.reports.tables import write_rows
+
+            write_rows([o.row() for o in outcomes], refinement_columns(self.study), self.refine_csv)
+            kind, csv_path, brief = "refinements", self.refine_csv, lambda o: o.brief()
+        else:
+            from hpcves.reports.critical import write_critical_csv
+
+            write_critical_csv([o.row() for o in outcomes], self.critical_csv)
+            kind, csv_path, brief = "searches", self.critical_csv, _search_brief
+        if not any(o.regimes for o in outcomes):          # a new search or refinement: nothing found yet
+            return
+        ended = sum(1 for o in outcomes if o.state.status != "running")
+        detail = "; ".join(brief(o) for o in outcomes) if len(outcomes) <= 8 else f"see {csv_path}"
+        self.announce(f"{kind}: {ended} of {len(outcomes)} ended; {detail}", None, 0)
+
+
 def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out, quiet, io):
     from hpcves.campaign.driver import run_campaign
     from hpcves.campaign.study import load_study
@@ -343,91 +404,27 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
         if rank == 0:
             click.echo("Error: --retry-failed goes with --resume", err=True)
         sys.exit(2)
-    loaded = None
-    if rank == 0:
-        try:
-            loaded = ("ok", load_study(study_file))
-        except ConfigError as exc:
-            loaded = ("error", str(exc))
-    if size > 1:
-        loaded = comm.bcast(loaded, root=0)
-    if loaded[0] == "error":
-        if rank == 0:
-            _error(loaded[1])
-        sys.exit(2)
-    study = loaded[1]
+    study = _on_rank_0(comm, size, rank, lambda: load_study(study_file))
     path = out or study.output
-    if rank == 0:
-        try:
-            check_output_path(path)
-            verdict = None
-        except ConfigError as exc:
-            verdict = str(exc)
-    else:
-        verdict = None
-    if size > 1:
-        verdict = comm.bcast(verdict, root=0)
-    if verdict:
-        if rank == 0:
-            _error(verdict)
-        sys.exit(2)
-    display = None
-
-    critical_csv = path.with_name(path.stem + "_critical_shear.csv")
-    refine_csv = path.with_name(path.stem + "_refinement.csv")
-
-    def announce(text, n_cases, finished_before):
-        nonlocal display
-        if display is not None:
-            display.close()
-            display = None
-        click.echo(text, err=True)
-        if n_cases is not None and not quiet:
-            display = CampaignProgress(n_cases, finished_before)
-
-    def show(master):
-        if display is not None:
-            display(master)
-
-    def on_stage(outcomes):
-        from hpcves.reports.critical import write_critical_csv
-
-        if study.refine:
-            from hpcves.reports.refinement import refinement_columns
-            from hpcves.reports.tables import write_rows
-
-            write_rows([o.row() for o in outcomes], refinement_columns(study), refine_csv)
-            if not any(o.regimes for o in outcomes):          # a new refinement: nothing found yet
-                return
-            ended = sum(1 for o in outcomes if o.state.status != "running")
-            detail = "; ".join(o.brief() for o in outcomes) if len(outcomes) <= 8 else f"see {refine_csv}"
-            announce(f"refinements: {ended} of {len(outcomes)} ended; {detail}", None, 0)
-            return
-        write_critical_csv([o.row() for o in outcomes], critical_csv)
-        if not any(o.regimes for o in outcomes):          # a new search: nothing found yet
-            return
-        ended = sum(1 for o in outcomes if o.state.status != "running")
-        detail = "; ".join(_search_brief(o) for o in outcomes) if len(outcomes) <= 8 else f"see {critical_csv}"
-        announce(f"searches: {ended} of {len(outcomes)} ended; {detail}", None, 0)
-
+    _on_rank_0(comm, size, rank, lambda: check_output_path(path))
+    terminal = _CampaignTerminal(study, path, quiet)
     try:
         with StopFlag() as stop:
             summary = run_campaign(study, path, comm if size > 1 else None, resume=resume,
                                    retry_failed=retry_failed, overwrite=overwrite, io=io, stop_flag=stop,
-                                   display=show, announce=announce, on_stage=on_stage)
+                                   display=terminal.show, announce=terminal.announce, on_stage=terminal.on_stage)
     except ConfigError as exc:
         if rank == 0:
             _error(exc)
         sys.exit(2)
     finally:
-        if display is not None:
-            display.close()
+        terminal.close()
     if rank == 0:
         _print_summary(summary, path)
         if summary.searches and study.refine:
-            _print_refinements(study, summary.searches, refine_csv)
+            _print_refinements(study, summary.searches, terminal.refine_csv)
         elif summary.searches:
-            _print_searches(summary.searches, critical_csv)
+            _print_searches(summary.searches, terminal.critical_csv)
         if summary.not_written:
             click.echo(f"Error: {summary.not_written}; the campaign stopped and every case keeps its last "
                        "valid checkpoint: free some space, then continue with --resume", err=True)
