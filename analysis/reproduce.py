@@ -27,7 +27,7 @@ from pathlib import Path
 
 from hpcves.analysis import accuracy
 from hpcves.reports import case_pages
-from hpcves.reports.analyze import analyze, read_source
+from hpcves.reports.analyze import analyze, period_cell, read_source
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
 from hpcves.reports.critical import critical_table
@@ -129,14 +129,7 @@ def period_table(report, rates=(80.0, 160.0, 320.0)) -> str:
         line = [f"{psi:g}"]
         for s in rates:
             r = _find(report, psi_bar=psi, shear_rate=s)
-            if r is None:
-                line.append("")
-            elif r["regime"] in ("PT", "TU"):
-                error, dominant = accuracy.error_bar(r, "period")
-                line.append(f"{r['period']:.4g} +- {error:.1g} [{dominant}] (S T = {s * r['period']:.3g})"
-                            + (" TU" if r["regime"] == "TU" else ""))
-            else:
-                line.append(r["regime"])
+            line.append(period_cell(r, " TU", f" (S T = {s * r['period']:.3g})" if r else ""))
         body.append(line)
     return markdown_table(["psi_bar \\ S"] + [f"{s:g}" for s in rates], body)
 

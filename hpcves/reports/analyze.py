@@ -263,6 +263,19 @@ def _dt_cell(row: dict, quantity: str) -> str:
     return fmt(row[f"{quantity}_dt_err"], ".2g") or "n/e"
 
 
+def period_cell(row: dict | None, tumbling: str = " (TU)", extra: str = "") -> str:
+    """A cell of a period table: ``period +- uncertainty [the part that dominates]`` (statistical +
+    discretisation, accuracy.error_bar) with ``extra`` and, for a tumbling case, ``tumbling`` after it,
+    where the case phase-treads or tumbles; else its regime; "" where there is no case."""
+    if row is None:
+        return ""
+    if row["regime"] in ("PT", "TU") and math.isfinite(row["period"]):
+        error, dominant = accuracy.error_bar(row, "period")
+        return (f"{row['period']:.4g} +- {error:.1g} [{dominant}]{extra}"
+                + (tumbling if row["regime"] == "TU" else ""))
+    return row["regime"]
+
+
 def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str]) -> list[tuple[dict, str]]:
     """(fixed values of the other swept keys, Markdown table of row_key x col_key) for each combination.
 
@@ -274,20 +287,7 @@ def period_tables(rows: list[dict], row_key: str, col_key: str, others: list[str
         row_values = sorted({row[row_key] for row in subset})
         col_values = sorted({row[col_key] for row in subset})
         cells = {(row[row_key], row[col_key]): row for row in subset}
-        body = []
-        for r in row_values:
-            line = [f"{r:g}"]
-            for c in col_values:
-                row = cells.get((r, c))
-                if row is None:
-                    line.append("")
-                elif row["regime"] in ("PT", "TU") and math.isfinite(row["period"]):
-                    error, dominant = accuracy.error_bar(row, "period")
-                    line.append(f"{row['period']:.4g} +- {error:.1g} [{dominant}]"
-                                + (" (TU)" if row["regime"] == "TU" else ""))
-                else:
-                    line.append(row["regime"])
-            body.append(line)
+        body = [[f"{r:g}"] + [period_cell(cells.get((r, c))) for c in col_values] for r in row_values]
         header = [f"{LABELS.get(row_key, row_key)} \\ {LABELS.get(col_key, col_key)}"] + [f"{c:g}" for c in col_values]
         out.append((fixed, markdown_table(header, body)))
     return out
