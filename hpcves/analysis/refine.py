@@ -268,7 +268,7 @@ def step(settings: RefineSettings, results: dict) -> RefineState:
     left = settings.max_cases - len(results)
     if left <= 0:
         return RefineState(BUDGET, (), tuple(leaves), f"max_cases = {settings.max_cases} spent with "
-                           f"{len(wanted)} mixed cells wider than the tolerances")
+                           f"{len(wanted)} mixed cells still to split")
     chosen: list = []
     for _, cell, points in sorted(wanted, key=lambda w: (-w[0], w[1].x0, w[1].y0)):
         new = [p for p in points if p not in chosen]
@@ -279,7 +279,7 @@ def step(settings: RefineSettings, results: dict) -> RefineState:
         return RefineState(BUDGET, (), tuple(leaves), f"max_cases = {settings.max_cases}: {left} left, too few "
                            "for the next split")
     return RefineState(RUNNING, tuple(sorted(chosen)), tuple(leaves),
-                       f"{len(wanted)} mixed cells wider than the tolerances: {len(chosen)} new points")
+                       f"{len(wanted)} mixed cells to split: {len(chosen)} new points")
 
 
 def _outcomes_on(cell: Cell, settings: RefineSettings, known: list) -> set:
