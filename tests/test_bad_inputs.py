@@ -161,21 +161,26 @@ def test_a_bad_study_file(tmp_path, name):
     assert os.listdir(tmp_path) == ["study.toml"]
 
 
+def error_lines(command, path, tmp_path):
+    """The stderr lines of ``hpcves command path --out ...``, refused with exit status 2 and no traceback."""
+    result = invoke(command, path, "--out", tmp_path / "out.h5")
+    assert result.exit_code == 2 and "Traceback" not in result.stderr, result.stderr
+    return [line for line in result.stderr.splitlines() if line.strip()]
+
+
 def test_every_problem_of_a_case_file_is_told_at_once(tmp_path):
     # an unknown table, an unknown key and two bad types in two tables, a range in a third:
     # one Error line each, all naming the file
     content = ("[physic]\nx = 1\n[physics]\nshear = 3\npsi_bar = 'a'\n[numerics]\nN = 64.5\n"
                "[run]\nt_end = -1.0\n")
     path = write(tmp_path / "case.toml", content)
-    result = invoke("run", path, "--out", tmp_path / "out.h5")
-    assert result.exit_code == 2 and "Traceback" not in result.stderr
-    errors = [line for line in result.stderr.splitlines() if line.strip()]
+    errors = error_lines("run", path, tmp_path)
     assert errors == [f"Error: {path}: {problem}" for problem in (
         "unknown table: [physic] (known: [physics], [numerics], [run])",
         "[physics]: unknown key shear (known: " + errors[1].split("(known: ")[1][:-1] + ")",
         "physics.psi_bar = 'a': must be a number",
         "numerics.N = 64.5: must be an integer",
-        "run.t_end = -1.0: must be > 0")], result.stderr
+        "run.t_end = -1.0: must be > 0")], errors
     assert os.listdir(tmp_path) == ["case.toml"]
 
 
@@ -183,15 +188,13 @@ def test_every_problem_of_a_study_file_is_told_at_once(tmp_path):
     content = ("[campaign]\nname = ''\nstop_timeout = -1.0\nspeed = 2\n[physics]\npsi_bar = 2.0\n"
                "[analysis]\nwhatever = 1\n[sweep]\nshear_rate = [1.0, 'x']\nN = [32]\n")
     path = write(tmp_path / "study.toml", content)
-    result = invoke("campaign", path, "--out", tmp_path / "out.h5")
-    assert result.exit_code == 2 and "Traceback" not in result.stderr
-    errors = [line for line in result.stderr.splitlines() if line.strip()]
-    assert all(line.startswith(f"Error: {path}: ") for line in errors), result.stderr
+    errors = error_lines("campaign", path, tmp_path)
+    assert all(line.startswith(f"Error: {path}: ") for line in errors), errors
     for words in ("[campaign]: unknown key speed", "base case: physics.psi_bar = 2.0: must lie in [0, 1]",
                   "campaign.name = '': must be a non-empty string", "campaign.stop_timeout = -1.0: must be > 0",
                   "[analysis]: unknown key whatever", "sweep over N: only"):
-        assert sum(words in line for line in errors) == 1, (words, result.stderr)
-    assert len(errors) == 6, result.stderr
+        assert sum(words in line for line in errors) == 1, (words, errors)
+    assert len(errors) == 6, errors
 
 
 # ---------------------------------------------------------------------- damaged files
