@@ -318,7 +318,6 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         times = TimeRules.from_campaign(campaign)
     with problems.check():
         analysis = AnalysisSettings.from_dict(tables["analysis"])
-    search = None
     with problems.check():
         search = SearchSettings.from_dict(tables["search"]) if is_search else None
     with problems.check():

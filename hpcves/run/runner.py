@@ -364,11 +364,10 @@ class Ticks:
         return m.wall - self.last >= 0.5
 
     def __call__(self, m: Moment):
-        self.last = now = m.wall
-        elapsed = now - self.record.start_wall
-        rate = (m.state.step - self.record.start_step) / elapsed if elapsed > 0 else 0.0
+        self.last = m.wall
+        t, t_end, _, rate = self.record.progress(m.state, m.wall)
+        elapsed = m.wall - self.record.start_wall
         fraction = self.clock.fraction(m.state)
         pace = (fraction - self.start_fraction) / elapsed if elapsed > 0 else 0.0
         eta = (1.0 - fraction) / pace if pace > 0 else float("inf")
-        self.progress(Tick(self.record.solver.time(m.state), self.record.store.case.run.t_end, rate, eta,
-                           self.samples.theta))
+        self.progress(Tick(t, t_end, rate, eta, self.samples.theta))
