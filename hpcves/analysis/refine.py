@@ -25,6 +25,11 @@ asks for the same points in every run.
   on the new middle edge, which then changes, and the halves split along it too.
   A split asks for the new corners (edge midpoints, and the centre when it
   splits both ways, in u); once they are known its halves are refined the same way.
+* A case that stops as under-resolved (its spectrum outgrew N) says nothing of
+  the regime there; with ``max_N`` the point runs again at 2 N (and again,
+  while 2 N <= max_N), and until then it counts as not yet run: the cells
+  around it wait for it instead of splitting around a failure. Every run of a
+  point counts against ``max_cases``.
 * Stop when no mixed cell needs a split (``converged``: every crossing
   bracketed to the tolerances), or when ``max_cases`` points are spent (``budget
   spent``: the widest mixed cells are split first, so the budget goes where
@@ -99,6 +104,7 @@ class RefineSettings:
     y: Axis
     max_cases: int = 200
     straight_span: float = 4.0    # widest a cell stays along a boundary that crosses it, in tolerances
+    max_N: int = 0                # an under-resolved case runs again at 2 N while that is at most max_N (0: never)
 
     def __post_init__(self):
         if self.x.key == self.y.key:
@@ -110,6 +116,11 @@ class RefineSettings:
         if not self.straight_span >= 1:
             raise ConfigError(f"refine.straight_span = {self.straight_span}: must be >= 1 (1: every mixed cell "
                               "is split to the tolerances both ways)")
+
+    def retry_N(self, N: int) -> int | None:
+        """The N at which a point runs again after its case stopped as under-resolved at ``N``: 2 N,
+        while that is at most ``max_N`` (None: it stays failed)."""
+        return 2 * N if 0 < 2 * N <= self.max_N else None
 
     def log_keys(self) -> tuple:
         """The parameters of the plane on a log scale."""
@@ -176,6 +187,7 @@ class RefinePlan:
         tolerance = { shear_rate = 0.1, psi_bar = 0.05 }   # relative on S, absolute otherwise
         max_cases = 150                                # per refinement (coarse grid included)
         straight_span = 4       # a boundary crossing a cell is taken as straight over at most 4 tolerances
+        max_N = 256             # an under-resolved case runs again at 2 N, up to N = 256 (default: never)
 
     The coarse grid is the ``[sweep]`` values of the two axes; every combination of the
     other swept keys gets a refinement of its own.
@@ -185,6 +197,7 @@ class RefinePlan:
     tolerance: tuple          # ((key, tolerance), ...) for the two axes, in the user's terms
     max_cases: int = 200
     straight_span: float = 4.0
+    max_N: int = 0            # 0: an under-resolved case is not run again
 
     def settings(self, sweep: dict) -> RefineSettings:
         """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
@@ -194,12 +207,13 @@ class RefinePlan:
             log = key in LOG_KEYS
             return Axis(key, tuple(sorted(sweep[key])), math.log1p(tolerance[key]) if log else tolerance[key], log)
 
-        return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases, self.straight_span)
+        return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases, self.straight_span,
+                              self.max_N)
 
     @classmethod
     def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
         """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
-        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span"), where)
+        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span", "max_N"), where)
         swept = [k for k, v in sweep.items() if len(v) > 1]
         axes = values.get("axes", swept[:2])
         if (not isinstance(axes, list | tuple) or len(axes) != 2
@@ -230,7 +244,10 @@ class RefinePlan:
             tolerance.append((key, value))
         max_cases = check_type("refine.max_cases", values.get("max_cases", 200), int)
         straight_span = check_type("refine.straight_span", values.get("straight_span", 4.0), float)
-        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span)
+        max_N = check_type("refine.max_N", values.get("max_N", 0), int)
+        if max_N < 0:
+            raise ConfigError(f"{where}: max_N = {max_N}: must be >= 0 (0: an under-resolved case is not run again)")
+        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N)
         try:
             plan.settings(sweep)
         except ConfigError as exc:
@@ -256,16 +273,21 @@ def coarse_points(settings: RefineSettings) -> tuple:
                  for x in settings.x.values for y in settings.y.values)
 
 
-def step(settings: RefineSettings, results: dict) -> RefineState:
-    """The next points to run given ``results`` = {(x, y): outcome} of the classified cases."""
+def step(settings: RefineSettings, results: dict, spent: int | None = None) -> RefineState:
+    """The next points to run given ``results`` = {(x, y): outcome} of the classified cases; ``spent``:
+    the cases run so far, when more than the points (a point run again at a larger N counts each time).
+
+    A point left out of ``results`` is one still to run: a point whose case is to run again at a
+    larger N (:meth:`RefineSettings.retry_N`) is left out, and asked for again when a cell needs it."""
+    spent = len(results) if spent is None else spent
     missing = tuple(p for p in coarse_points(settings) if p not in results)
     if missing:
         return RefineState(RUNNING, missing, (), f"the coarse grid: {len(missing)} points")
     leaves, wanted = _mixed_leaves(settings, results)
     if not wanted:
         return RefineState(CONVERGED, (), tuple(leaves),
-                           f"every boundary bracketed to the tolerances ({len(results)} cases)")
-    left = settings.max_cases - len(results)
+                           f"every boundary bracketed to the tolerances ({spent} cases)")
+    left = settings.max_cases - spent
     if left <= 0:
         return RefineState(BUDGET, (), tuple(leaves), f"max_cases = {settings.max_cases} spent with "
                            f"{len(wanted)} mixed cells still to split")

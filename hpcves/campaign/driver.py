@@ -62,7 +62,7 @@ from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
 from hpcves.campaign.relay import Relay
-from hpcves.campaign.refine_stages import RefineDriver
+from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
 
@@ -95,11 +95,13 @@ class Summary:
 
     ran: tuple                      # CaseResult of every case run in this call
     counts: dict                    # status name -> number of cases in the file
-    failed: tuple                   # (case_id, message) of every failed case in the file
+    failed: tuple                   # (case_id, message) of every failed case in the file (but those that
+                                    # a refinement ran again at a larger N)
     wall: float
     searches: tuple = ()            # search (refine) studies: SearchOutcome (RefineOutcome) of every search
                                     # (refinement); empty if stopped
     not_written: str = ""           # why the campaign stopped when the file system refused a write
+    run_again: int = 0              # failed cases that a refinement ran again at a larger N
 
     @property
     def exit_status(self) -> int:
@@ -163,12 +165,13 @@ def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[
     """(case_id, resume) for every case to run, most expensive first.
 
     Finished cases and those that reached the model's limit are skipped; failed ones too,
-    unless ``retry_failed`` (then they start over); everything else continues from its last
-    valid checkpoint.
+    unless ``retry_failed`` (then they start over, but those a refinement ran again at a larger N);
+    everything else continues from its last valid checkpoint.
     """
     todo = []
+    again = run_again(study)
     for case_id, status in campaign.statuses().items():
-        if status in (FINISHED, MODEL_LIMIT) or (status == FAILED and not retry_failed):
+        if status in (FINISHED, MODEL_LIMIT) or (status == FAILED and (not retry_failed or case_id in again)):
             continue
         todo.append((case_id, status != FAILED))
     todo.sort(key=lambda item: (-study.by_id(item[0]).cost, item[0]))
@@ -499,13 +502,13 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
         summary = None
         if rank == 0:
             counts = {name: 0 for name in STATUS_NAMES.values()}
-            failed = []
+            failed, again = [], run_again(study)
             for row in campaign.table():
                 counts[row["status"]] = counts.get(row["status"], 0) + 1
-                if row["status"] == "failed":
+                if row["status"] == "failed" and row["case"] not in again:
                     failed.append((row["case"], row["message"]))
             summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start,
-                              tuple(outcomes), not_written)
+                              tuple(outcomes), not_written, len(again))
     finally:
         if h5 is not None:
             try:

@@ -12,7 +12,7 @@ from collections import Counter
 from dataclasses import dataclass
 
 from hpcves.campaign.file import CampaignFile
-from hpcves.campaign.refine_stages import RefineDriver
+from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import study_from_toml
 from hpcves.run.store import ENDED_NAMES, FAILED, STATUS_NAMES, attr_text, open_file, reading
@@ -24,7 +24,8 @@ COMPLETE, COMPLETE_WITH_FAILURES, WORK_LEFT = 0, 1, 3
 @dataclass(frozen=True)
 class Progress:
     """Where a campaign stands: ``complete`` (nothing left for --resume), ``left`` (what is, in
-    words), ``failed`` (cases that failed: --resume --retry-failed reruns them), ``exit_status``."""
+    words), ``failed`` (cases that failed, but those a refinement ran again at a larger N: --resume
+    --retry-failed reruns them), ``exit_status``."""
 
     complete: bool
     left: str
@@ -42,7 +43,8 @@ def progress(path, rows: list[dict], writer: str | None) -> Progress:
     if open_cases:
         what = ", ".join(f"{n} {s}" for s, n in Counter(r["status"] for r in open_cases).items())
         return Progress(False, f"{what} case{'s' * (len(open_cases) != 1)} to run", failed, WORK_LEFT)
-    stage = next_stage_size(path)
+    stage, again = _next_stage(path)
+    failed = sum(r["status"] == STATUS_NAMES[FAILED] and r["case"] not in again for r in rows)
     if stage:
         return Progress(False, f"the next stage: {stage} new case{'s' * (stage != 1)}", failed, WORK_LEFT)
     if failed:
@@ -50,15 +52,16 @@ def progress(path, rows: list[dict], writer: str | None) -> Progress:
     return Progress(True, "", 0, COMPLETE)
 
 
-def next_stage_size(path) -> int:
-    """How many cases the next stage of a staged campaign whose cases have all ended would add
-    (0: none, or not a staged campaign): its searches or refinements replayed from the file."""
+def _next_stage(path) -> tuple[int, frozenset]:
+    """(how many cases the next stage of a staged campaign whose cases have all ended would add (0:
+    none, or not a staged campaign), the failed cases that a refinement ran again at a larger N):
+    its searches or refinements replayed from the file."""
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
         if campaign.mode not in ("search", "refine"):
-            return 0
+            return 0, frozenset()
         study = study_from_toml(attr_text(h5.attrs["campaign_toml"]), source=f"{path}: campaign_toml")
         driver = (SearchDriver if study.search else RefineDriver)(study)
         study = driver.cases_from_file(study, campaign)
         _, new = driver.next_stage(study, campaign)
-        return len(new)
+        return len(new), run_again(study)

@@ -7,19 +7,22 @@ same MPI scheduler; then rank 0 classifies the finished cases
 (:func:`hpcves.analysis.regimes.classify`, the study's ``[analysis]`` thresholds), lets
 every refinement take its next step (:func:`hpcves.analysis.refine.step`) and adds the
 points they ask for as new cases. Nothing about a refinement is stored but its
-cases: a resumed campaign replays their regimes and asks for the same points.
+cases: a resumed campaign replays their regimes and asks for the same points. A
+point's cases after its first are its runs at a larger N after under-resolved
+ones (``[refine] max_N``): N doubles with each.
 
 This module reads the file; the logic is in analysis/refine.py, the tables of the
 boundaries in reports/refinement.py.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from hpcves.model.params import LABELS
 from hpcves.analysis.refine import RUNNING, RefineSettings, RefineState, boundary, step
 from hpcves.campaign.search_stages import StageDriver
 from hpcves.campaign.study import Study
+from hpcves.run.verdict import under_resolved
 
 
 @dataclass(frozen=True)
@@ -29,8 +32,10 @@ class RefineOutcome:
     index: int
     point: dict                # the values of the swept keys that are not axes
     state: RefineState
-    regimes: dict              # {(x, y): regime} of its classified cases
+    regimes: dict              # {(x, y): regime} of its classified cases (a point's last run)
     settings: RefineSettings
+    retries: dict = field(default_factory=dict)   # {(x, y): attempt} of points to run again at a larger N
+    spent: int = 0             # its cases (a point run again counts each time)
 
     def row(self) -> dict:
         """One row of refinement.csv."""
@@ -38,24 +43,57 @@ class RefineOutcome:
         reason = self.state.reason
         if self.state.status == RUNNING:
             reason = f"unfinished: {len(self.state.next_points)} points to run next ({reason})"
-        return {**self.point, "status": self.state.status, "cases": len(self.regimes),
-                "full_grid_cases": self.settings.full_grid_cases(),
+        return {**self.point, "status": self.state.status, "cases": self.spent,
+                "run_again": self.spent - len(self.regimes), "full_grid_cases": self.settings.full_grid_cases(),
                 "crossings": len(crossings), "blurry": sum(c.blurry for c in crossings), "reason": reason}
 
     def brief(self) -> str:
         """``Delta = 0.94: 41 cases, running``: one refinement in a few words."""
         where = ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in self.point.items())
-        return f"{where + ': ' if where else ''}{len(self.regimes)} cases, {self.state.status}"
+        return f"{where + ': ' if where else ''}{self.spent} cases, {self.state.status}"
 
 
-def outcomes(study: Study, found: list[tuple[int, float, float, str]]) -> list[RefineOutcome]:
-    """The state of every refinement from ``found`` = (refinement, x, y, regime) of its ended cases."""
+def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
+    """The state of every refinement from ``found`` = (refinement, x, y, regime, under-resolved) of its
+    ended cases, in case order.
+
+    A point's last run gives its regime. A point whose last run stopped as under-resolved runs again
+    at twice that run's N while ``max_N`` allows (:meth:`RefineSettings.retry_N`); until then the
+    refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`)."""
     settings = study.refine_settings
-    by_refinement = [{} for _ in study.refinements]
-    for refinement, x, y, regime in found:
-        by_refinement[refinement][(x, y)] = regime
-    return [RefineOutcome(i, dict(point), step(settings, regimes), regimes, settings)
-            for i, (point, regimes) in enumerate(zip(study.refinements, by_refinement))]
+    base_N = study.base.numerics.N
+    runs = [{} for _ in study.refinements]           # {(x, y): [under-resolved of each run]}
+    for refinement, x, y, _, unresolved in found:
+        runs[refinement].setdefault((x, y), []).append(unresolved)
+    states = []
+    for i, (point, point_runs) in enumerate(zip(study.refinements, runs)):
+        regimes = {(x, y): regime for r, x, y, regime, _ in found if r == i}
+        retries = {p: len(r) for p, r in point_runs.items()
+                   if r[-1] and settings.retry_N(base_N * 2 ** (len(r) - 1)) is not None}
+        spent = sum(len(r) for r in point_runs.values())
+        state = step(settings, {p: v for p, v in regimes.items() if p not in retries}, spent)
+        states.append(RefineOutcome(i, dict(point), state, regimes, settings, retries, spent))
+    return states
+
+
+def attempts(points: list) -> list[int]:
+    """How many times each point of ``points`` (in case order) came before: its run's attempt."""
+    seen: dict = {}
+    out = []
+    for p in points:
+        out.append(seen.get(p, 0))
+        seen[p] = out[-1] + 1
+    return out
+
+
+def run_again(study: Study) -> frozenset:
+    """The ids of the cases whose point a later case runs again (at a larger N): their failures are
+    taken care of (none outside a refine study)."""
+    if not study.refine:
+        return frozenset()
+    x_key, y_key = study.refine.axes
+    last = {(c.search, c.swept[x_key], c.swept[y_key]): c.case_id for c in study.cases}
+    return frozenset(c.case_id for c in study.cases if last[(c.search, c.swept[x_key], c.swept[y_key])] != c.case_id)
 
 
 class RefineDriver(StageDriver):
@@ -63,12 +101,14 @@ class RefineDriver(StageDriver):
 
     @staticmethod
     def cases_from_file(study: Study, campaign) -> Study:
-        """``study`` with the cases its file holds already (the fingerprint guarantees they are this study's)."""
+        """``study`` with the cases its file holds already (the fingerprint guarantees they are this study's;
+        a point's later cases are its runs at a larger N)."""
         x_key, y_key = study.refine.axes
         index = campaign.h5["index"]
-        xs, ys = index[x_key][:], index[y_key][:]
-        cases = [study.refine_case(r, float(x), float(y), case_id)
-                 for case_id, r, x, y in zip(campaign.case_ids, campaign.searches_of_cases(), xs, ys)]
+        points = list(zip(campaign.searches_of_cases(), (float(x) for x in index[x_key][:]),
+                          (float(y) for y in index[y_key][:])))
+        cases = [study.refine_case(r, x, y, case_id, attempt)
+                 for case_id, (r, x, y), attempt in zip(campaign.case_ids, points, attempts(points))]
         return study.with_cases(cases)
 
     def next_stage(self, study: Study, campaign) -> tuple[list[RefineOutcome], list]:
@@ -76,16 +116,17 @@ class RefineDriver(StageDriver):
         x_key, y_key = study.refine.axes
         found = []
         for c in study.cases:
-            regime = self.regime(campaign, c.case_id)
-            if regime is not None:
-                found.append((c.search, c.swept[x_key], c.swept[y_key], regime))
+            row = self.row(campaign, c.case_id)
+            if row is not None:
+                found.append((c.search, c.swept[x_key], c.swept[y_key], row["regime"], under_resolved(row)))
         states = outcomes(study, found)
         taken = {(c.search, c.swept[x_key], c.swept[y_key]) for c in study.cases}
         new = []
         for outcome in states:
             for x, y in outcome.state.next_points:
-                if (outcome.index, x, y) in taken:          # asked for, not ended: cannot happen after a stage
+                attempt = outcome.retries.get((x, y), 0)
+                if not attempt and (outcome.index, x, y) in taken:   # asked for, not ended: cannot happen
                     raise RuntimeError(f"refinement {outcome.index}: ({x:g}, {y:g}) was run but has not ended")
                 case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
-                new.append(study.refine_case(outcome.index, x, y, case_id))
+                new.append(study.refine_case(outcome.index, x, y, case_id, attempt))
         return states, new

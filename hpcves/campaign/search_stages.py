@@ -76,17 +76,21 @@ class StageDriver:
 
     def __init__(self, study: Study):
         self.settings = study.analysis
-        self._regimes: dict[str, str] = {}      # case id -> regime (finished and failed cases only)
+        self._rows: dict[str, dict] = {}      # case id -> regimes.csv row (ended cases only)
 
-    def regime(self, campaign, case_id: str) -> str | None:
-        """The regime of one case, or None while it is not finished (or failed)."""
-        if case_id not in self._regimes:
+    def row(self, campaign, case_id: str) -> dict | None:
+        """The regimes.csv row of one case (analyse_case), or None while it has not ended."""
+        if case_id not in self._rows:
             store = campaign.store(case_id)
             if store.status not in ENDED:
                 return None
-            row = analyse_case(case_data(store, case_id), self.settings)
-            self._regimes[case_id] = row["regime"]
-        return self._regimes[case_id]
+            self._rows[case_id] = analyse_case(case_data(store, case_id), self.settings)
+        return self._rows[case_id]
+
+    def regime(self, campaign, case_id: str) -> str | None:
+        """The regime of one case, or None while it has not ended."""
+        row = self.row(campaign, case_id)
+        return None if row is None else row["regime"]
 
 
 class SearchDriver(StageDriver):

@@ -47,6 +47,7 @@ swept parameters (refine.py, docs/analysis.md)::
     tolerance = { shear_rate = 0.1, psi_bar = 0.05 }  # relative on S, absolute on the others
     max_cases = 150                                   # per refinement
     straight_span = 4                                 # along a boundary, cells up to 4 tolerances wide
+    max_N = 256                                       # an under-resolved case runs again at 2 N, up to 256
 
 The ``[sweep]`` values of the two axes are the coarse grid; every combination
 of the other swept keys is a refinement of its own. Cases are made stage by
@@ -150,6 +151,8 @@ class Study:
             plan = {k: v for k, v in dataclasses.asdict(self.refine).items() if k != "max_cases"}
             if plan["straight_span"] == 1:   # the quadtree: as files made before the key existed
                 del plan["straight_span"]
+            if not plan["max_N"]:            # no retries: as files made before the key existed
+                del plan["max_N"]
             payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
                        "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
                        "refine": plan, "analysis": dataclasses.asdict(self.analysis)}
@@ -184,8 +187,9 @@ class Study:
         """Digits of a case id: enough for every case the study can have."""
         return max(4, len(str(self.most_cases - 1)))
 
-    def make_case(self, case_id: str, swept: dict, search: int = -1) -> StudyCase:
-        """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated)."""
+    def make_case(self, case_id: str, swept: dict, search: int = -1, N: int | None = None) -> StudyCase:
+        """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated);
+        ``N``: another resolution than the base case's (a refinement's retry)."""
         where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
         try:
             physics = dataclasses.replace(self.base.physics, **swept)
@@ -193,7 +197,8 @@ class Study:
             run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
                                       sample_interval=self.times.sample_interval(S, run.sample_interval,
                                                                                  self.base.numerics.fixed_dt))
-            case = Case(physics=physics, numerics=self.base.numerics, run=run)
+            numerics = self.base.numerics if N is None else dataclasses.replace(self.base.numerics, N=N)
+            case = Case(physics=physics, numerics=numerics, run=run)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         return StudyCase(case_id, case, swept, search)
@@ -202,12 +207,13 @@ class Study:
         """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
         return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
 
-    def refine_case(self, refinement: int, x: float, y: float, case_id: str) -> StudyCase:
-        """Case ``case_id`` of refinement number ``refinement``, at the point (x, y) of its plane."""
+    def refine_case(self, refinement: int, x: float, y: float, case_id: str, attempt: int = 0) -> StudyCase:
+        """Case ``case_id`` of refinement number ``refinement``, at the point (x, y) of its plane;
+        ``attempt`` > 0: the point's run again after under-resolved ones, at N doubled each time."""
         x_key, y_key = self.refine.axes
         fixed = self.refinements[refinement]
         swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
-        return self.make_case(case_id, swept, refinement)
+        return self.make_case(case_id, swept, refinement, self.base.numerics.N * 2 ** attempt if attempt else None)
 
     def with_cases(self, new) -> "Study":
         """This study with ``new`` cases appended (their ids must continue the numbering)."""
@@ -334,6 +340,9 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
                 sweep[key] = sweep_values(key, spec)
     problems.raise_any()
     refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
+    if refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
+        raise ConfigError(f"[refine]: max_N = {refine.max_N}: an under-resolved case runs again at twice its "
+                          f"N = {base.numerics.N}, so max_N must be at least {2 * base.numerics.N} (0: never)")
     others = [k for k in sweep if refine and k not in refine.axes]
     refinements = tuple(dict(zip(others, values)) for values in itertools.product(*(sweep[k] for k in others)))
     study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,

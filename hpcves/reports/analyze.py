@@ -38,7 +38,7 @@ from hpcves.run.verdict import DAMAGED, PARAMETERS, CaseData, analyse_case, case
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
 #: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step, accuracy.py)
-COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "regime", "period", "period_err",
+COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "N", "regime", "period", "period_err",
                                      "period_dt_err", "theta_mean", "theta_mean_err", "theta_mean_dt_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
                                      "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "reason")

@@ -8,6 +8,7 @@ from hpcves.campaign.study import Study, study_from_toml
 from hpcves.model.params import LABELS
 from hpcves.reports.tables import markdown_table
 from hpcves.run.store import ENDED_NAMES
+from hpcves.run.verdict import under_resolved
 
 
 def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome]]:
@@ -16,13 +17,13 @@ def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome
     its status is then "running")."""
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
     x_key, y_key = study.refine.axes
-    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"])
+    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"], under_resolved(row))
              for case, row in zip(source.cases, rows) if row["status"] in ENDED_NAMES]
     return study, outcomes(study, found)
 
 
 #: the columns of refinement.csv after the refinement's fixed values
-REFINEMENT_FIELDS = ("status", "cases", "full_grid_cases", "crossings", "blurry", "reason")
+REFINEMENT_FIELDS = ("status", "cases", "run_again", "full_grid_cases", "crossings", "blurry", "reason")
 
 
 def refinement_columns(study: Study) -> tuple:
@@ -74,6 +75,9 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
             + (". " if settings.straight_span == 1 else
                f"; a boundary that crosses a cell from side to side is taken as straight over at most "
                f"{settings.straight_span:g} tolerances along it (refine.straight_span). ")
+            + (f"An under-resolved case runs again at 2 N while that is at most N = {settings.max_N} "
+               "(refine.max_N); 'cases' counts every run, 'run again' the runs after a point's first. "
+               if settings.max_N else "")
             + "A crossing lies between two cases of "
             "different outcomes, on the edge of a finest cell; it is blurry when one of them is undecided, "
             "failed or at the model's limit. The full grid is the regular grid that brackets every boundary "
@@ -81,12 +85,14 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
     body = []
     for o in states:
         r = o.row()
-        body.append([f"{r[k]:g}" for k in keys] + [r["status"], str(r["cases"]), str(r["full_grid_cases"]),
-                                                   f"{100 * r['cases'] / r['full_grid_cases']:.0f} %",
-                                                   str(r["crossings"]), str(r["blurry"]), r["reason"]])
-    text.append(markdown_table([LABELS.get(k, k) for k in keys]
-                               + ["status", "cases", "full grid", "share", "crossings", "blurry", "reason"],
-                               body, left=(len(keys), len(keys) + 6)) + "\n")
+        again = [str(r["run_again"])] if settings.max_N else []
+        body.append([f"{r[k]:g}" for k in keys] + [r["status"], str(r["cases"])] + again
+                    + [str(r["full_grid_cases"]), f"{100 * r['cases'] / r['full_grid_cases']:.0f} %",
+                       str(r["crossings"]), str(r["blurry"]), r["reason"]])
+    header = (["status", "cases"] + (["run again"] if settings.max_N else [])
+              + ["full grid", "share", "crossings", "blurry", "reason"])
+    text.append(markdown_table([LABELS.get(k, k) for k in keys] + header,
+                               body, left=(len(keys), len(keys) + len(header) - 1)) + "\n")
     by_point = {}
     for case, row in zip(cases, rows):
         by_point[(case.search, case.parameters[x.key], case.parameters[y.key])] = row

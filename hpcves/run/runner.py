@@ -72,6 +72,8 @@ class UnderResolved(Diverged):
 
 #: how a model-limit stop's message begins, and what follows its cause (model_limit_cause)
 MODEL_LIMIT_PREFIX, STOPPED_BY = "model limit: ", "; the run stopped "
+#: how a failed case's message begins when N did not resolve it (a larger N may)
+UNDER_RESOLVED = "under-resolved"
 
 
 def model_limit_cause(message: str) -> str:
@@ -176,7 +178,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis) ->
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
-        what = "under-resolved" if isinstance(exc, UnderResolved) else "diverged"
+        what = UNDER_RESOLVED if isinstance(exc, UnderResolved) else "diverged"
         limit = "" if case.physics.homogeneous else beyond_model(state, case.physics.bending_law)
         if limit:
             return record.finish(MODEL_LIMIT, f"{MODEL_LIMIT_PREFIX}{limit}{STOPPED_BY}{what}: {reason} ({kept})",

@@ -15,7 +15,7 @@ from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
 from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
 from hpcves.analysis.regimes import UNDECIDED, AnalysisSettings, Classification, classify
 from hpcves.run.decision import REGIMES_BY_CODE
-from hpcves.run.runner import MODEL_LIMIT_PREFIX
+from hpcves.run.runner import MODEL_LIMIT_PREFIX, UNDER_RESOLVED
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
 from hpcves.model.params import SWEEPABLE as PARAMETERS      # the columns of a case's parameters in a row
 
@@ -36,6 +36,7 @@ class CaseData:
     mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
     decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
     rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
+    N: float = math.nan        # numerics.N (a refinement may run a point again at a larger N)
 
 
 def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
@@ -44,7 +45,7 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
                     search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
-                    float(attrs.get("numerics.rtol", math.nan)))
+                    float(attrs.get("numerics.rtol", math.nan)), float(attrs.get("numerics.N", math.nan)))
 
 
 def mark(store: CaseStore) -> tuple:
@@ -52,12 +53,21 @@ def mark(store: CaseStore) -> tuple:
     return store.status, float(store.progress[0]), store.n_samples, store.n_snapshots
 
 
+def under_resolved(row: dict) -> bool:
+    """Whether a regimes.csv row is a case that failed because its N did not resolve it."""
+    return row["regime"] == FAILED_OUTCOME and row["reason"].startswith(f"{FAILED_PREFIX}{UNDER_RESOLVED}")
+
+
+#: how a failed case's reason begins in regimes.csv
+FAILED_PREFIX = "case failed: "
+
+
 def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     """One row of regimes.csv (COLUMNS) for one case."""
     base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
-            "rtol": case.rtol}
+            "rtol": case.rtol, "N": case.N}
     n = len(case.series["t"])
-    unclassified = {STATUS_NAMES[FAILED]: (FAILED_OUTCOME, "case failed: "),
+    unclassified = {STATUS_NAMES[FAILED]: (FAILED_OUTCOME, FAILED_PREFIX),
                     STATUS_NAMES[MODEL_LIMIT]: (MODEL_LIMIT_OUTCOME, f"stopped at t = {case.t:.4g}: "),
                     DAMAGED: (UNDECIDED, "case damaged: ")}
     if case.status in unclassified or n == 0:

@@ -1,0 +1,199 @@
+"""A refinement runs an under-resolved point again at a larger N (``[refine] max_N``).
+
+The logic on a synthetic map (refine_stages.outcomes: regimes and under-resolved
+flags in, the next points and their attempts out), then tiny real cases: at
+N = 16 with run.max_spectral_tail = 0.02 every psi_bar > 0 case stops as
+under-resolved (its theta tail grows past the initial shape's 0.036) while the
+homogeneous ones finish; at N = 32 all of them finish (tails <= 0.012).
+"""
+import csv
+
+import h5py
+import pytest
+
+from hpcves.analysis import refine
+from hpcves.campaign.driver import run_campaign
+from hpcves.campaign.refine_stages import attempts, outcomes
+from hpcves.campaign.study import study_from_toml
+from hpcves.model.params import ConfigError
+from hpcves.reports.analyze import analyze
+
+PLANE = """
+[campaign]
+name = "retry"
+output = "x.h5"
+[physics]
+psi_bar = 0.48
+[numerics]
+N = 128
+rtol = 1e-3
+[sweep]
+excess_length = [0.19385328260599, 0.9, 1.6, 2.3, 3.0]
+shear_rate = [1.0, 5.0, 20.0, 80.0, 350.0]
+[refine]
+axes = ["shear_rate", "excess_length"]
+tolerance = { shear_rate = 0.1, excess_length = 0.05 }
+max_cases = 1000
+"""
+
+
+def truth(S, delta):
+    """TT above Delta = 1.85, PT below; N = 256 needed in Delta 1.6-1.9 x S 4-10, 1024 at S 8-10."""
+    regime = "TT" if delta > 1.85 else "PT"
+    needed = 1024 if (1.6 <= delta <= 1.9 and 8 <= S <= 10) else 256 if (1.6 <= delta <= 1.9 and 4 <= S <= 10) \
+        else 128
+    return regime, needed
+
+
+def trace(study, max_stages=60):
+    """Run the refinement against ``truth``, with a point's run at N = 128 * 2**attempt:
+    (found, final outcome)."""
+    found, runs = [], []
+    for _ in range(max_stages):
+        (outcome,) = outcomes(study, found)
+        if outcome.state.status != refine.RUNNING:
+            return found, outcome
+        for x, y in outcome.state.next_points:
+            attempt = outcome.retries.get((x, y), 0)
+            assert attempt == sum(p == (x, y) for p in runs)       # a point is asked for again only to retry
+            regime, needed = truth(x, y)
+            N = study.base.numerics.N * 2 ** attempt
+            runs.append((x, y))
+            found.append((0, x, y, regime, False) if N >= needed else (0, x, y, "failed", True))
+    raise AssertionError("no end")
+
+
+def test_an_under_resolved_point_runs_again_at_twice_its_n_until_max_n():
+    without, outcome_0 = trace(study_from_toml(PLANE))
+    with_retries, outcome = trace(study_from_toml(PLANE + "max_N = 256\n"))
+    failed_0 = {p for p, r in outcome_0.regimes.items() if r == "failed"}
+    failed = {p for p, r in outcome.regimes.items() if r == "failed"}
+    assert failed_0 and outcome_0.spent == len(outcome_0.regimes)       # no retries without max_N
+    # with max_N = 256 only the points that need 1024 stay failed, each run twice (N = 128, 256)
+    assert failed and all(truth(*p)[1] == 1024 for p in failed)
+    runs = {}
+    for _, x, y, _, _ in with_retries:
+        runs[(x, y)] = runs.get((x, y), 0) + 1
+    assert max(runs.values()) == 2 and all(runs[p] == 2 for p in failed)
+    assert outcome.spent == len(with_retries) == sum(runs.values()) > len(outcome.regimes)
+    assert all(runs[p] == 2 for p, r in outcome.regimes.items() if truth(*p)[1] == 256)
+    # every point that N = 256 resolves has its true regime; the boundary is sharp away from the failures
+    assert all(r == truth(*p)[0] for p, r in outcome.regimes.items() if p not in failed)
+    crossings = refine.boundary(outcome.settings, outcome.regimes, outcome.state.cells)
+    blurry = [c for c in crossings if c.blurry]
+    crossings_0 = refine.boundary(outcome_0.settings, outcome_0.regimes, outcome_0.state.cells)
+    assert len(blurry) < sum(c.blurry for c in crossings_0)
+    assert all(4 <= c.x_low and c.x_high <= 12 for c in blurry)              # around the N = 1024 patch
+    assert outcome.state.status == outcome_0.state.status == refine.CONVERGED
+    print(f"cases without retries {outcome_0.spent} ({len(failed_0)} failed, "
+          f"{sum(c.blurry for c in crossings_0)} blurry); with max_N = 256 {outcome.spent} "
+          f"({len(failed)} failed, {len(blurry)} blurry)")
+
+
+def test_the_budget_counts_every_run_of_a_point():
+    study = study_from_toml(PLANE.replace("max_cases = 1000", "max_cases = 60") + "max_N = 256\n")
+    found, outcome = trace(study)
+    assert outcome.state.status == refine.BUDGET and outcome.spent == len(found) <= 60
+
+
+def test_attempts_count_the_earlier_cases_of_a_point():
+    assert attempts([(0, 1, 2), (0, 3, 4), (0, 1, 2), (1, 1, 2), (0, 1, 2)]) == [0, 0, 1, 0, 2]
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("max_N = 200\n", "max_N = 200: .* at least 256"),
+    ("max_N = -1\n", "max_N = -1: must be >= 0"),
+    ("max_N = 2.5\n", "max_N"),
+])
+def test_bad_max_n_is_refused(extra, message):
+    with pytest.raises(ConfigError, match=message):
+        study_from_toml(PLANE + extra)
+
+
+def test_max_n_is_in_the_fingerprint_and_0_is_that_of_files_from_before_it():
+    default, zero, retry = (study_from_toml(PLANE + extra).fingerprint for extra in ("", "max_N = 0\n",
+                                                                                        "max_N = 256\n"))
+    assert default == zero != retry
+    study = study_from_toml(PLANE + "max_N = 512\n")
+    assert [study.refine_case(0, 5.0, 1.6, "0001", attempt).case.numerics.N for attempt in (0, 1, 2)] == \
+        [128, 256, 512]
+
+
+TINY = """
+[campaign]
+name = "retry"
+output = "{output}"
+t_end = 1.5
+[numerics]
+N = 16
+dt = 1e-3
+[run]
+max_spectral_tail = 0.02
+sample_interval = 0.005
+snapshot_interval = 0.05
+checkpoint_interval = 0.5
+checkpoint_wall = 0
+[sweep]
+shear_rate = [30.0, 120.0]
+psi_bar = [0.0, 0.3]
+[refine]
+tolerance = {{ shear_rate = 0.5, psi_bar = 0.15 }}
+max_cases = {max_cases}
+max_N = 32
+"""
+
+
+@pytest.fixture(scope="module")
+def retried(tmp_path_factory):
+    """The tiny refinement with retries, run serially in this process: (study, file, summary)."""
+    output = tmp_path_factory.mktemp("retry") / "retry.h5"
+    study = study_from_toml(TINY.format(output=output, max_cases=30))
+    summary = run_campaign(study, output)
+    assert summary.exit_status == 0
+    return study, output, summary
+
+
+def test_a_campaign_runs_under_resolved_cases_again_at_twice_n(retried, tmp_path):
+    study, output, summary = retried
+    (outcome,) = summary.searches
+    with h5py.File(output, "r") as f:
+        n = int(f.attrs["n_cases"])
+        cases = [f["cases"][f"{i:04d}"] for i in range(n)]
+        rows = [(float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"]), int(g.attrs["numerics.N"]),
+                 g["message"][()].decode() if isinstance(g["message"][()], bytes) else str(g["message"][()]))
+                for g in cases]
+    by_point = {}
+    for S, psi, N, message in rows:
+        by_point.setdefault((S, psi), []).append((N, message))
+    for (S, psi), runs in by_point.items():
+        if psi == 0.0:               # the homogeneous vesicle is resolved at N = 16
+            assert [N for N, _ in runs] == [16], (S, psi, runs)
+        else:                        # the others stop as under-resolved at 16, then finish at 32
+            assert [N for N, _ in runs] == [16, 32], (S, psi, runs)
+            assert runs[0][1].startswith("under-resolved: ") and "N = 16 does not resolve" in runs[0][1]
+    assert "failed" not in outcome.regimes.values()
+    assert outcome.spent == n > len(outcome.regimes)
+    report = analyze(output, tmp_path / "analysis", write_to_file=False, case_figures=False)
+    assert [(r["status"], int(r["cases"])) for r in report.refinements] == [(outcome.state.status, n)]
+    with open(tmp_path / "analysis" / "regimes.csv") as f:
+        table = list(csv.DictReader(f))
+    assert [int(float(r["N"])) for r in table] == [N for _, _, N, _ in rows]
+
+
+def test_a_refinement_with_retries_continues_when_its_budget_is_raised(retried, tmp_path):
+    """Resumed from the file, the retries are rebuilt from the order of the cases (N doubles with each
+    run of a point): the continued refinement makes the cases of the uninterrupted one."""
+    _, reference, summary = retried
+    output = tmp_path / "retry.h5"
+    first = run_campaign(study_from_toml(TINY.format(output=output, max_cases=7)), output)
+    assert [o.state.status for o in first.searches] == ["budget spent"]
+    again = run_campaign(study_from_toml(TINY.format(output=output, max_cases=30)), output, resume=True)
+    assert [(o.state.status, o.regimes, o.spent) for o in again.searches] == \
+        [(o.state.status, o.regimes, o.spent) for o in summary.searches]
+    with h5py.File(output, "r") as f, h5py.File(reference, "r") as g:
+        assert f.attrs["n_cases"] == g.attrs["n_cases"]
+        for i in range(int(g.attrs["n_cases"])):
+            a, b = f["cases"][f"{i:04d}"], g["cases"][f"{i:04d}"]
+            assert [a.attrs[k] for k in ("numerics.N", "physics.shear_rate", "physics.psi_bar")] == \
+                [b.attrs[k] for k in ("numerics.N", "physics.shear_rate", "physics.psi_bar")]
+            assert a["status"][()] == b["status"][()]
