@@ -174,7 +174,12 @@ def test_a_campaign_runs_under_resolved_cases_again_at_twice_n(retried, tmp_path
     assert "failed" not in outcome.regimes.values()
     assert outcome.spent == n > len(outcome.regimes)
     report = analyze(output, tmp_path / "analysis", write_to_file=False, case_figures=False)
-    assert [(r["status"], int(r["cases"])) for r in report.refinements] == [(outcome.state.status, n)]
+    again = n - len(by_point)             # the runs after a point's first
+    assert again > 0
+    assert [(r["status"], int(r["cases"]), r["run_again"]) for r in report.refinements] == \
+        [(outcome.state.status, n, again)]
+    text = (tmp_path / "analysis" / "refinement.md").read_text()
+    assert "runs again at 2 N while that is at most N = 32" in text and "| run again |" in text
     with open(tmp_path / "analysis" / "regimes.csv") as f:
         table = list(csv.DictReader(f))
     assert [int(float(r["N"])) for r in table] == [N for _, _, N, _ in rows]
