@@ -61,15 +61,15 @@ def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
     at twice that run's N while ``max_N`` allows (:meth:`RefineSettings.retry_N`); until then the
     refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`)."""
     settings = study.refine_settings
-    base_N = study.base.numerics.N
     runs = [{} for _ in study.refinements]           # {(x, y): [under-resolved of each run]}
-    for refinement, x, y, _, unresolved in found:
+    last = [{} for _ in study.refinements]           # {(x, y): regime of its last run}
+    for refinement, x, y, regime, unresolved in found:
         runs[refinement].setdefault((x, y), []).append(unresolved)
+        last[refinement][(x, y)] = regime
     states = []
-    for i, (point, point_runs) in enumerate(zip(study.refinements, runs)):
-        regimes = {(x, y): regime for r, x, y, regime, _ in found if r == i}
+    for i, (point, point_runs, regimes) in enumerate(zip(study.refinements, runs, last)):
         retries = {p: len(r) for p, r in point_runs.items()
-                   if r[-1] and settings.retry_N(base_N * 2 ** (len(r) - 1)) is not None}
+                   if r[-1] and settings.retry_N(study.refine_N(len(r) - 1)) is not None}
         spent = sum(len(r) for r in point_runs.values())
         state = step(settings, {p: v for p, v in regimes.items() if p not in retries}, spent)
         states.append(RefineOutcome(i, dict(point), state, regimes, settings, retries, spent))

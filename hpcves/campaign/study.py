@@ -213,7 +213,12 @@ class Study:
         x_key, y_key = self.refine.axes
         fixed = self.refinements[refinement]
         swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
-        return self.make_case(case_id, swept, refinement, self.base.numerics.N * 2 ** attempt if attempt else None)
+        return self.make_case(case_id, swept, refinement, self.refine_N(attempt) if attempt else None)
+
+    def refine_N(self, attempt: int) -> int:
+        """N of a refinement point's run number ``attempt`` (0: its first): the base N, doubled with each
+        run again after an under-resolved one."""
+        return self.base.numerics.N * 2 ** attempt
 
     def with_cases(self, new) -> "Study":
         """This study with ``new`` cases appended (their ids must continue the numbering)."""

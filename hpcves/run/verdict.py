@@ -53,13 +53,13 @@ def mark(store: CaseStore) -> tuple:
     return store.status, float(store.progress[0]), store.n_samples, store.n_snapshots
 
 
+#: how a failed case's reason begins in regimes.csv
+FAILED_PREFIX = "case failed: "
+
+
 def under_resolved(row: dict) -> bool:
     """Whether a regimes.csv row is a case that failed because its N did not resolve it."""
     return row["regime"] == FAILED_OUTCOME and row["reason"].startswith(f"{FAILED_PREFIX}{UNDER_RESOLVED}")
-
-
-#: how a failed case's reason begins in regimes.csv
-FAILED_PREFIX = "case failed: "
 
 
 def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
