@@ -23,7 +23,7 @@ from typing import Callable
 from hpcves.campaign.file import CampaignFile
 
 #: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
-WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshot", "truncate",
+WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshots", "truncate",
                     "write_checkpoint", "set_decision"})
 READS = frozenset({"case", "status", "progress", "read_checkpoint", "newest_checkpoint_slot", "timeseries"})
 
@@ -115,8 +115,9 @@ class RemoteCaseStore:
         if rows:
             self._write("append_samples", list(rows))
 
-    def append_snapshot(self, snap):
-        self._write("append_snapshot", snap)
+    def append_snapshots(self, snaps):
+        if snaps:
+            self._write("append_snapshots", list(snaps))
 
     def truncate(self, n_samples, n_snapshots):
         self._write("truncate", n_samples, n_snapshots)

@@ -40,6 +40,7 @@ OVERSHOOT = 0.03
 #: write buffered samples at least this often (seconds), so that a running case can be watched
 SAMPLE_FLUSH_SECONDS = 10.0
 SAMPLE_BUFFER_ROWS = 512
+SNAPSHOT_BUFFER = 64           # snapshots held before they are written (64 x 7 fields x N doubles)
 
 
 @dataclass(frozen=True)
@@ -200,20 +201,25 @@ class Moment:
 
 
 class _Record:
-    """What one call of run writes besides the checkpoints: buffered samples, the progress
-    numbers (t, t_end, wall, steps per second), the final status."""
+    """What one call of run writes besides the checkpoints: buffered samples and snapshots, the
+    progress numbers (t, t_end, wall, steps per second), the final status. Samples and snapshots
+    are written in blocks (a write of one row costs about as much as one of hundreds), always
+    before a checkpoint, which counts them."""
 
     def __init__(self, store: CaseStore, flush: Callable[[], None], solver: Solver, start_step: int,
                  wall_before: float):
         self.store, self.flush, self.solver = store, flush, solver
         self.start_step, self.wall_before = start_step, wall_before
         self.rows: list[dict] = []
+        self.snapshots: list[dict] = []
         self.start_wall = self.last_flush_wall = time.perf_counter()
 
     def write_rows(self, state: State | None = None):
-        """Write the buffered samples (and, given the current state, the progress)."""
+        """Write the buffered samples and snapshots (and, given the current state, the progress)."""
         self.store.append_samples(self.rows)
         self.rows.clear()
+        self.store.append_snapshots(self.snapshots)
+        self.snapshots.clear()
         self.last_flush_wall = time.perf_counter()
         if state is not None:
             self.store.set_progress(*self.progress(state, self.last_flush_wall))
@@ -221,7 +227,7 @@ class _Record:
     def progress(self, state: State, now: float) -> tuple:
         wall = now - self.start_wall
         rate = (state.step - self.start_step) / wall if wall > 0 else 0.0
-        return self.solver.time(state), self.store.case.run.t_end, self.wall_before + wall, rate
+        return self.solver.time(state), self.solver.case.run.t_end, self.wall_before + wall, rate
 
     def finish(self, status: int, message: str, state: State) -> Outcome:
         now = time.perf_counter()
@@ -284,7 +290,7 @@ class Samples:
 
 
 class Snapshots:
-    """The state's fields (snapshots group) on the clock's snapshot grid."""
+    """The state's fields on the clock's snapshot grid, into the buffer (SampleFlush writes it out)."""
 
     def __init__(self, record: _Record, clock):
         self.record, self.clock = record, clock
@@ -293,7 +299,7 @@ class Snapshots:
         return self.clock.snapshot_due(m.state)
 
     def __call__(self, m: Moment):
-        self.record.store.append_snapshot(diagnostics.snapshot(self.record.solver, m.state, m.rates))
+        self.record.snapshots.append(diagnostics.snapshot(self.record.solver, m.state, m.rates))
 
 
 class Decisions:
@@ -303,6 +309,7 @@ class Decisions:
 
     def __init__(self, record: _Record, analysis: AnalysisSettings):
         self.record, self.analysis = record, analysis
+        self.case = record.solver.case     # not store.case: that parses the stored TOML (~10 ms a call)
         recorded = record.store.timeseries()
         self.history = {name: list(recorded[name]) for name in decision.SERIES}
 
@@ -312,7 +319,7 @@ class Decisions:
     def __call__(self, m: Moment) -> Outcome | None:
         for name in decision.SERIES:
             self.history[name].append(m.row[name])
-        case = self.record.store.case
+        case = self.case
         if len(self.history["t"]) % case.run.decision_samples:
             return None
         decided = decision.decide({name: np.asarray(v) for name, v in self.history.items()},
@@ -339,14 +346,15 @@ class End:
 
 
 class SampleFlush:
-    """The buffered samples and the progress to the file when SAMPLE_BUFFER_ROWS have gathered or
-    SAMPLE_FLUSH_SECONDS have passed, so that a running case can be watched."""
+    """The buffered samples, snapshots and the progress to the file when SAMPLE_BUFFER_ROWS samples
+    or SNAPSHOT_BUFFER snapshots have gathered or SAMPLE_FLUSH_SECONDS have passed, so that a
+    running case can be watched."""
 
     def __init__(self, record: _Record):
         self.record = record
 
     def due(self, m: Moment) -> bool:
-        return (len(self.record.rows) >= SAMPLE_BUFFER_ROWS
+        return (len(self.record.rows) >= SAMPLE_BUFFER_ROWS or len(self.record.snapshots) >= SNAPSHOT_BUFFER
                 or m.wall - self.record.last_flush_wall >= SAMPLE_FLUSH_SECONDS)
 
     def __call__(self, m: Moment):

@@ -468,11 +468,15 @@ class CaseStore:
         self._ts["length"][()] = stop
 
     @_writes
-    def append_snapshot(self, snap: dict) -> None:
-        i = self.n_snapshots
+    def append_snapshots(self, snaps: list[dict]) -> None:
+        """Write snapshots after the valid ones, one block per field, then advance ``length``."""
+        if not snaps:
+            return
+        start = self.n_snapshots
+        stop = start + len(snaps)
         for name in ("t", "shift") + SNAPSHOT_FIELDS:
-            self._snap[name][i] = snap[name]
-        self._snap["length"][()] = i + 1
+            self._snap[name][start:stop] = np.array([snap[name] for snap in snaps], dtype=float)
+        self._snap["length"][()] = stop
 
     def timeseries(self) -> dict:
         """The valid part of every series (numpy arrays)."""
