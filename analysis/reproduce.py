@@ -20,6 +20,7 @@ import math
 import platform
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -30,6 +31,7 @@ from hpcves.reports import case_pages
 from hpcves.reports.analyze import analyze, period_cell, read_source
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
+from hpcves.campaign.progress import WORK_LEFT
 from hpcves.reports.critical import critical_table
 from hpcves.campaign.study import load_study
 
@@ -48,21 +50,66 @@ MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: Path) -> dict:
     """Run (or continue) every campaign; return its wall time in seconds in this call (0 if it was
     complete). The wall times of every call are added up in ``ledger`` (JSON), so that an interrupted
-    and resumed reproduction still reports what all of it took."""
+    and resumed reproduction still reports what all of it took.
+
+    A campaign that ends with work left (``hpcves status``: exit status 3) stops the reproduction
+    instead of letting the next one start: so does a SIGINT or SIGTERM, here (passed on to the
+    campaign, which checkpoints its running cases; its wall time so far is counted) or sent to the
+    campaign's ranks only (Ctrl-C of a reproduction run in the background reaches them alone)."""
     walls = {}
     for name, toml in jobs.items():
         start = time.monotonic()
         command = mpirun + ["-n", str(np_), hpcves, "campaign", toml, "--resume", "--quiet"]
         print(f"[{name}] {' '.join(command[-6:])}", flush=True)
         try:
-            result = subprocess.run(command)
+            returncode, signalled = _run_forwarding_signals(command)
+            left = None if signalled else _work_left(hpcves, load_study(toml).output)
         finally:
             walls[name] = time.monotonic() - start
             _add_walls(ledger, {name: walls[name]})
-        if result.returncode not in (0, 1):        # 1: some case failed -- reported in REPRODUCTION.md
-            sys.exit(f"campaign {toml} stopped with exit status {result.returncode}; rerun make reproduce "
+        if signalled:
+            sys.exit(f"stopped by {signalled} during campaign {name} (its running cases checkpointed); "
+                     "rerun make reproduce to continue")
+        if returncode not in (0, 1):        # 1: some case failed -- reported in REPRODUCTION.md
+            sys.exit(f"campaign {toml} stopped with exit status {returncode}; rerun make reproduce "
                      "to continue it")
+        if left:
+            sys.exit(f"campaign {toml} stopped before it was complete ({left}); rerun make reproduce to "
+                     "continue it")
     return walls
+
+
+def _run_forwarding_signals(command: list[str]) -> tuple[int, str | None]:
+    """Run ``command``; a SIGINT or SIGTERM that reaches this process is passed on to it, and it is
+    waited for (it checkpoints and exits; a second signal passes on too). Returns (its exit status,
+    the name of the signal that reached this process or None)."""
+    child = subprocess.Popen(command)
+    received = []
+
+    def forward(signum, frame):
+        received.append(signal.Signals(signum).name)
+        if child.poll() is None:
+            child.send_signal(signum)
+
+    handled = [s for s in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(s) is not signal.SIG_IGN]
+    previous = {s: signal.signal(s, forward) for s in handled}
+    try:
+        returncode = child.wait()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return returncode, (received[0] if received else None)
+
+
+def _work_left(hpcves: str, output: str) -> str | None:
+    """What ``hpcves status`` says is left in a campaign file (exit status 3), or None when complete."""
+    result = subprocess.run([hpcves, "status", "--json", output], capture_output=True, text=True)
+    if result.returncode != WORK_LEFT:
+        return None
+    try:
+        return json.loads(result.stdout).get("left") or "work left"
+    except json.JSONDecodeError:
+        return "work left"
 
 
 def _add_walls(ledger: Path, walls: dict) -> dict:

@@ -1,0 +1,115 @@
+"""make reproduce's campaign loop (analysis/reproduce.py run_campaigns): it stops at a campaign that
+ended with work left, passes a SIGTERM on to the running campaign and waits for it, and counts the
+wall time of every call. Fake ``mpirun`` and ``hpcves`` stand in for the real ones."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "analysis"))
+
+import reproduce  # noqa: E402
+
+FAKE_MPIRUN = """\
+import os, sys
+os.execv(sys.executable, [sys.executable] + sys.argv[3:])      # drop "-n NP"
+"""
+
+#: campaign: logs its study and, for a study named "slow", says it is ready and waits for a signal;
+#: status: exit status 3 (work left) for the study named in the environment, else 0
+FAKE_HPCVES = """\
+import json, os, signal, sys, time
+from pathlib import Path
+log = Path(os.environ["FAKE_LOG"])
+command, target = sys.argv[1], [a for a in sys.argv[2:] if not a.startswith("--")][0]
+name = Path(target).stem
+if command == "campaign":
+    with log.open("a") as f:
+        f.write(f"campaign {name}\\n")
+    if name == "slow":
+        def stop(signum, frame):
+            with log.open("a") as f:
+                f.write(f"{name} got {signal.Signals(signum).name}\\n")
+            sys.exit(0)
+        signal.signal(signal.SIGTERM, stop)
+        Path(os.environ["FAKE_READY"]).write_text("ready")
+        deadline = time.monotonic() + 120          # guards against a hang only
+        while time.monotonic() < deadline:
+            time.sleep(0.05)
+        sys.exit(5)
+    sys.exit(0)
+left = os.environ.get("FAKE_LEFT", "")
+output = Path(target).stem
+print(json.dumps({"left": "cases to run" if output == left else None}))
+sys.exit(3 if output == left else 0)
+"""
+
+
+def _studies(tmp_path: Path, names) -> dict:
+    """A study file per name (the demo study with its own output)."""
+    demo = (ROOT / "jobs" / "demo.toml").read_text()
+    jobs = {}
+    for name in names:
+        text = demo.replace('name = "demo"', f'name = "{name}"').replace(
+            'output = "out/demo/demo.h5"', f'output = "{(tmp_path / name).as_posix()}.h5"')
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text)
+        jobs[name] = path.as_posix()
+    return jobs
+
+
+def _fakes(tmp_path: Path) -> tuple[list[str], str]:
+    (tmp_path / "mpirun.py").write_text(FAKE_MPIRUN)
+    hpcves = tmp_path / "hpcves"
+    hpcves.write_text(f"#!{sys.executable}\n" + FAKE_HPCVES)
+    hpcves.chmod(0o755)
+    return [sys.executable, str(tmp_path / "mpirun.py")], str(hpcves)
+
+
+def test_a_campaign_with_work_left_stops_the_reproduction(tmp_path, monkeypatch):
+    jobs = _studies(tmp_path, ["first", "second", "third"])
+    mpirun, hpcves = _fakes(tmp_path)
+    monkeypatch.setenv("FAKE_LOG", str(tmp_path / "log"))
+    monkeypatch.setenv("FAKE_LEFT", "second")
+    ledger = tmp_path / "walls.json"
+    with pytest.raises(SystemExit) as stopped:
+        reproduce.run_campaigns(jobs, mpirun, 2, hpcves, ledger)
+    assert "second.toml stopped before it was complete (cases to run)" in str(stopped.value.code)
+    assert (tmp_path / "log").read_text().split("\n")[:-1] == ["campaign first", "campaign second"]
+    walls = json.loads(ledger.read_text())
+    assert set(walls) == {"first", "second"} and all(w > 0 for w in walls.values())
+    monkeypatch.setenv("FAKE_LEFT", "")                     # the rerun goes on from there
+    again = reproduce.run_campaigns(jobs, mpirun, 2, hpcves, ledger)
+    assert set(again) == {"first", "second", "third"}
+    assert all(json.loads(ledger.read_text())[n] > walls.get(n, 0) for n in again)
+
+
+def test_a_sigterm_is_passed_on_to_the_running_campaign_and_stops_the_reproduction(tmp_path):
+    jobs = _studies(tmp_path, ["quick", "slow", "never"])
+    mpirun, hpcves = _fakes(tmp_path)
+    ledger, ready = tmp_path / "walls.json", tmp_path / "ready"
+    script = textwrap.dedent(f"""
+        import sys
+        sys.path.insert(0, {str(ROOT / 'analysis')!r})
+        import reproduce
+        reproduce.run_campaigns({jobs!r}, {mpirun!r}, 2, {hpcves!r}, __import__('pathlib').Path({str(ledger)!r}))
+    """)
+    env = {**os.environ, "FAKE_LOG": str(tmp_path / "log"), "FAKE_READY": str(ready)}
+    runner = subprocess.Popen([sys.executable, "-c", script], env=env, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120                       # guards against a hang only
+    while not ready.exists():
+        assert runner.poll() is None and time.monotonic() < deadline, runner.stderr.read()
+        time.sleep(0.05)
+    runner.send_signal(signal.SIGTERM)
+    _, stderr = runner.communicate(timeout=120)
+    assert runner.returncode == 1
+    assert "stopped by SIGTERM during campaign slow" in stderr
+    assert (tmp_path / "log").read_text().split("\n")[:-1] == ["campaign quick", "campaign slow", "slow got SIGTERM"]
+    assert set(json.loads(ledger.read_text())) == {"quick", "slow"}
