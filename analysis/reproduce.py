@@ -53,9 +53,9 @@ def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: 
     and resumed reproduction still reports what all of it took.
 
     A campaign that ends with work left (``hpcves status``: exit status 3) stops the reproduction
-    instead of letting the next one start: so does a SIGINT or SIGTERM, here (passed on to the
-    campaign, which checkpoints its running cases; its wall time so far is counted) or sent to the
-    campaign's ranks only (Ctrl-C of a reproduction run in the background reaches them alone)."""
+    instead of letting the next one start: so does a SIGINT or SIGTERM, here (a SIGTERM is passed on
+    to the campaign; it checkpoints its running cases, and its wall time so far is counted) or sent
+    to the campaign's ranks only (Ctrl-C of a reproduction run in the background reaches them alone)."""
     walls = {}
     for name, toml in jobs.items():
         start = time.monotonic()
@@ -80,15 +80,17 @@ def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: 
 
 
 def _run_forwarding_signals(command: list[str]) -> tuple[int, str | None]:
-    """Run ``command``; a SIGINT or SIGTERM that reaches this process is passed on to it, and it is
-    waited for (it checkpoints and exits; a second signal passes on too). Returns (its exit status,
-    the name of the signal that reached this process or None)."""
+    """Run ``command`` and wait for it, also after a SIGINT or SIGTERM reaches this process: a
+    SIGTERM is passed on to it (it checkpoints and exits); a SIGINT is not, since Ctrl-C reaches the
+    whole foreground process group, the campaign's ranks included, and a second signal makes them
+    give up at once. Returns (its exit status, the name of the signal that reached this process or
+    None)."""
     child = subprocess.Popen(command)
     received = []
 
     def forward(signum, frame):
         received.append(signal.Signals(signum).name)
-        if child.poll() is None:
+        if signum == signal.SIGTERM and child.poll() is None:
             child.send_signal(signum)
 
     handled = [s for s in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(s) is not signal.SIG_IGN]
