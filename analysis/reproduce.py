@@ -63,7 +63,8 @@ def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: 
         print(f"[{name}] {' '.join(command[-6:])}", flush=True)
         try:
             returncode, signalled = _run_forwarding_signals(command)
-            left = None if signalled else _work_left(hpcves, load_study(toml).output)
+            left = (_work_left(hpcves, load_study(toml).output) if not signalled and returncode in (0, 1)
+                    else None)               # a bad exit status or a signal stops it anyway
         finally:
             walls[name] = time.monotonic() - start
             _add_walls(ledger, {name: walls[name]})
