@@ -159,6 +159,16 @@ def copy_figures(reports: dict, directory: Path) -> dict:
     return shown
 
 
+def prune_figures(report: Path, directory: Path) -> list[Path]:
+    """Delete the PNG files directly in ``directory`` that ``report`` does not show (figures of an
+    earlier version, figures analyze wrote that the report leaves out); the deleted paths."""
+    text = report.read_text()
+    stale = [p for p in sorted(directory.glob("*.png")) if f"({p.as_posix()})" not in text]
+    for path in stale:
+        path.unlink()
+    return stale
+
+
 def _fmt(value, spec=".4g") -> str:
     return format(value, spec) if isinstance(value, float) and math.isfinite(value) else ""
 
@@ -430,7 +440,9 @@ def main(argv=None):
     reports = analyse(jobs, out, args.np_)
     figures = copy_figures(reports, FIGURES[args.grid])
     write_report(Path(args.out), args.grid, jobs, reports, figures, walls, totals, args.np_, out, analysis_start)
-    print(f"wrote {args.out}")
+    stale = prune_figures(Path(args.out), FIGURES[args.grid])
+    print(f"wrote {args.out}" + (f"; removed {len(stale)} figures from {FIGURES[args.grid]} it does not show"
+                                  if stale else ""))
 
 
 if __name__ == "__main__":

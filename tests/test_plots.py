@@ -93,6 +93,26 @@ def test_a_case_page_shows_the_settled_window_streamlines_and_short_titles():
         plt.close(fig)
 
 
+def test_the_velocity_panel_leaves_a_few_spikes_off_its_scale_and_says_so():
+    t = np.linspace(0.0, 4.0, 400)
+    smooth = np.sin(2 * np.pi * t)
+    fig, ax = plt.subplots()
+    try:
+        ax.plot(t, smooth)
+        before = ax.get_ylim()
+        assert plots._clip_outliers(ax, smooth) == ""            # a smooth oscillation keeps its extremes
+        assert ax.get_ylim() == before
+        spiky = 0.01 * smooth
+        spiky[57] = -4300.0                                       # one sample of an undefined pattern position
+        ax.plot(t, spiky)
+        note = plots._clip_outliers(ax, spiky)
+        assert note.startswith("1 of 400 values off the scale") and "-4.3e+03" in note
+        low, high = ax.get_ylim()
+        assert -0.05 < low < -0.01 and 0.01 < high < 0.05          # the oscillation fills the panel
+    finally:
+        plt.close(fig)
+
+
 def test_regions_fall_to_the_nearest_case_on_each_axis_scale():
     rows = [_row(regime, S, psi) for S, regime in ((5.0, "TT"), (20.0, "PT"), (80.0, "PT"))
             for psi in (0.3, 0.5)]

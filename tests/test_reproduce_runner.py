@@ -113,3 +113,17 @@ def test_a_sigterm_is_passed_on_to_the_running_campaign_and_stops_the_reproducti
     assert "stopped by SIGTERM during campaign slow" in stderr
     assert (tmp_path / "log").read_text().split("\n")[:-1] == ["campaign quick", "campaign slow", "slow got SIGTERM"]
     assert set(json.loads(ledger.read_text())) == {"quick", "slow"}
+
+
+def test_prune_figures_keeps_what_the_report_shows(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    directory = Path("docs/reproduction")
+    (directory / "fine").mkdir(parents=True)
+    for name in ("a_phase_diagram.png", "a_periods.png", "old_critical_shear.png", "fine/a_phase_diagram.png"):
+        (directory / name).write_bytes(b"png")
+    report = Path("REPRODUCTION.md")
+    report.write_text("# r\n\n![a_phase_diagram](docs/reproduction/a_phase_diagram.png)\n")
+    stale = reproduce.prune_figures(report, directory)
+    assert sorted(p.name for p in stale) == ["a_periods.png", "old_critical_shear.png"]
+    assert sorted(p.relative_to(directory).as_posix() for p in directory.rglob("*.png")) == [
+        "a_phase_diagram.png", "fine/a_phase_diagram.png"]      # the fine set's own folder is left alone

@@ -178,6 +178,10 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     ax.plot(tw, v_psi + v_l, color="k", lw=2.4, alpha=0.35, label=r"$V_\psi + V_L$ (phase, lab)")
     ax.plot(tw, v_psi, color="tab:blue", lw=1.2, label=r"$V_\psi$ (phase vs material)")
     ax.plot(tw, v_l, color="tab:orange", lw=1.2, ls="--", label=r"$V_L$ (material vs long axis)")
+    off_scale = _clip_outliers(ax, np.concatenate([v_psi + v_l, v_psi, v_l]))
+    if off_scale:
+        ax.text(0.99, 0.02, off_scale, transform=ax.transAxes, ha="right", va="bottom", fontsize=8,
+                color="tab:red")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("velocity along the membrane")
     ax.legend(frameon=False, fontsize=8, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3)
@@ -210,6 +214,24 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     if title:
         fig.suptitle(title + (f"\n{subtitle}" if subtitle else ""), fontsize=11)
     return fig
+
+
+def _clip_outliers(ax, values: np.ndarray, coverage: float = 99.0) -> str:
+    """Scale ``ax``'s y axis to the central ``coverage`` % of ``values`` (with a margin) when a few
+    samples lie far outside it, e.g. the phase velocity of a pattern whose position is undefined
+    for an instant; what was left off the scale ("" when nothing was)."""
+    finite = values[np.isfinite(values)]
+    if finite.size < 10:
+        return ""
+    low, high = np.percentile(finite, [(100 - coverage) / 2, (100 + coverage) / 2])
+    margin = 0.25 * (high - low) or 0.25 * max(abs(low), abs(high), 1e-12)
+    low, high = low - margin, high + margin
+    outside = np.count_nonzero((finite < low) | (finite > high))
+    if outside == 0:
+        return ""
+    ax.set_ylim(low, high)
+    extreme = finite[np.argmax(np.abs(finite))]
+    return f"{outside} of {finite.size} values off the scale (extreme {extreme:.3g})"
 
 
 def _about_mean(values: np.ndarray, name: str, unit: str = "") -> tuple[np.ndarray, str]:
