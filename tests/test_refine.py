@@ -225,3 +225,19 @@ def test_bad_settings_are_refused():
         RefineSettings(S_AXIS, PSI_AXIS, max_cases=10)
     with pytest.raises(ConfigError, match="straight_span = 0.5: must be >= 1"):
         RefineSettings(S_AXIS, PSI_AXIS, straight_span=0.5)
+
+
+def test_the_blurry_stretches_are_summed_up_by_outcome_and_cause():
+    from hpcves.reports.refinement import blurring_summary
+    under = ("case failed: under-resolved: the top third of the Fourier modes of theta holds 0.0035 of its "
+             "variation (run.max_spectral_tail = 0.003) at t = 19.87: N = 128 does not resolve it")
+    ends = [("failed", under, 9.17, 1.6875), ("failed", under.replace("0.0035", "0.0042"), 3.34, 1.775),
+            ("undecided", "not settled: theta still changes by 0.078 rad over the last quarter", 9.17, 0.4587),
+            ("undecided", "not settled: theta still changes by 3 rad over the last quarter", 5.95, 1.16),
+            ("undecided", "theta oscillates (period 2.35 +- 0.0006 (6 cycles after t = 22.3), amplitude "
+                          "0.00315 rad) but the pattern is fixed in the lab frame (5.2e-06 of the speed)", 10.9, 1.6)]
+    assert blurring_summary(ends, "S", "Delta") == (
+        "blurred by 3 undecided (not settled: 2, theta oscillates but the pattern is fixed in the lab frame: 1) "
+        "at S = 5.95 to 10.9, Delta = 0.459 to 1.6; 2 failed (under-resolved: 2) at S = 3.34 to 9.17, "
+        "Delta = 1.69 to 1.77")
+    assert blurring_summary([], "S", "Delta") == "every case at their ends was decided"

@@ -2,6 +2,9 @@
 boundaries as polylines, from a refine file's cases."""
 from __future__ import annotations
 
+import re
+from collections import Counter
+
 from hpcves.analysis.refine import boundary, polylines
 from hpcves.campaign.refine_stages import RefineOutcome, outcomes
 from hpcves.campaign.study import Study, study_from_toml
@@ -55,6 +58,31 @@ def boundary_rows(study: Study, states: list[RefineOutcome]) -> list[dict]:
     return out
 
 
+def _cause(reason: str) -> str:
+    """The kind of a reason, without its numbers: "case failed: under-resolved: the top third ..."
+    -> "under-resolved", "only 2.2 settled periods of 15.35 (at least 3)" -> "only n settled periods of n"."""
+    text = reason.split("; ")[0].removeprefix("case failed: ")
+    while re.search(r"\([^()]*\)", text):
+        text = re.sub(r"\s*\([^()]*\)", "", text)             # parentheses, innermost first
+    text = re.split(r":| --", text, maxsplit=1)[0]
+    return re.sub(r"[-+]?\d+(\.\d+)?(e[-+]?\d+)?", "n", text).strip()
+
+
+def blurring_summary(ends: list[tuple[str, str, float, float]], x_label: str, y_label: str) -> str:
+    """What blurs the boundaries, one clause per outcome: its cases counted by cause and the span of
+    the axes they lie in. ``ends``: (regime, reason, x, y) of each case that blurs a crossing."""
+    if not ends:
+        return "every case at their ends was decided"
+    clauses = []
+    for regime in sorted({e[0] for e in ends}, key=lambda r: -sum(e[0] == r for e in ends)):
+        mine = [e for e in ends if e[0] == regime]
+        causes = Counter(_cause(e[1]) for e in mine).most_common()
+        xs, ys = [e[2] for e in mine], [e[3] for e in mine]
+        clauses.append(f"{len(mine)} {regime} ({', '.join(f'{c}: {n}' for c, n in causes)}) at "
+                       f"{x_label} = {min(xs):.3g} to {max(xs):.3g}, {y_label} = {min(ys):.3g} to {max(ys):.3g}")
+    return "blurred by " + "; ".join(clauses)
+
+
 def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], rows: list[dict],
                         cases) -> str:
     """refinement.md: every refinement's verdict, then its blurry stretches with the reasons of the
@@ -102,16 +130,21 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
             continue
         where = ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in o.point.items())
         text.append(f"## Blurry stretches{' at ' + where if where else ''}\n")
-        text.append("The cases that are not TT, PT or TU at the ends of blurry crossings, and why:\n")
-        seen = set()
+        ends, seen = [], set()
         for c in blurry:
             for point in ((c.x_low, c.y_low), (c.x_high, c.y_high)):          # the edge's two ends
                 row = by_point.get((o.index, *point))
                 if row is None or row["regime"] in ("TT", "PT", "TU") or row["case"] in seen:
                     continue
                 seen.add(row["case"])
-                text.append(f"* case {row['case']} ({LABELS.get(x.key, x.key)} = {point[0]:g}, "
-                            f"{LABELS.get(y.key, y.key)} = {point[1]:g}): {row['regime']} -- "
-                            f"{row['reason'].split('; ')[0]}")
+                ends.append((row, point))
+        summary = blurring_summary([(row["regime"], row["reason"], *point) for row, point in ends],
+                                   LABELS.get(x.key, x.key), LABELS.get(y.key, y.key))
+        text.append(f"{len(blurry)} of the crossings are blurry; {summary}.\n")
+        text.append("The cases that are not TT, PT or TU at the ends of blurry crossings, and why:\n")
+        for row, point in ends:
+            text.append(f"* case {row['case']} ({LABELS.get(x.key, x.key)} = {point[0]:g}, "
+                        f"{LABELS.get(y.key, y.key)} = {point[1]:g}): {row['regime']} -- "
+                        f"{row['reason'].split('; ')[0]}")
         text.append("")
     return "\n".join(text) + "\n"
