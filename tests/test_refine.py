@@ -240,4 +240,7 @@ def test_the_blurry_stretches_are_summed_up_by_outcome_and_cause():
         "blurred by 3 undecided (not settled: 2, theta oscillates but the pattern is fixed in the lab frame: 1) "
         "at S = 5.95 to 10.9, Delta = 0.459 to 1.6; 2 failed (under-resolved: 2) at S = 3.34 to 9.17, "
         "Delta = 1.69 to 1.77")
+    assert blurring_summary(ends[:2] + [("failed", under, 5.95, 1.6)], "S", "psi_bar") == (
+        "blurred by 3 failed (under-resolved: 3) at S = 3.34 to 9.17, psi_bar = 1.6 to 1.77")
+    assert blurring_summary(ends[2:3], "S", "Delta") == "blurred by 1 undecided (not settled: 1) at S = 9.17, Delta = 0.459"
     assert blurring_summary([], "S", "Delta") == "every case at their ends was decided"

@@ -77,9 +77,10 @@ def blurring_summary(ends: list[tuple[str, str, float, float]], x_label: str, y_
     for regime in sorted({e[0] for e in ends}, key=lambda r: -sum(e[0] == r for e in ends)):
         mine = [e for e in ends if e[0] == regime]
         causes = Counter(_cause(e[1]) for e in mine).most_common()
-        xs, ys = [e[2] for e in mine], [e[3] for e in mine]
-        clauses.append(f"{len(mine)} {regime} ({', '.join(f'{c}: {n}' for c, n in causes)}) at "
-                       f"{x_label} = {min(xs):.3g} to {max(xs):.3g}, {y_label} = {min(ys):.3g} to {max(ys):.3g}")
+        spans = [f"{label} = " + (f"{min(v):.3g}" if f"{min(v):.3g}" == f"{max(v):.3g}" else
+                                  f"{min(v):.3g} to {max(v):.3g}")
+                 for label, v in ((x_label, [e[2] for e in mine]), (y_label, [e[3] for e in mine]))]
+        clauses.append(f"{len(mine)} {regime} ({', '.join(f'{c}: {n}' for c, n in causes)}) at {', '.join(spans)}")
     return "blurred by " + "; ".join(clauses)
 
 
