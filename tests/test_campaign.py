@@ -25,6 +25,11 @@ from hpcves.campaign.study import study_from_toml
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
+# `make test` runs each MPI behaviour once, with one rank count and one I/O mode; the other
+# combinations carry the `faults` marker and run in `make faults` (relay at 3 ranks is also
+# what test_faults.py kills at exact moments in `make test`).
+more = pytest.mark.faults
+
 #: numerics and recording of the tiny test cases (N = 32); ``{checkpoint}`` is filled in by the study
 TINY_RUN = """[numerics]
 N = 32
@@ -212,7 +217,8 @@ ACCESS = {"mpio": "parallel HDF5", "relay": "HDF5 through rank 0"}
 
 
 @needs_mpi
-@pytest.mark.parametrize("n, io", [(2, "mpio"), (3, "mpio"), (2, "relay"), (3, "relay")])
+@pytest.mark.parametrize("n, io", [(2, "mpio"), pytest.param(3, "mpio", marks=more),
+                                   pytest.param(2, "relay", marks=more), (3, "relay")])
 def test_mpi_campaign_completes_and_matches_the_serial_run(tmp_path, reference, n, io):
     path, output = write_study(tmp_path, t_end=0.3)
     result = hpcves("campaign", path, "--io", io, n=n)
@@ -235,7 +241,8 @@ def test_without_mpi_in_h5py_the_ranks_write_through_rank_0(monkeypatch):
 
 
 @needs_mpi
-@pytest.mark.parametrize("n, io", [(2, "mpio"), (3, "mpio"), (3, "relay")])
+@pytest.mark.parametrize("n, io", [(2, "mpio"), pytest.param(3, "mpio", marks=more),
+                                   pytest.param(3, "relay", marks=more)])
 def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n, io):
     path, output = write_study(tmp_path, t_end=0.8, checkpoint=0.02, shear="[20, 40, 80]")
     job = start_job(n, "campaign", path, "--quiet", "--io", io)
@@ -257,7 +264,7 @@ def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n, 
 
 
 @needs_mpi
-@pytest.mark.parametrize("io", ["mpio", "relay"])
+@pytest.mark.parametrize("io", [pytest.param("mpio", marks=more), "relay"])
 def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path, io):
     # only the stop writes checkpoints; a sample every step makes the first flush come after 512 steps
     path, output = write_study(tmp_path, t_end=3.0, checkpoint=10.0, sample=1e-3)
@@ -285,7 +292,7 @@ def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path, io):
 
 
 @needs_mpi
-@pytest.mark.parametrize("io", ["mpio", "relay"])
+@pytest.mark.parametrize("io", ["mpio", pytest.param("relay", marks=more)])
 def test_a_diverging_case_fails_alone_under_mpi(tmp_path, io):
     path, output = write_study(tmp_path, t_end=0.2, shear="[40, 20000]")   # N = 32 cannot follow S = 20000
     result = hpcves("campaign", path, "--io", io, n=2)
