@@ -2,6 +2,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
+from conftest import make_solver
+
 from hpcves.model import geometry
 from hpcves.model.params import REFERENCE_EXCESS_LENGTH, REFERENCE_LENGTH, ConfigError, Physics
 from hpcves.numerics.spectral import Spectral
@@ -101,3 +103,85 @@ def test_projection_keeps_a_circle_and_closes_it():
     projected, before = geometry.project_closed(circle + 1e-9 * np.sin(2 * np.pi * sp.alpha), sp, area)
     assert abs(geometry.closure_defect(projected)) < 1e-15
     assert geometry.enclosed_area(projected, sp) == pytest.approx(area, rel=1e-13)
+
+
+# --- the smoothed start (physics.initial_shape = "smoothed", SPEC section 7) ------------------------
+
+def _crosses_itself(z: np.ndarray) -> bool:
+    """Whether the closed polygon through z has two non-adjacent edges that cross."""
+    n = z.size
+    p, r = z[:, None], (np.roll(z, -1) - z)[:, None]
+    q, s = p.T, r.T
+    cross = lambda u, v: (np.conj(u) * v).imag           # noqa: E731
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = cross(q - p, s) / cross(r, s)
+        u = cross(q - p, r) / cross(r, s)
+    i, j = np.nonzero((t > 0) & (t < 1) & (u > 0) & (u < 1))
+    return bool(np.any(np.abs((i - j + n // 2) % n - n // 2) > 1))
+
+
+@pytest.mark.parametrize("N", [64, 128])
+@pytest.mark.parametrize("delta, ellipse_tip, smoothed_tip", [(0.94, 10.4, 6.2), (2.30, 26.0, 8.1)])
+def test_smoothed_start_keeps_the_excess_length_and_blunts_the_tips(N, delta, ellipse_tip, smoothed_tip):
+    # the tip curvatures of the two starts as the authors' code (under Octave) gives them: 26.0 -> 8.1
+    # at Delta = 2.3, 10.4 -> 6.2 at Delta = 0.94 (a transcription of their initial set-up gives 8.1367
+    # and 6.2109 at N = 128 and 256, and the same tangent angle as here to 3e-10)
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, delta)
+    assert a / b**2 == pytest.approx(ellipse_tip, rel=0.01)          # the ellipse's tip (not resolved at N = 128)
+    solver = make_solver(N=N, psi_bar=0.48, excess_length=delta, initial_shape="smoothed")
+    start = solver.initial_state()
+    area = geometry.enclosed_area(start.theta + solver.sp.circle_angle, solver.sp)
+    assert geometry.excess_length(area, REFERENCE_LENGTH) == pytest.approx(delta, abs=1e-10)
+    assert solver.initial_tails[0] < 1e-14                                # resolved already at N = 64
+    smoothed = solver.shape(start)
+    assert smoothed.curvature.max() == pytest.approx(smoothed_tip, rel=0.01)
+    assert geometry.length_of(smoothed.z, solver.sp) == pytest.approx(REFERENCE_LENGTH, rel=1e-12)
+    assert smoothed.curvature.min() < 0 if delta > 2 else smoothed.curvature.min() > 0   # concave flanks at 2.3
+
+
+def test_smoothed_start_has_its_nodes_equally_spaced_in_arclength():
+    # from the positions alone: their trigonometric interpolant, 16 times finer, has speed |dz/dalpha| = L
+    solver = make_solver(N=64, psi_bar=0.48, excess_length=2.3, initial_shape="smoothed")
+    z = solver.shape(solver.initial_state()).z
+    fine = 16 * z.size
+    spectrum = np.zeros(fine, complex)
+    k = np.fft.fftfreq(z.size, 1 / z.size).astype(int)
+    spectrum[k] = np.fft.fft(z) * 16
+    speed = np.abs(np.fft.ifft(2j * np.pi * np.fft.fftfreq(fine, 1 / fine) * spectrum))
+    assert np.abs(speed - REFERENCE_LENGTH).max() < 1e-10 * REFERENCE_LENGTH
+
+
+def test_smoothed_start_keeps_the_low_modes_of_the_ellipse_rescaled():
+    # modes 0-2 of the tangent angle's excess kept, 3-4 halved, the rest dropped, all scaled by one c > 1
+    N = 64
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 2.3)
+    alpha = np.arange(N) / N
+    smoothed = np.fft.rfft(geometry.smoothed_ellipse(a, b, N) - np.pi / 2 - 2 * np.pi * alpha) / N
+    ellipse = geometry.ellipse_angle_modes(a, b)[4:]                       # k = 0..4
+    assert np.abs(smoothed[5:]).max() < 1e-15
+    assert np.abs(smoothed[[0, 1, 3]]).max() < 1e-15 and np.abs(ellipse[[0, 1, 3]]).max() < 1e-15  # odd, even modes
+    c = smoothed[2] / ellipse[2]
+    assert c.real == pytest.approx(1.1408, abs=1e-4) and abs(c.imag) < 1e-12
+    assert smoothed[4] / ellipse[4] == pytest.approx(c / 2, rel=1e-12)
+    # the same continuous curve at every N: the nodes of N = 64 are every other node of N = 128
+    assert np.abs(geometry.smoothed_ellipse(a, b, 2 * N)[::2] - geometry.smoothed_ellipse(a, b, N)).max() < 1e-14
+
+
+def test_smoothed_start_is_refused_where_it_would_cross_itself():
+    sp = Spectral(512, REFERENCE_LENGTH, backend="numpy")
+    for delta, crosses in ((7.76, False), (7.78, True)):              # the flanks touch at Delta = 7.7708
+        a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, delta)
+        z = sp.antiderivative_complex(np.exp(1j * geometry.smoothed_ellipse(a, b, sp.N)), 0.0)
+        assert _crosses_itself(z) is crosses
+    Physics(excess_length=7.77, initial_shape="smoothed")
+    with pytest.raises(ConfigError, match="smoothed start crosses itself beyond 7.77"):
+        Physics(excess_length=7.78, initial_shape="smoothed")
+    Physics(excess_length=7.78)                                           # the ellipse is fine
+    with pytest.raises(ConfigError, match="initial_shape = 'round'"):
+        Physics(initial_shape="round")
+
+
+def test_smoothed_circle_is_the_circle():
+    a, b = geometry.ellipse_for_excess_length(REFERENCE_LENGTH, 0.0)
+    alpha = np.arange(32) / 32
+    assert np.abs(geometry.smoothed_ellipse(a, b, 32) - np.pi / 2 - 2 * np.pi * alpha).max() < 1e-15

@@ -169,6 +169,8 @@ def test_search_fingerprint_of_older_files_is_kept():
     assert study_from_toml(SEARCH_TOML).fingerprint != study_from_toml(linear).fingerprint
     sampled = study_from_toml(linear.replace("t_end_min = 1.0", "t_end_min = 1.0\nsamples_per_shear_time = 10"))
     assert sampled.fingerprint != study_from_toml(linear).fingerprint
+    smoothed = study_from_toml(linear.replace("excess_length = 0.194", "excess_length = 0.194\ninitial_shape = \"smoothed\""))
+    assert smoothed.fingerprint != study_from_toml(linear).fingerprint      # the ellipse, as before, keeps it
 
 
 def test_a_case_stored_before_the_bending_law_option_reads_back_as_the_linear_law(tmp_path):
@@ -189,3 +191,12 @@ def test_a_case_stored_before_the_bending_law_option_reads_back_as_the_linear_la
         store.group.attrs["config"] = text.replace('"linear"', '"saturating"')
         assert store.case.physics.bending_law == "saturating"
     assert case_from_toml("[run]\nt_end = 0.1\n").physics.bending_law == "saturating"   # a new input
+
+
+def test_the_start_round_trips_through_a_stored_case():
+    from hpcves.config import case_from_toml, case_to_toml
+
+    case = case_from_toml("[physics]\nexcess_length = 2.3\ninitial_shape = \"smoothed\"\n")
+    assert 'initial_shape = "smoothed"' in case_to_toml(case)
+    assert case_from_toml(case_to_toml(case), stored=True) == case
+    assert case_from_toml("[physics]\n").physics.initial_shape == "ellipse"     # the default, and older files'

@@ -1,2 +1,3 @@
 """Pure analysis: periodicity of a time series, the regime of a case, the discretisation error
-bars, and the logic of the critical-shear search and of boundary refinement."""
+bars, the topology of a phase pattern, and the logic of the critical-shear search and of boundary
+refinement."""

@@ -83,6 +83,68 @@ def ellipse_equal_arclength(a: float, b: float, N: int) -> tuple[np.ndarray, np.
     return t, theta
 
 
+#: Weights of the Fourier modes |k| = 0, 1, 2, 3, 4 of the ellipse's tangent-angle excess that the
+#: smoothed start keeps (the rest are dropped). The halves are what the authors' code keeps of modes 3
+#: and 4: it zeroes one side of the FFT and takes the real part (docs/numerics.md, "Initial shape").
+SMOOTHING_WEIGHTS = (1.0, 1.0, 1.0, 0.5, 0.5)
+
+
+def ellipse_angle_modes(a: float, b: float, kmax: int = 4, tol: float = 1e-14) -> np.ndarray:
+    """Fourier coefficients c_k, k = -kmax..kmax, of theta(alpha) - pi/2 - 2 pi alpha on the ellipse.
+
+    alpha = s / P is the arclength from (a, 0) over the perimeter. The trapezoid rule on M
+    equal-arclength nodes converges geometrically; M doubles from 512 until the coefficients move
+    by less than ``tol`` (a thin ellipse needs more nodes).
+    """
+    k = np.arange(-kmax, kmax + 1)
+    previous = None
+    for M in 2 ** np.arange(9, 21):
+        _, theta = ellipse_equal_arclength(a, b, int(M))
+        modes = np.fft.fft(theta - np.pi / 2 - 2.0 * np.pi * np.arange(M) / M)[k] / M
+        if previous is not None and np.max(np.abs(modes - previous)) < tol:
+            return modes
+        previous = modes
+    raise ConfigError(f"ellipse {a:g} x {b:g}: tangent-angle modes not converged on 2^20 nodes")
+
+
+def smoothed_ellipse(a: float, b: float, N: int) -> np.ndarray:
+    """Tangent angle at N equal-arclength nodes of the smoothed ellipse (the authors' start, SPEC section 7).
+
+    theta(alpha) = pi/2 + 2 pi alpha + c sum_{|k| <= 4} w_|k| c_k e^{2 pi i k alpha}, c_k from
+    :func:`ellipse_angle_modes`, w = SMOOTHING_WEIGHTS, and the factor c > 1 the one that gives back
+    the ellipse's area pi a b at its perimeter: perimeter and area, hence the excess length, are the
+    ellipse's; the tips are blunter. Defined by the continuous curve, so the same shape at every N.
+    """
+    alpha = np.arange(N) / N
+    if a == b:
+        return np.pi / 2 + 2.0 * np.pi * alpha
+    modes = ellipse_angle_modes(a, b)
+    kmax = modes.size // 2
+    k = np.arange(-kmax, kmax + 1)
+    weighted = modes * np.asarray(SMOOTHING_WEIGHTS)[np.abs(k)]
+
+    def angle(alpha):
+        return np.pi / 2 + 2.0 * np.pi * alpha, np.real(np.exp(2j * np.pi * np.outer(alpha, k)) @ weighted)
+
+    fine = Spectral(1024, ellipse_perimeter(a, b), backend="numpy")
+    base, excess = angle(fine.alpha)
+    target = np.pi * a * b
+
+    def area_over(c):
+        return enclosed_area(base + c * excess, fine) - target
+
+    low, high = 1.0, 1.25
+    if area_over(low) <= 0:
+        raise ConfigError(f"ellipse {a:g} x {b:g}: its smoothed shape is not rounder than itself")
+    while area_over(high) > 0:
+        low, high = high, 1.25 * high
+        if high > 100:
+            raise ConfigError(f"ellipse {a:g} x {b:g}: no smoothed shape has its area")
+    c = optimize.brentq(area_over, low, high, xtol=1e-15, rtol=1e-15, maxiter=200)
+    base, excess = angle(alpha)
+    return base + c * excess
+
+
 # ---------------------------------------------------------------------------
 # closed curves in tangent-angle form
 # ---------------------------------------------------------------------------

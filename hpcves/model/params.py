@@ -30,6 +30,10 @@ REFERENCE_EXCESS_LENGTH = 0.19385328260599
 MAX_STEPS = 10**9
 
 PSI_COORDINATES = ("arclength", "ellipse_parameter")
+INITIAL_SHAPES = ("ellipse", "smoothed")
+#: Beyond this excess length the smoothed start (geometry.smoothed_ellipse) crosses itself: its flanks
+#: touch at Delta = 7.7708 (bisection, tests/test_geometry.py).
+SMOOTHED_MAX_EXCESS_LENGTH = 7.77
 
 
 class ConfigError(ValueError):
@@ -78,6 +82,12 @@ class Physics:
     the mean of psi is then exactly psi_bar); ``"ellipse_parameter"`` -- the
     parameter t/(2 pi) of the ellipse x = a cos t, y = b sin t at the node (what
     the authors' code does; the mean then differs from psi_bar by O(delta e^2)).
+    ``initial_shape`` is the start: ``"ellipse"`` (the default), the ellipse of perimeter
+    ``length`` and excess length ``excess_length`` as the publication states it; ``"smoothed"``,
+    that ellipse with its tangent angle cut to the modes |k| <= 4 and rescaled to the ellipse's
+    area, as the authors' code starts (geometry.smoothed_ellipse; the same length, area and
+    excess length, blunter tips: curvature 8.1 instead of 26.0 at Delta = 2.3). alpha of the
+    initial phase is then still that of the ellipse's nodes.
     ``bending_law`` is B(psi) (bending.py): ``"linear"``, B1 + (B2 - B1) psi for
     every psi (SPEC section 1), which vanishes at psi = B1 / (B1 - B2) and lets a
     sharp tip draw the soft phase past 1 (Delta = 2.3); ``"saturating"`` (the
@@ -96,6 +106,7 @@ class Physics:
     delta: float = 0.05
     mobility: float = 1.0
     psi_init_coordinate: Literal["arclength", "ellipse_parameter"] = "arclength"
+    initial_shape: Literal["ellipse", "smoothed"] = "ellipse"
     bending_law: Literal["linear", "saturating"] = "saturating"
     bending_width: float = 0.05
 
@@ -125,6 +136,11 @@ class Physics:
             f"physics.psi_init_coordinate = {self.psi_init_coordinate!r}: must be one of "
             + ", ".join(repr(c) for c in PSI_COORDINATES),
         )
+        _require(self.initial_shape in INITIAL_SHAPES, f"physics.initial_shape = {self.initial_shape!r}: must be "
+                 "one of " + ", ".join(repr(c) for c in INITIAL_SHAPES))
+        _require(self.initial_shape != "smoothed" or self.excess_length <= SMOOTHED_MAX_EXCESS_LENGTH,
+                 f"physics.excess_length = {self.excess_length}: the smoothed start crosses itself beyond "
+                 f"{SMOOTHED_MAX_EXCESS_LENGTH}; use physics.initial_shape = \"ellipse\"")
         _require(self.bending_law in bending.LAWS, f"physics.bending_law = {self.bending_law!r}: must be one of "
                  + ", ".join(repr(c) for c in bending.LAWS))
         _require(self.bending_width > 0, f"physics.bending_width = {self.bending_width}: must be > 0")
@@ -349,7 +365,7 @@ class Case:
         """:meth:`to_dict` without the options that this run does not use: the adaptive options
         of a fixed-step run, dt of an adaptive one, the decision rules of a run to t_end, the
         resolution watch at its default (what a study's fingerprint covers, so that files written
-        before these options existed keep theirs; the linear bending law, which they all ran)."""
+        before these options existed keep theirs; the linear bending law and the ellipse, which they all ran)."""
         out = self.to_dict()
         unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
         for key in unused:
@@ -361,6 +377,8 @@ class Case:
             del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
         if self.physics.bending_law == "linear":      # the law of files from before the option
             del out["physics"]["bending_law"], out["physics"]["bending_width"]
+        if self.physics.initial_shape == "ellipse":   # the start of files from before the option
+            del out["physics"]["initial_shape"]
         return out
 
     def flat(self) -> dict:

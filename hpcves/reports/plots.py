@@ -606,7 +606,15 @@ def case_title(attrs) -> str:
     get = attrs.get
     return (f"S = {get('physics.shear_rate'):g}, $\\bar\\psi$ = {get('physics.psi_bar'):g}, "
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
-            f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, " + step_label(attrs))
+            f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, " + step_label(attrs)
+            + _start_label(attrs))
+
+
+def _start_label(attrs) -> str:
+    """", smoothed start" for a case that did not start from the ellipse (files before the option: "")."""
+    shape = attrs.get("physics.initial_shape", "ellipse")
+    shape = shape.decode() if isinstance(shape, bytes) else str(shape)
+    return "" if shape == "ellipse" else f", {shape} start"
 
 
 def step_label(attrs) -> str:

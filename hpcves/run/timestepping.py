@@ -243,10 +243,13 @@ class Solver:
 
     # ------------------------------------------------------------------ set-up
     def initial_state(self) -> State:
-        """Ellipse of the case's length and excess length; phase as in SPEC section 1."""
+        """The ellipse of the case's length and excess length, or its smoothed form (physics.initial_shape);
+        phase as in SPEC section 1."""
         phys, sp = self.case.physics, self.sp
         a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
         t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
+        if phys.initial_shape == "smoothed":
+            theta = geometry.smoothed_ellipse(a, b, sp.N)
         theta = sp.project(theta - sp.circle_angle, self._resolved) + sp.circle_angle
         theta = geometry.close_curve(theta) - sp.circle_angle
         if phys.homogeneous:
