@@ -50,9 +50,11 @@ faults: setup
 	$(PY) tests/faults.py --kills $(KILLS) --out FAULTS.md
 
 # every result of the publication (REPRODUCTION.md; resumable: run it again to continue);
-# GRID=fine: tighter tolerances for a cluster (REPRODUCTION-fine.md), NP ranks
+# GRID=fine: tighter tolerances for a cluster (REPRODUCTION-fine.md), NP ranks;
+# STUDY=name[,name]: only these campaigns, their sections rewritten, the others kept
+STUDY   ?=
 reproduce: setup
-	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" \
+	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" $(if $(STUDY),--study $(STUDY)) \
 	    --out $(if $(filter fine,$(GRID)),REPRODUCTION-fine.md,REPRODUCTION.md)
 
 clean:

@@ -3,13 +3,20 @@
 Runs the campaigns of jobs/reproduce/ (``--grid coarse``: a laptop, 2 cores) or
 jobs/reproduce/fine/ (``--grid fine``: tighter tolerances, for a cluster) with
 ``mpirun -n NP hpcves campaign --resume``, so an interrupted reproduction
-continues where it stopped; analyzes each with ``hpcves analyze``; and writes
-REPRODUCTION.md with every result of the publication's results sections:
-theta(t) of the homogeneous vesicle and of psi_bar = 0.3, 0.5, 0.7; the TT and
-PT case pages; the period table; S_C against B2 and, with the bending-energy
-gap, against psi_bar; the refined phase diagrams (Delta x S at psi_bar = 0.48,
-S x psi_bar at Delta = 0.94 and 2.3) with their boundaries, case pages and
-shape sequences; and a list of everything that looks unconverged.
+continues where it stopped; analyzes each with ``hpcves analyze`` and writes its
+section of REPRODUCTION.md (docs/reproduction/sections/<campaign>.md: the
+Markdown, after a comment line with what the run took and what looks
+unconverged); then assembles REPRODUCTION.md from every section. ``--study
+NAME,...`` (``make reproduce STUDY=...``) does this for some campaigns only and
+keeps the other sections as they are, so no sitting has to hold the whole run.
+
+The sections: theta(t) of the homogeneous vesicle and of psi_bar = 0.3, 0.5,
+0.7; the TT and PT case pages; the period table; S_C against B2 and, with the
+bending-energy gap, against psi_bar; the deflated cases of the publication's
+Figs 8 and 9 and the refined phase diagrams (Delta x S at psi_bar = 0.48, S x
+psi_bar at Delta = 0.94 and 2.3) with their boundaries, case pages and shape
+sequences, each from the ellipse and from the authors' smoothed start; and a
+list of everything that looks unconverged.
 """
 from __future__ import annotations
 
@@ -24,6 +31,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from hpcves.analysis import accuracy
@@ -35,15 +43,15 @@ from hpcves.campaign.progress import WORK_LEFT
 from hpcves.reports.critical import critical_table
 from hpcves.campaign.study import load_study
 
-STUDIES = ("homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi", "psi048_delta_S", "delta094_S_psi",
-           "delta230_S_psi")
 JOBS = {"coarse": Path("jobs/reproduce"), "fine": Path("jobs/reproduce/fine")}
 FIGURES = {"coarse": Path("docs/reproduction"), "fine": Path("docs/reproduction/fine")}
+SECTION_DIRS = {grid: path / "sections" for grid, path in FIGURES.items()}
 #: the studies whose case pages REPRODUCTION.md shows: every case gets its page, with streamlines (~3 s a
 #: page); the other studies' pages are drawn for the flagged cases only (those "What looks unconverged"
 #: lists), without streamlines (~1 s a page) -- a page for each of their ~1700 cases would take 22 min
 FULL_PAGES = ("homogeneous", "periods", "psi048_cases")
-TARGET_HOURS = 2.0           # the wall time make reproduce (coarse) should take on 2 cores
+TARGET_HOURS = 3.0           # the wall time make reproduce (coarse) should take on 2 cores
+STUDY_TARGET_HOURS = 1.0     # ... and any one of its studies (make reproduce STUDY=...)
 MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 
 
@@ -309,102 +317,209 @@ def _images(paths) -> list[str]:
     return [f"![{p.stem}]({p.as_posix()})" for p in paths if p is not None] + [""]
 
 
-def write_report(path: Path, grid: str, jobs: dict, reports: dict, figures: dict, walls: dict, totals: dict,
-                 np_: int, out: Path, analysis_start: float) -> None:
-    """REPRODUCTION.md; ``analysis_start``: time.monotonic() when this call's analysis began."""
-    directory = FIGURES[grid]
-    total = sum(totals.get(n, 0.0) for n in jobs)
-    lines = [
-        "# Reproduction of the published studies (`make reproduce`)", "",
-        "(the header: written last, when the analysis time is known)",
-        "", "Every campaign and its numerics:", ""]
-    compute = {name: sum(row["wall"] for row in read_table(load_study(toml).output).rows)
-               for name, toml in jobs.items()}
-    lines += [f"* `{toml}` ({name}): {numerics_line(toml)}; {len(reports[name].rows)} cases, "
-              f"{compute[name] / 60:.1f} core-minutes" for name, toml in jobs.items()]
-    lines += ["", f"In all {sum(compute.values()) / 3600:.2f} core-hours of cases (summed over every call that "
-              f"advanced them), that is {sum(compute.values()) / np_ / 3600:.2f} h on {np_} cores.",
-              "", "Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
-              f"the tables and figures of each campaign are in `out/reproduce/{grid}/<campaign>/` (case pages: see the end). Error bars: the "
-              "statistical uncertainty plus the discretisation error of the time step (docs/error_rule.md); "
-              "in brackets the part that dominates.", ""]
+# ---------------------------------------------------------------------------------------------------
+# one section of REPRODUCTION.md per campaign
+# ---------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Context:
+    """What a section's writer reads: its campaign's report, the figures copied for it, where the
+    analysis and the figures are, and its job file."""
 
-    hom = reports["homogeneous"]
-    lines += ["## The homogeneous vesicle: theta(t) for S from 2 to 350 (Delta = 0.194)", "",
-              "psi_bar = 0: one phase everywhere. theta(t) against the shear time S t, and the settled "
-              "inclination:", ""]
-    lines += _images([theta_figure(hom, directory, "homogeneous", None, r"$\bar\psi$ = 0")])
-    lines += [theta_table(hom), ""]
+    name: str
+    report: object
+    figures: list
+    out: Path
+    directory: Path
+    toml: str
 
-    periods = reports["periods"]
-    lines += ["## theta(t) for psi_bar = 0.3, 0.5, 0.7 (Delta = 0.194)", ""]
-    lines += _images([theta_figure(periods, directory, "periods", "psi_bar", r"$\Delta$ = 0.194")])
-    lines += ["## A tank-treading and a phase-treading case (psi_bar = 0.3, S = 40 and 80)", "",
+    @property
+    def study(self):
+        return load_study(self.toml)
+
+    @property
+    def start(self) -> str:
+        """Which start the campaign's cases use, in words (SPEC section 7: a case says which)."""
+        physics = self.study.base.physics
+        if physics.initial_shape == "smoothed":
+            return ("from the authors' smoothed start" if physics.psi_init_coordinate == "ellipse_parameter"
+                    else "from the smoothed shape")
+        return "from the ellipse"
+
+
+def homogeneous_section(c: Context) -> list[str]:
+    lines = ["## The homogeneous vesicle: theta(t) for S from 2 to 350 (Delta = 0.194)", "",
+             "psi_bar = 0: one phase everywhere. theta(t) against the shear time S t, and the settled "
+             "inclination:", ""]
+    lines += _images([theta_figure(c.report, c.directory, c.name, None, r"$\bar\psi$ = 0")])
+    return lines + [theta_table(c.report), ""]
+
+
+def periods_section(c: Context) -> list[str]:
+    lines = ["## theta(t) for psi_bar = 0.3, 0.5, 0.7 (Delta = 0.194)", ""]
+    lines += _images([theta_figure(c.report, c.directory, c.name, "psi_bar", r"$\Delta$ = 0.194")])
+    lines += ["### A tank-treading and a phase-treading case (psi_bar = 0.3, S = 40 and 80)", "",
               "Full case pages: theta, the energies and the centroid, the tension (min / mean / max), the "
               "phase velocities V_psi, V_L and V_psi + V_L over the settled window, the shapes coloured by psi "
               "with the streamlines around them (frame moving with the vesicle), tension and curvature "
               "kymographs.", ""]
     for shear in (40.0, 80.0):
-        page, row = copy_case_page(periods, out, directory, "periods", psi_bar=0.3, shear_rate=shear)
+        page, row = copy_case_page(c.report, c.out, c.directory, c.name, psi_bar=0.3, shear_rate=shear)
         if row is not None:
             lines += [f"S = {shear:g}: {row['regime']} -- {row['reason']}", ""] + _images([page])
-    lines += ["## PT period at Delta = 0.194", "",
+    lines += ["### PT period at Delta = 0.194", "",
               "Period of theta +- its uncertainty; S T is the period in shear times (a 1/S law makes it "
-              "constant).", "", period_table(periods), ""]
-    lines += _images([p for p in figures["periods"] if "periods" in p.name and "theta" not in p.name])
+              "constant).", "", period_table(c.report), ""]
+    return lines + _images([p for p in c.figures if "periods" in p.name and "theta" not in p.name])
 
-    lines += ["## Critical shear rate at Delta = 0.194", "",
-              "S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU]; Delta E_b is "
-              "the bending-energy gap (max - min of E_b over a period) of the PT case at the bracket's top.", "",
-              "### Against B2 at psi_bar = 0.3", "", critical_table(list(reports["sc_b2"].searches), ["B2"]), ""]
-    lines += _images([p for p in figures["sc_b2"] if "critical" in p.name])
-    lines += ["### Against psi_bar, with the bending-energy gap, at B2 = 0.1 and 0.8", "",
-              critical_table(list(reports["sc_psi"].searches), ["psi_bar", "B2"]), ""]
-    lines += _images([p for p in figures["sc_psi"] if "critical" in p.name])
 
-    lines += ["## Phase diagram Delta x S at psi_bar = 0.48 (refined)", ""]
-    lines += _phase_section(reports["psi048_delta_S"], figures["psi048_delta_S"], out, "psi048_delta_S")
-    cases = reports["psi048_cases"]
-    lines += ["### The cases Delta = 0.94, S = 4 and Delta = 2.3, S = 28 (psi_bar = 0.48)", "",
-              "Run until decided (at most 1000 shear times), snapshots every 0.02; case pages with kymographs.", ""]
+CRITICAL_NOTE = ("S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU]; Delta E_b is "
+                 "the bending-energy gap (max - min of E_b over a period) of the PT case at the bracket's top.")
+
+
+def sc_b2_section(c: Context) -> list[str]:
+    lines = ["## Critical shear rate against B2 at psi_bar = 0.3 (Delta = 0.194)", "", CRITICAL_NOTE, "",
+             critical_table(list(c.report.searches), ["B2"]), ""]
+    return lines + _images([p for p in c.figures if "critical" in p.name])
+
+
+def sc_psi_section(c: Context) -> list[str]:
+    lines = ["## Critical shear rate against psi_bar, with the bending-energy gap, at B2 = 0.1 and 0.8 "
+             "(Delta = 0.194)", "", CRITICAL_NOTE, "", critical_table(list(c.report.searches), ["psi_bar", "B2"]), ""]
+    return lines + _images([p for p in c.figures if "critical" in p.name])
+
+
+def cases_section(c: Context) -> list[str]:
+    lines = [f"## The cases Delta = 0.94, S = 4 and Delta = 2.3, S = 28 (psi_bar = 0.48), {c.start}", "",
+             "Run until decided (at most 1000 shear times), snapshots every 0.02; case pages with kymographs.", ""]
     for delta, shear in ((0.94, 4.0), (2.3, 28.0)):
-        page, row = copy_case_page(cases, out, directory, "psi048_cases", excess_length=delta, shear_rate=shear)
+        page, row = copy_case_page(c.report, c.out, c.directory, c.name, excess_length=delta, shear_rate=shear)
         if row is not None:
             lines += [f"Delta = {delta:g}, S = {shear:g}: {row['regime']} at t = {row['t']:.4g} -- "
                       f"{row['reason']}", ""] + _images([page])
-    for name, delta in (("delta094_S_psi", "0.94"), ("delta230_S_psi", "2.30")):
-        lines += [f"## Phase diagram S x psi_bar at Delta = {delta} (refined)", ""]
-        lines += _phase_section(reports[name], figures[name], out, name)
-        lines += ["Shapes over one settled period at psi_bar = 0.5 (the coarse shear rates):", ""]
-        lines += _images([shape_sequence(load_study(jobs[name]).output, directory, name)])
+    return lines
 
-    found = doubts(reports)
-    pages = sum(len(list((out / name / "cases").glob("*.png"))) for name in jobs)
-    analysis = time.monotonic() - analysis_start
-    lines[2] = (
-        f"Written by `analysis/reproduce.py --grid {grid}` on {datetime.date.today()} "
-        f"({platform.node()}, {platform.processor() or platform.machine()}, {np_} MPI ranks). "
-        f"**Wall time: {(total + analysis) / 3600:.2f} h in all** (target for the coarse set on 2 cores: "
-        f"{TARGET_HOURS:g} h): the campaigns {total / 3600:.2f} h (every call that advanced them added up: "
-        + ", ".join(f"{n} {totals.get(n, 0.0) / 60:.1f} min" for n in jobs)
-        + f"; {sum(walls.values()) / 60:.0f} min of it in this call), the analysis (tables, figures, "
-        f"{pages} case pages) {analysis / 60:.0f} min.")
+
+def delta_s_section(c: Context) -> list[str]:
+    return [f"## Phase diagram Delta x S at psi_bar = 0.48 (refined), {c.start}", ""] + _phase_section(c)
+
+
+def s_psi_section(c: Context) -> list[str]:
+    delta = c.study.base.physics.excess_length
+    lines = [f"## Phase diagram S x psi_bar at Delta = {delta:.2f} (refined), {c.start}", ""] + _phase_section(c)
+    lines += ["Shapes over one settled period at psi_bar = 0.5 (the coarse shear rates):", ""]
+    return lines + _images([shape_sequence(c.study.output, c.directory, c.name)])
+
+
+def _phase_section(c: Context) -> list[str]:
+    counts = ", ".join(f"{n} {r}" for r, n in c.report.counts().items())
+    lines = [f"{len(c.report.rows)} cases: {counts}.", ""]
+    lines += _images([p for p in c.figures if "phase_diagram" in p.name])
+    return lines + refinement_text(c.out, c.name) + [""]
+
+
+#: every campaign of the reproduction, in the order of REPRODUCTION.md, and the writer of its section
+SECTIONS = {
+    "homogeneous": homogeneous_section,
+    "periods": periods_section,
+    "sc_b2": sc_b2_section,
+    "sc_psi": sc_psi_section,
+    "psi048_cases": cases_section,
+    "psi048_cases_smoothed": cases_section,
+    "psi048_delta_S": delta_s_section,
+    "psi048_delta_S_smoothed": delta_s_section,
+    "delta094_S_psi": s_psi_section,
+    "delta094_S_psi_smoothed": s_psi_section,
+    "delta230_S_psi": s_psi_section,
+    "delta230_S_psi_smoothed": s_psi_section,
+}
+STUDIES = tuple(SECTIONS)
+SECTION_TAG = "<!-- hpcves reproduce section "
+
+
+def write_section(path: Path, lines: list[str], meta: dict) -> None:
+    """One section: a comment line with what was measured (JSON), then its Markdown."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(SECTION_TAG + json.dumps(meta, sort_keys=True) + " -->\n" + "\n".join(lines).rstrip() + "\n")
+
+
+def read_section(path: Path) -> tuple[dict, str] | None:
+    """(what was measured, the Markdown) of a section file, or None if there is none."""
+    if not path.exists():
+        return None
+    first, _, body = path.read_text().partition("\n")
+    if not first.startswith(SECTION_TAG):
+        raise SystemExit(f"{path}: not a section of the reproduction (no '{SECTION_TAG.strip()}' line)")
+    return json.loads(first[len(SECTION_TAG):].removesuffix("-->").strip()), body
+
+
+def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, totals: dict) -> None:
+    """Analyze one campaign, copy its figures and write its section, with what it took."""
+    start = time.monotonic()
+    report = analyse({name: toml}, out, np_)[name]
+    figures = copy_figures({name: report}, FIGURES[grid])[name]
+    lines = SECTIONS[name](Context(name, report, figures, out, FIGURES[grid], toml))
+    rows = read_table(load_study(toml).output).rows
+    meta = {"study": name, "job": toml, "written": str(datetime.date.today()), "machine": platform.node(),
+            "processor": platform.processor() or platform.machine(), "ranks": np_,
+            "numerics": numerics_line(toml), "cases": len(report.rows),
+            "compute_s": round(sum(row["wall"] for row in rows), 1),
+            "campaign_wall_s": round(totals[name], 1) if name in totals else None,
+            "analysis_wall_s": round(time.monotonic() - start, 1),
+            "pages": len(list((out / name / "cases").glob("*.png"))),
+            "doubts": [line for _, line in doubts({name: report})]}
+    write_section(SECTION_DIRS[grid] / f"{name}.md", lines, meta)
+    print(f"[{name}] section {SECTION_DIRS[grid] / name}.md", flush=True)
+
+
+def _minutes(seconds) -> str:
+    return "not recorded" if seconds is None else f"{seconds / 60:.1f} min"
+
+
+def assemble(path: Path, grid: str) -> None:
+    """REPRODUCTION.md from the section of every study (a study without one is listed as not run)."""
+    found = {name: read_section(SECTION_DIRS[grid] / f"{name}.md") for name in STUDIES}
+    present = {name: section for name, section in found.items() if section is not None}
+    metas = [meta for meta, _ in present.values()]
+    campaign = sum(m["campaign_wall_s"] or 0.0 for m in metas)
+    analysis = sum(m["analysis_wall_s"] or 0.0 for m in metas)
+    unrecorded = [m["study"] for m in metas if m["campaign_wall_s"] is None or m["analysis_wall_s"] is None]
+    lines = [
+        "# Reproduction of the published studies (`make reproduce`)", "",
+        f"Assembled by `analysis/reproduce.py --grid {grid}` on {datetime.date.today()} from one section per "
+        "campaign, each written when its campaign was last analysed: `make reproduce STUDY=name` reruns (or "
+        "continues) one campaign and rewrites its section, `make reproduce` does all of them. "
+        f"**Wall time: {(campaign + analysis) / 3600:.2f} h in all** (target for the coarse set on 2 cores: "
+        f"{TARGET_HOURS:g} h, and at most ~{STUDY_TARGET_HOURS:g} h for any one study): the campaigns "
+        f"{campaign / 3600:.2f} h (every call that advanced them added up), their analysis (tables, figures, "
+        f"case pages) {analysis / 60:.0f} min"
+        + (f"; not recorded for {', '.join(unrecorded)}" if unrecorded else "") + ".", "",
+        markdown_table(["campaign", "numerics", "cases", "core-min", "campaign wall", "analysis", "written"],
+                       [[f"`{m['job']}`", m["numerics"], str(m["cases"]), f"{m['compute_s'] / 60:.1f}",
+                         _minutes(m["campaign_wall_s"]), _minutes(m["analysis_wall_s"]),
+                         f"{m['written']} ({m['machine']}, {m['ranks']} ranks)"] for m in metas]),
+        ""]
+    notes = list(dict.fromkeys(note for m in metas for note in m.get("notes", [])))
+    lines += [f"Note: {note}." for note in notes] + ([""] if notes else [])
+    missing = [name for name in STUDIES if name not in present]
+    if missing:
+        lines += [f"Not run yet: {', '.join(missing)} (`make reproduce STUDY={','.join(missing)}`).", ""]
+    lines += ["Regimes are decided by `hpcves analyze` (docs/analysis.md) with its default thresholds; "
+              f"the tables and figures of each campaign are in `out/reproduce/{grid}/<campaign>/` (case pages: see "
+              "the end). Error bars: the statistical uncertainty plus the discretisation error of the time step "
+              "(docs/error_rule.md); in brackets the part that dominates. The deflated studies run from two "
+              "starts (docs/numerics.md, \"Initial shape\"): the ellipse the publication states, and the "
+              "smoothed shape its authors' code started from; each section says which.", ""]
+    for _, body in present.values():
+        lines += [body.rstrip(), ""]
+    flagged = [line for m in metas for line in m["doubts"]]
     lines += ["## What looks unconverged", ""]
-    lines += [f"* {line}" for _, line in found] if found else ["Nothing was flagged."]
+    lines += [f"* {line}" for line in flagged] if flagged else ["Nothing was flagged."]
     lines += ["", "Flagged: unfinished or failed cases, undecided cases, PT/TU cases with fewer than "
               f"{MIN_GOOD_CYCLES} settled periods or a period uncertain by more than 0.5 %, searches and "
               "refinements that did not converge. Every flagged case has its page in "
               f"`out/reproduce/{grid}/<campaign>/cases/<case>.png` (as have all cases of "
               f"{', '.join(FULL_PAGES)}); `hpcves analyze FILE` draws every case's page.", ""]
-    path.write_text("\n".join(lines) + "\n")
-
-
-def _phase_section(report, figures, out: Path, name: str) -> list[str]:
-    counts = ", ".join(f"{n} {r}" for r, n in report.counts().items())
-    lines = [f"{len(report.rows)} cases: {counts}.", ""]
-    lines += _images([p for p in figures if "phase_diagram" in p.name])
-    lines += refinement_text(out, name) + [""]
-    return lines
+    path.write_text("\n".join(lines))
 
 
 def main(argv=None):
@@ -413,33 +528,38 @@ def main(argv=None):
     parser.add_argument("--np", dest="np_", type=int, default=2, help="MPI ranks")
     parser.add_argument("--mpirun", default="mpirun", help="the mpirun command (with its environment)")
     parser.add_argument("--out", default="REPRODUCTION.md")
+    parser.add_argument("--study", metavar="NAME,...",
+                        help=f"only these campaigns: run, analyze, rewrite their sections; any of {', '.join(STUDIES)}")
     parser.add_argument("--analyze-only", action="store_true", help="only analyze the existing campaign files")
+    parser.add_argument("--assemble-only", action="store_true", help="only assemble the report from the sections")
     parser.add_argument("--only", metavar="NAME,...",
-                        help=f"run (or continue) only these campaigns and stop; any of {', '.join(STUDIES)}")
+                        help="run (or continue) only these campaigns and stop (no analysis)")
     args = parser.parse_args(argv)
     jobs = {name: (JOBS[args.grid] / f"{name}.toml").as_posix() for name in STUDIES}
+    names = list(STUDIES)
+    for option in ("study", "only"):
+        if getattr(args, option):
+            names = getattr(args, option).split(",")
+            unknown = [n for n in names if n not in jobs]
+            if unknown:
+                parser.error(f"--{option}: no campaign {', '.join(unknown)} (there are {', '.join(STUDIES)})")
     hpcves = str(Path(sys.executable).with_name("hpcves"))
     out = Path("out/reproduce") / args.grid
     ledger = out / "walls.json"
     if args.only:
-        names = args.only.split(",")
-        unknown = [n for n in names if n not in jobs]
-        if unknown:
-            parser.error(f"--only: no campaign {', '.join(unknown)} (there are {', '.join(STUDIES)})")
         run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger)
         print(f"{', '.join(names)}: run as far as this call went (stopped ones continue when rerun); "
-              f"make reproduce runs the rest and writes {args.out}")
+              f"make reproduce STUDY={','.join(names)} analyzes them into {args.out}")
         return
-    walls = {name: 0.0 for name in jobs}
-    if not args.analyze_only:
-        walls = run_campaigns(jobs, shlex.split(args.mpirun), args.np_, hpcves, ledger)
-    totals = json.loads(ledger.read_text()) if ledger.exists() else {}
-    for name, toml in jobs.items():       # a clear message if a campaign is missing
-        read_source(load_study(toml).output)
-    analysis_start = time.monotonic()
-    reports = analyse(jobs, out, args.np_)
-    figures = copy_figures(reports, FIGURES[args.grid])
-    write_report(Path(args.out), args.grid, jobs, reports, figures, walls, totals, args.np_, out, analysis_start)
+    if not args.assemble_only:
+        if not args.analyze_only:
+            run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger)
+        totals = json.loads(ledger.read_text()) if ledger.exists() else {}
+        for name in names:                 # a clear message if a campaign is missing
+            read_source(load_study(jobs[name]).output)
+        for name in names:
+            write_study_section(args.grid, name, jobs[name], out, args.np_, totals)
+    assemble(Path(args.out), args.grid)
     stale = prune_figures(Path(args.out), FIGURES[args.grid])
     print(f"wrote {args.out}" + (f"; removed {len(stale)} figures from {FIGURES[args.grid]} it does not show"
                                   if stale else ""))

@@ -127,3 +127,46 @@ def test_prune_figures_keeps_what_the_report_shows(tmp_path, monkeypatch):
     assert sorted(p.name for p in stale) == ["a_periods.png", "old_critical_shear.png"]
     assert sorted(p.relative_to(directory).as_posix() for p in directory.rglob("*.png")) == [
         "a_phase_diagram.png", "fine/a_phase_diagram.png"]      # the fine set's own folder is left alone
+
+
+def _meta(name, campaign, analysis, doubts=(), notes=()):
+    return {"study": name, "job": f"jobs/reproduce/{name}.toml", "written": "2026-12-05", "machine": "m",
+            "processor": "x86_64", "ranks": 2, "numerics": "N = 64", "cases": 3, "compute_s": 120.0,
+            "campaign_wall_s": campaign, "analysis_wall_s": analysis, "pages": 0, "doubts": list(doubts),
+            "notes": list(notes)}
+
+
+def test_a_section_keeps_its_markdown_and_what_its_run_took(tmp_path):
+    path = tmp_path / "sections" / "a.md"
+    meta = _meta("a", 60.0, 6.0, doubts=["a case 0001: undecided -- not settled"])
+    reproduce.write_section(path, ["## A", "", "text -- with a --> in it", ""], meta)
+    assert reproduce.read_section(path) == (meta, "## A\n\ntext -- with a --> in it\n")
+    assert reproduce.read_section(tmp_path / "sections" / "none.md") is None
+    (tmp_path / "foreign.md").write_text("## not a section\n")
+    with pytest.raises(SystemExit, match="not a section of the reproduction"):
+        reproduce.read_section(tmp_path / "foreign.md")
+
+
+def test_the_report_is_assembled_from_the_sections_there_are(tmp_path, monkeypatch):
+    """make reproduce STUDY=... rewrites some sections; the report is put together from all of them, in
+    the order of STUDIES, with what each took, the studies not run yet named, and every doubt."""
+    monkeypatch.setattr(reproduce, "STUDIES", ("a", "b", "c"))
+    monkeypatch.setitem(reproduce.SECTION_DIRS, "coarse", tmp_path / "sections")
+    note = "the old sections' analysis is not split"
+    reproduce.write_section(tmp_path / "sections" / "c.md", ["## C"], _meta("c", 1800.0, None, ["c: refinement "
+                                                                                            "stopped"], [note]))
+    reproduce.write_section(tmp_path / "sections" / "a.md", ["## A"], _meta("a", 3600.0, 120.0, notes=[note]))
+    report = tmp_path / "REPRODUCTION.md"
+    reproduce.assemble(report, "coarse")
+    text = report.read_text()
+    assert text.index("## A") < text.index("## C") < text.index("## What looks unconverged")
+    assert "**Wall time: 1.53 h in all**" in text                   # 1.5 h of campaigns + 2 min of analysis
+    assert "not recorded for c" in text and text.count(note) == 1
+    assert "Not run yet: b (`make reproduce STUDY=b`)" in text
+    assert "* c: refinement stopped" in text
+
+
+def test_an_unknown_study_is_refused(capsys):
+    with pytest.raises(SystemExit) as refused:
+        reproduce.main(["--study", "homogeneous,nonesuch"])
+    assert refused.value.code == 2 and "no campaign nonesuch" in capsys.readouterr().err

@@ -117,8 +117,18 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
 
     jobs = Path(__file__).resolve().parent.parent / "jobs" / "reproduce"
     coarse = sorted(jobs.glob("*.toml"))
-    assert {p.stem for p in coarse} == {"homogeneous", "periods", "psi048_cases", "sc_b2", "sc_psi",
-                                       "psi048_delta_S", "delta094_S_psi", "delta230_S_psi"}
+    deflated = ("psi048_cases", "psi048_delta_S", "delta094_S_psi", "delta230_S_psi")
+    assert {p.stem for p in coarse} == {"homogeneous", "periods", "sc_b2", "sc_psi", *deflated,
+                                       *(f"{name}_smoothed" for name in deflated)}
+    for name in deflated:              # each deflated study twice: from the ellipse and from the authors' start
+        for folder in (jobs, jobs / "fine"):
+            ellipse, smoothed = load_study(folder / f"{name}.toml"), load_study(folder / f"{name}_smoothed.toml")
+            assert ellipse.base.physics.initial_shape == "ellipse"
+            assert (smoothed.base.physics.initial_shape, smoothed.base.physics.psi_init_coordinate) == \
+                ("smoothed", "ellipse_parameter")
+            assert smoothed.sweep == ellipse.sweep and smoothed.refine == ellipse.refine
+            assert smoothed.base.numerics == ellipse.base.numerics and smoothed.times == ellipse.times
+            assert smoothed.output != ellipse.output
     for path in coarse:
         study, fine = load_study(path), load_study(jobs / "fine" / path.name)
         assert fine.mode == study.mode and fine.output != study.output, path
