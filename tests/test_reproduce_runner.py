@@ -164,6 +164,7 @@ def test_the_report_is_assembled_from_the_sections_there_are(tmp_path, monkeypat
     assert "not recorded for c" in text and text.count(note) == 1
     assert "Not run yet: b (`make reproduce STUDY=b`)" in text
     assert "* c: refinement stopped" in text
+    assert "## The publication's claims beside hpcves" in text and "not run yet (`make reproduce STUDY=sc_b2`)" in text
 
 
 def test_an_unknown_study_is_refused(capsys):

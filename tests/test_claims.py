@@ -1,0 +1,80 @@
+"""The claims table of REPRODUCTION.md (analysis/claims.py): each claim measured from synthetic regimes."""
+import math
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "analysis"))
+
+import claims  # noqa: E402
+
+
+def _row(S, delta=0.94, psi_bar=0.48, regime="TT", status="finished", N=128, period=math.nan, theta=0.3):
+    return {"shear_rate": S, "excess_length": delta, "psi_bar": psi_bar, "B2": 0.1, "regime": regime,
+            "status": status, "N": N, "period": period, "theta_mean": theta}
+
+
+def test_a_region_is_judged_by_its_decided_cases():
+    rows = [_row(1, 1.0, regime="TU"), _row(2, 1.5, regime="TU"), _row(3, 2.0, regime="TT"),
+            _row(2, 2.0, regime="undecided"), _row(10, 2.0, regime="PT")]       # S = 10: outside
+    found = claims.region(rows, lambda r: r["shear_rate"] < 4, "TU")
+    assert found["verdict"] == claims.MOSTLY and found["value"] == "4 cases: 2 TU, 1 TT, 1 undecided"
+    assert claims.region(rows, lambda r: r["shear_rate"] < 2, "TU")["verdict"] == claims.AGREES
+    assert claims.region(rows, lambda r: r["shear_rate"] > 5, "TU")["verdict"] == claims.DIFFERS
+    assert claims.region(rows, lambda r: r["shear_rate"] > 50, "TU") == {"value": "no cases there",
+                                                                         "verdict": claims.NO_CASES}
+
+
+def test_a_point_run_again_counts_once_at_its_largest_n():
+    rows = [_row(2, 2.0, status="failed", N=128), _row(2, 2.0, regime="TU", N=256)]
+    assert claims.region(rows, lambda r: True, "TU") == {"value": "1 cases: 1 TU", "verdict": claims.AGREES}
+
+
+def test_the_delta_s_claims():
+    rows = [_row(2, 1.0, regime="TU"), _row(2, 0.5, regime="TU"), _row(20, 1.0, regime="PT"),
+            _row(20, 2.3, regime="TT"), _row(40, 3.0, regime="TT")]
+    found = claims.measure("psi048_delta_S_smoothed", SimpleNamespace(rows=rows, searches=()))
+    assert found["fig7a_tu"]["verdict"] == claims.AGREES
+    assert found["fig7a_tu_onset"] == {"value": "smallest Delta of a TU case: 0.5; 1 TU cases below 0.8",
+                                       "verdict": claims.DIFFERS}
+    assert found["fig7a_no_tt"] == {"value": "2 TT of 2 cases there", "verdict": claims.DIFFERS}
+    assert found["fig7a_pt"]["verdict"] == claims.MOSTLY                   # 1 PT, 1 TT with S > 15, Delta < 3
+
+
+def test_the_numbers_of_table1_and_the_critical_shear_claims():
+    rows = [_row(S, 0.194, psi_bar=p, regime="PT", period=published * 1.005)
+            for (p, S), published in claims.TABLE1_PERIODS.items()]
+    found = claims.measure("periods", SimpleNamespace(rows=rows, searches=()))
+    assert found["table1_periods"]["verdict"] == claims.AGREES and "9 of 9 periods within 0.5%" in \
+        found["table1_periods"]["value"]
+    assert found["one_over_S"]["verdict"] == claims.AGREES         # S T at 160 and 320: 7.6 and 7.1 at psi_bar 0.3
+    rows = [dict(r, period=r["period"] * (2 if r["shear_rate"] == 320 else 1)) for r in rows]
+    assert claims.measure("periods", SimpleNamespace(rows=rows, searches=()))["one_over_S"]["verdict"] == claims.DIFFERS
+
+    def search(psi_bar, B2, S_C, gap):
+        return {"psi_bar": psi_bar, "B2": B2, "S_C": S_C, "bracket_low": 0.98 * S_C, "bracket_high": 1.02 * S_C,
+                "bending_gap": gap}
+    searches = [search(0.3, 0.1, 70.0, 2.3), search(0.5, 0.1, 8.5, 0.75), search(0.7, 0.1, 69.5, 2.26),
+                search(0.3, 0.8, 14.8, 0.49), search(0.7, 0.8, 14.8, 0.49), search(0.4, 0.8, 8.2, 0.29),
+                search(0.6, 0.8, 8.5, 0.32)]
+    found = claims.measure("sc_psi", SimpleNamespace(rows=[], searches=searches))
+    assert found["table1_sc"]["verdict"] == claims.AGREES                   # -3 %, -6 %, -2 %
+    assert found["sc_gap"]["verdict"] == claims.AGREES
+    assert found["sc_symmetric"]["verdict"] == claims.AGREES and "at most 9%" in found["sc_symmetric"]["value"]
+    searches[1] = search(0.5, 0.1, 12.0, 0.75)                              # +33 % against 9
+    assert claims.measure("sc_psi", SimpleNamespace(rows=[], searches=searches))["table1_sc"]["verdict"] == \
+        claims.DIFFERS
+
+
+def test_the_table_says_what_is_not_measured_yet():
+    measured = {"psi048_cases": {"fig8": {"value": "TU, period 4.7", "verdict": claims.AGREES},
+                                 "fig9": {"value": "TT", "verdict": claims.DIFFERS}},
+                "psi048_cases_smoothed": {"fig9": {"value": "PT, period 0.638", "verdict": claims.AGREES}},
+                "homogeneous": None}
+    rows = {row[1]: row[2:] for row in claims.table(measured)}
+    assert rows["Delta = 2.3, S = 28, psi_bar = 0.48 phase-treads"] == ["**differs**: TT", "**agrees**: PT, period 0.638"]
+    assert rows["Delta = 0.94, S = 4, psi_bar = 0.48 tumbles"][1].startswith("not measured")
+    assert "predates" in rows["psi_bar = 0: theta settles at ~0.6 rad for every S in [2, 350]"][0]
+    assert rows["S_C ~ B1 - B2"][0] == "not run yet (`make reproduce STUDY=sc_b2`)"
+    assert len(claims.table(measured)) == len(claims.CLAIMS)
