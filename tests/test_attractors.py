@@ -1,7 +1,8 @@
 """Several attractors at one parameter point (SPEC section 7): the publication's Fig. 9 case, Delta = 2.3,
-psi_bar = 0.48, S = 28, reaches two stable states from two starts -- from the ellipse the soft phase
-gathers on both tips and the vesicle tank-treads; from the authors' smoothed start it forms one domain
-that travels from tip to tip (phase-treading)."""
+psi_bar = 0.48, S = 28, reaches two stable states from different starts -- from the ellipse with the
+published perturbation the soft phase gathers on both tips and the vesicle tank-treads; from the authors'
+smoothed start, or from the ellipse with one soft domain laid down beyond the spinodal range (psi_bar +-
+0.3), one domain travels from tip to tip (phase-treading)."""
 from hpcves.analysis.pattern import soft_domains
 from hpcves.config import case_from_toml
 from hpcves.run.store import FINISHED, CaseStore, open_file
@@ -14,6 +15,7 @@ excess_length = 2.3
 psi_bar = 0.48
 shear_rate = 28.0
 initial_shape = "{shape}"
+{phase}
 [numerics]
 N = 128
 rtol = 1e-3
@@ -29,14 +31,17 @@ checkpoint_interval = 6.0
 
 
 def test_the_fig9_point_reaches_two_attractors_from_two_starts(tmp_path):
+    starts = {"ellipse": ("ellipse", ""), "smoothed": ("smoothed", ""),
+              "one domain": ("ellipse", 'initial_phase = "domains"\nphase_domains = 1\ndelta = 0.3')}
     found = {}
-    for shape in ("ellipse", "smoothed"):
-        path = tmp_path / f"{shape}.h5"
-        outcome = run_in_process(case_from_toml(FIG9.format(shape=shape)), path)
+    for name, (shape, phase) in starts.items():
+        path = tmp_path / f"{name}.h5"
+        outcome = run_in_process(case_from_toml(FIG9.format(shape=shape, phase=phase)), path)
         assert outcome.status == FINISHED, outcome.message
         with open_file(path, "r") as f:
             snapshots = CaseStore.open(f).snapshots()
         settled = snapshots["psi"][snapshots["t"] >= 0.5 * outcome.t]
-        found[shape] = (outcome.message.split(":")[0], {len(soft_domains(psi)) for psi in settled})
+        found[name] = (outcome.message.split(":")[0], {len(soft_domains(psi)) for psi in settled})
     assert found["ellipse"][0].startswith("decided TT") and found["ellipse"][1] == {2}
     assert found["smoothed"][0].startswith("decided PT") and found["smoothed"][1] == {1}
+    assert found["one domain"][0].startswith("decided PT") and found["one domain"][1] == {1}

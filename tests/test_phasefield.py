@@ -84,3 +84,40 @@ def test_jacobian_is_the_derivative_of_the_cahn_hilliard_operator(rng):
         assert np.allclose(out, dense, rtol=0, atol=1e-9 * np.abs(dense).max())
     # The solve keeps int psi ds only up to round-off of J psi* (~ ||J|| eps N ~ 1e-7 here; 1^T J = 0
     # in exact arithmetic); Solver._conserve re-imposes the mass, checked to 1e-12 in test_solver.
+
+
+def test_named_phase_patterns():
+    from hpcves.analysis.pattern import soft_domains
+
+    alpha = np.arange(64) / 64
+    one = phasefield.domains_phase(0.48, 0.3, alpha, 1, 0.25)
+    assert np.argmax(one) == 16 and abs(one.mean() - 0.48) < 1e-15
+    assert soft_domains(one) == [(1, 31)]                  # psi > 1/2 on alpha 0.011-0.489, about 0.25
+    assert len(soft_domains(phasefield.domains_phase(0.48, 0.3, alpha, 3, 0.1))) == 3
+    solver = make_solver(psi_bar=0.48, delta=0.3, initial_phase="domains", phase_domains=2, phase_center=0.5)
+    assert len(soft_domains(solver.initial_state().psi)) == 2
+
+
+def test_random_phase_patterns_are_reproducible_bit_for_bit_and_the_same_at_every_n():
+    a64, a32 = np.arange(64) / 64, np.arange(32) / 32
+    seven = phasefield.random_phase(0.5, 0.05, a64, 7)
+    assert np.array_equal(seven, phasefield.random_phase(0.5, 0.05, a64, 7))
+    assert not np.allclose(seven, phasefield.random_phase(0.5, 0.05, a64, 8))
+    assert np.abs(seven[::2] - phasefield.random_phase(0.5, 0.05, a32, 7)).max() < 1e-15
+    assert abs(seven.mean() - 0.5) < 1e-15 and np.abs(seven - 0.5).max() <= 4 * 0.05
+    spectrum = np.abs(np.fft.rfft(seven - 0.5))
+    assert spectrum[1:9].min() > 0 and spectrum[9:].max() < 1e-13          # modes 1-8 only
+    first = make_solver(psi_bar=0.5, initial_phase="random", phase_seed=7).initial_state().psi
+    assert np.array_equal(first, make_solver(psi_bar=0.5, initial_phase="random", phase_seed=7).initial_state().psi)
+
+
+def test_phase_pattern_options_are_checked():
+    from hpcves.model.params import Case, ConfigError, Physics
+
+    Case(Physics(psi_bar=0.48, delta=0.3, initial_phase="domains"))       # 0.18 ... 0.78
+    with pytest.raises(ConfigError, match="initial psi spans"):
+        Case(Physics(psi_bar=0.48, delta=0.3))                           # the published pattern: 4 delta
+    for bad, message in (({"phase_domains": 0}, "phase_domains = 0"), ({"phase_center": 1.0}, "phase_center = 1.0"),
+                         ({"phase_seed": -1}, "phase_seed = -1"), ({"initial_phase": "stripes"}, "initial_phase")):
+        with pytest.raises(ConfigError, match=message):
+            Physics(**bad)

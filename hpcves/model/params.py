@@ -31,6 +31,7 @@ MAX_STEPS = 10**9
 
 PSI_COORDINATES = ("arclength", "ellipse_parameter")
 INITIAL_SHAPES = ("ellipse", "smoothed")
+INITIAL_PHASES = ("published", "domains", "random")
 #: Beyond this excess length the smoothed start (geometry.smoothed_ellipse) crosses itself: its flanks
 #: touch at Delta = 7.7708 (bisection, tests/test_geometry.py).
 SMOOTHED_MAX_EXCESS_LENGTH = 7.77
@@ -88,6 +89,10 @@ class Physics:
     area, as the authors' code starts (geometry.smoothed_ellipse; the same length, area and
     excess length, blunter tips: curvature 8.1 instead of 26.0 at Delta = 2.3). alpha of the
     initial phase is then still that of the ellipse's nodes.
+    ``initial_phase`` is the pattern psi starts from (phasefield.py): ``"published"`` (above);
+    ``"domains"``, psi_bar + delta cos(2 pi m (alpha - a0)) with m = ``phase_domains`` and a0 =
+    ``phase_center``: m soft domains, the first centred at a0; ``"random"``, random amplitudes of the
+    modes 1 to 8 drawn from ``phase_seed``, bounded like the published pattern by 4 delta.
     ``bending_law`` is B(psi) (bending.py): ``"linear"``, B1 + (B2 - B1) psi for
     every psi (SPEC section 1), which vanishes at psi = B1 / (B1 - B2) and lets a
     sharp tip draw the soft phase past 1 (Delta = 2.3); ``"saturating"`` (the
@@ -107,6 +112,10 @@ class Physics:
     mobility: float = 1.0
     psi_init_coordinate: Literal["arclength", "ellipse_parameter"] = "arclength"
     initial_shape: Literal["ellipse", "smoothed"] = "ellipse"
+    initial_phase: Literal["published", "domains", "random"] = "published"
+    phase_domains: int = 1
+    phase_center: float = 0.0
+    phase_seed: int = 0
     bending_law: Literal["linear", "saturating"] = "saturating"
     bending_width: float = 0.05
 
@@ -141,6 +150,13 @@ class Physics:
         _require(self.initial_shape != "smoothed" or self.excess_length <= SMOOTHED_MAX_EXCESS_LENGTH,
                  f"physics.excess_length = {self.excess_length}: the smoothed start crosses itself beyond "
                  f"{SMOOTHED_MAX_EXCESS_LENGTH}; use physics.initial_shape = \"ellipse\"")
+        _require(self.initial_phase in INITIAL_PHASES, f"physics.initial_phase = {self.initial_phase!r}: must be "
+                 "one of " + ", ".join(repr(c) for c in INITIAL_PHASES))
+        _require(isinstance(self.phase_domains, int) and 1 <= self.phase_domains <= 16,
+                 f"physics.phase_domains = {self.phase_domains!r}: must be an integer from 1 to 16")
+        _require(0.0 <= self.phase_center < 1.0, f"physics.phase_center = {self.phase_center}: must lie in [0, 1)")
+        _require(isinstance(self.phase_seed, int) and self.phase_seed >= 0,
+                 f"physics.phase_seed = {self.phase_seed!r}: must be an integer >= 0")
         _require(self.bending_law in bending.LAWS, f"physics.bending_law = {self.bending_law!r}: must be one of "
                  + ", ".join(repr(c) for c in bending.LAWS))
         _require(self.bending_width > 0, f"physics.bending_width = {self.bending_width}: must be > 0")
@@ -149,6 +165,11 @@ class Physics:
             raise ConfigError(f"physics.bending_width = {self.bending_width}: the saturating law would reach "
                               "B <= 0 outside [0, 1]; it needs bending_width < "
                               f"{bending.largest_width(self.B1, self.B2):.3g}")
+
+    @property
+    def phase_spread(self) -> float:
+        """The largest |psi - psi_bar| the initial phase can have: delta for ``"domains"``, 4 delta otherwise."""
+        return self.delta if self.initial_phase == "domains" else 4.0 * self.delta
 
     @property
     def homogeneous(self) -> bool:
@@ -306,7 +327,7 @@ class Case:
     def __post_init__(self) -> None:
         p, r = self.physics, self.run
         if not p.homogeneous:
-            amplitude = 4.0 * p.delta  # max of |3 cos + 0.5 cos + 0.5 cos|
+            amplitude = p.phase_spread
             _require(
                 r.psi_min < p.psi_bar - amplitude and p.psi_bar + amplitude < r.psi_max,
                 f"physics.psi_bar = {p.psi_bar} with physics.delta = {p.delta}: the initial psi "
@@ -379,6 +400,9 @@ class Case:
             del out["physics"]["bending_law"], out["physics"]["bending_width"]
         if self.physics.initial_shape == "ellipse":   # the start of files from before the option
             del out["physics"]["initial_shape"]
+        if self.physics.initial_phase == "published":  # likewise the initial phase
+            for key in ("initial_phase", "phase_domains", "phase_center", "phase_seed"):
+                del out["physics"][key]
         return out
 
     def flat(self) -> dict:

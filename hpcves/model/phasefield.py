@@ -68,6 +68,26 @@ def initial_phase(psi_bar, delta, coordinate):
     return psi_bar + delta * (3.0 * np.cos(a) + 0.5 * np.cos(3 * a) + 0.5 * np.cos(4 * a))
 
 
+def domains_phase(psi_bar, delta, coordinate, domains: int, center: float):
+    """psi(alpha, 0) = psi_bar + delta cos(2 pi m (a - a0)): m soft bumps evenly spaced, the first centred
+    at a = a0, which the spinodal stage sharpens into m soft domains."""
+    return psi_bar + delta * np.cos(2.0 * np.pi * domains * (np.asarray(coordinate) - center))
+
+
+#: the Fourier modes k = 1 .. RANDOM_MODES that a random initial phase perturbs
+RANDOM_MODES = 8
+
+
+def random_phase(psi_bar, delta, coordinate, seed: int):
+    """psi(alpha, 0) = psi_bar + 4 delta sum_k (a_k cos 2 pi k a + b_k sin 2 pi k a) / sum_k |(a_k, b_k)|,
+    k = 1 .. RANDOM_MODES, (a_k, b_k) standard normal from numpy's default generator seeded with ``seed``:
+    the same pattern at every N, |psi - psi_bar| <= 4 delta like the published one, mean psi_bar."""
+    coefficients = np.random.default_rng(seed).standard_normal((RANDOM_MODES, 2))
+    scale = 4.0 * delta / np.hypot(coefficients[:, 0], coefficients[:, 1]).sum()
+    a = 2.0 * np.pi * np.outer(np.asarray(coordinate), np.arange(1, RANDOM_MODES + 1))
+    return psi_bar + scale * (np.cos(a) @ coefficients[:, 0] + np.sin(a) @ coefficients[:, 1])
+
+
 #: g''(psi) < 0 exactly for psi strictly between these roots of 1 - 6 psi + 6 psi^2,
 #: i.e. for |psi - 1/2| < SPINODAL_HALF_WIDTH
 SPINODAL_HALF_WIDTH = np.sqrt(3.0) / 6.0

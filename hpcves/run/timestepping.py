@@ -256,7 +256,13 @@ class Solver:
             psi = np.full(sp.N, phys.psi_bar)
         else:
             coordinate = sp.alpha if phys.psi_init_coordinate == "arclength" else t / (2 * np.pi)
-            psi = phasefield.initial_phase(phys.psi_bar, phys.delta, coordinate)
+            if phys.initial_phase == "domains":
+                psi = phasefield.domains_phase(phys.psi_bar, phys.delta, coordinate, phys.phase_domains,
+                                               phys.phase_center)
+            elif phys.initial_phase == "random":
+                psi = phasefield.random_phase(phys.psi_bar, phys.delta, coordinate, phys.phase_seed)
+            else:
+                psi = phasefield.initial_phase(phys.psi_bar, phys.delta, coordinate)
         return State(step=0, theta=theta, psi=psi, center=0j)
 
     # ------------------------------------------------------------------ views of a state
