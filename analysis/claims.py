@@ -309,7 +309,8 @@ def table(measured: dict) -> list[list[str]]:
         cells = []
         for column, study in enumerate(claim.studies + ("",) * (2 - len(claim.studies))):
             if not study:
-                cells.append("(same as from the ellipse: Delta = 0.194, docs/numerics.md)" if column else "")
+                cells.append("not run: at Delta = 0.194 both starts give the same regimes and periods "
+                             "(docs/numerics.md, \"Initial shape\")" if column else "")
                 continue
             found = measured.get(study, "missing")
             if found == "missing":
