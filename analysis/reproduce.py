@@ -50,7 +50,7 @@ SECTION_DIRS = {grid: path / "sections" for grid, path in FIGURES.items()}
 #: the studies whose case pages REPRODUCTION.md shows: every case gets its page, with streamlines (~3 s a
 #: page); the other studies' pages are drawn for the flagged cases only (those "What looks unconverged"
 #: lists), without streamlines (~1 s a page) -- a page for each of their ~1700 cases would take 22 min
-FULL_PAGES = ("homogeneous", "periods", "psi048_cases")
+FULL_PAGES = ("homogeneous", "periods", "psi048_cases", "psi048_cases_smoothed")
 TARGET_HOURS = 3.0           # the wall time make reproduce (coarse) should take on 2 cores
 STUDY_TARGET_HOURS = 1.0     # ... and any one of its studies (make reproduce STUDY=...)
 MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
