@@ -3,10 +3,14 @@
 A soft domain is a maximal arc of material points where psi > 1/2 (the midpoint
 of the double well g = psi^2 (1 - psi)^2 / 4, whose minima are the phases psi = 0
 and 1), counted periodically in alpha. A uniform pattern on either side of 1/2
-has none or one domain covering everything; both are reported as what they are
-(0 soft domains, or 1 with ``covered`` the whole membrane).
+has no domain or one covering everything. The topology of a pattern
+(:class:`Topology`) adds where the domains sit -- on the tips, the two highest
+curvature peaks, or not -- and whether the pattern is two-fold symmetric; in
+the deflated regime it tells coexisting states apart that share a regime.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,3 +33,54 @@ def soft_domains(psi: np.ndarray, interface: float = INTERFACE) -> list[tuple[in
     edges = np.diff(np.r_[0, rolled.astype(np.int8), 0])
     firsts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
     return sorted(((int(f) + start) % n, int(e - f)) for f, e in zip(firsts, ends))
+
+
+#: a pattern is two-fold symmetric where psi(alpha + 1/2) and psi(alpha) differ by less than this
+TWO_FOLD_TOLERANCE = 0.1
+
+
+@dataclass(frozen=True)
+class Topology:
+    """What a phase pattern is, beyond its regime: how many soft domains, how many of them hold one of
+    the membrane's two tips (its two highest curvature peaks), and whether it is two-fold symmetric
+    (psi(alpha + 1/2) = psi(alpha): the same on both halves, one domain per tip or none)."""
+
+    domains: int
+    on_tips: int
+    two_fold: bool
+
+    def text(self) -> str:
+        if self.domains == 0:
+            return "no soft domain"
+        count = f"{self.domains} soft domain{'s' * (self.domains > 1)}"
+        tips = ("" if self.on_tips == 0 else ", on a tip" if self.domains == self.on_tips == 1 else
+                ", both on tips" if self.domains == self.on_tips == 2 else f", {self.on_tips} on tips")
+        return count + tips + (", two-fold symmetric" if self.two_fold else "")
+
+
+def tips(curvature: np.ndarray) -> list[int]:
+    """The nodes of the two highest local maxima of the curvature (periodic): the tips of the shape."""
+    H = np.asarray(curvature)
+    peaks = np.flatnonzero((H > np.roll(H, 1)) & (H >= np.roll(H, -1)))
+    return sorted(int(i) for i in peaks[np.argsort(H[peaks])[::-1][:2]])
+
+
+def topology(psi: np.ndarray, curvature: np.ndarray) -> Topology:
+    """The :class:`Topology` of one snapshot (psi and the curvature H at the same material points)."""
+    psi = np.asarray(psi)
+    n = psi.size
+    found = soft_domains(psi)
+    tip_nodes = tips(curvature)
+    on_tips = sum(any((node - first) % n < count for node in tip_nodes) for first, count in found)
+    two_fold = n % 2 == 0 and float(np.max(np.abs(psi - np.roll(psi, n // 2)))) < TWO_FOLD_TOLERANCE
+    return Topology(len(found), on_tips, two_fold)
+
+
+def common_topology(psis, curvatures) -> tuple[Topology | None, bool]:
+    """The topology most snapshots have, and whether all have it ((None, False) without snapshots)."""
+    found = [topology(psi, H) for psi, H in zip(psis, curvatures)]
+    if not found:
+        return None, False
+    counts = {t: found.count(t) for t in found}
+    most = max(counts, key=lambda t: (counts[t], -found.index(t)))
+    return most, counts[most] == len(found)

@@ -33,15 +33,17 @@ from hpcves.model.params import LABELS
 from hpcves.reports import case_pages
 from hpcves.reports import refinement as rc
 from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
+from hpcves.analysis.pattern import Topology
 from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
-from hpcves.run.verdict import DAMAGED, PARAMETERS, CaseData, analyse_case, case_data, mark
+from hpcves.run.verdict import DAMAGED, PARAMETERS, TOPOLOGY_COLUMNS, CaseData, analyse_case, case_data, mark
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
 #: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step, accuracy.py)
 COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "N", "regime", "period", "period_err",
                                      "period_dt_err", "theta_mean", "theta_mean_err", "theta_mean_dt_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
-                                     "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "reason")
+                                     "theta_drift", "period_crossings", "bending_gap", "bending_gap_err") \
+    + TOPOLOGY_COLUMNS + ("reason",)
 TEXT_COLUMNS = ("case", "status", "regime", "reason")
 
 
@@ -232,12 +234,12 @@ def write_csv(rows: list[dict], path: Path) -> None:
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
     header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
-                                "min theta", "amplitude", "Delta E_b", "+-", "t settle", "evidence"]
+                                "min theta", "amplitude", "Delta E_b", "+-", "pattern", "t settle", "evidence"]
     body = [[row["case"]] + [cell(row[k]) for k in keys]
             + [row["regime"], fmt(row["period"], ".6g"), fmt(row["period_err"], ".2g"),
                _dt_cell(row, "period"), fmt(row["theta_mean"], ".4f"), fmt(row["theta_mean_err"], ".2g"),
                _dt_cell(row, "theta_mean"), fmt(row["theta_min"], ".4f"), fmt(row["theta_amplitude"], ".3g"),
-               fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"),
+               fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"), pattern_cell(row),
                fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, len(header) - 1)
@@ -255,6 +257,14 @@ ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error 
               "and 1e-3, 0.1 % at 1e-4, than at 1e-5. Delta E_b: max - min of the bending energy over a "
               "period of a phase-treading case, averaged over its whole settled periods, +- their standard "
               "error and what the sampling can miss of the extremes (the time step's error not included).")
+
+
+def pattern_cell(row: dict) -> str:
+    """The topology of a case's settled pattern in words ("" without snapshots)."""
+    if not math.isfinite(row.get("soft_domains", math.nan)):
+        return ""
+    found = Topology(int(row["soft_domains"]), int(row["domains_on_tips"]), bool(row["two_fold"]))
+    return found.text() + ("" if row["topology_steady"] else " (most snapshots; it changes)")
 
 
 def _dt_cell(row: dict, quantity: str) -> str:

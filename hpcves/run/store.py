@@ -487,6 +487,11 @@ class CaseStore:
         n = self.n_snapshots
         return {name: self._snap[name][:n] for name in ("t", "shift") + SNAPSHOT_FIELDS}
 
+    def last_snapshots(self, names, count: int) -> dict:
+        """The last ``count`` valid snapshots of the fields ``names`` (fewer if there are fewer)."""
+        n = self.n_snapshots
+        return {name: self._snap[name][max(0, n - count):n] for name in names}
+
     @_writes
     def truncate(self, n_samples: int, n_snapshots: int) -> None:
         """Forget samples and snapshots beyond the given counts (they will be rewritten)."""

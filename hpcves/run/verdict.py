@@ -8,9 +8,10 @@ Used by ``hpcves analyze`` and by the stage drivers of searches and refinements.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 
 from hpcves.analysis import accuracy
+from hpcves.analysis.pattern import common_topology
 from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
 from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
 from hpcves.analysis.regimes import UNDECIDED, AnalysisSettings, Classification, classify
@@ -37,6 +38,14 @@ class CaseData:
     decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
     rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
     N: float = math.nan        # numerics.N (a refinement may run a point again at a larger N)
+    patterns: dict = field(default_factory=dict)   # t, psi, curvature of the last PATTERN_SNAPSHOTS snapshots
+
+
+#: how many of a case's last snapshots its pattern's topology is read from (those after t_settle)
+PATTERN_SNAPSHOTS = 16
+#: the columns a row gets from them (nan without snapshots): soft domains, how many sit on the tips,
+#: two-fold symmetry (1/0), and whether every snapshot read had the same topology (1/0)
+TOPOLOGY_COLUMNS = ("soft_domains", "domains_on_tips", "two_fold", "topology_steady")
 
 
 def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
@@ -45,7 +54,8 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
                     search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
-                    float(attrs.get("numerics.rtol", math.nan)), float(attrs.get("numerics.N", math.nan)))
+                    float(attrs.get("numerics.rtol", math.nan)), float(attrs.get("numerics.N", math.nan)),
+                    store.last_snapshots(("t", "psi", "curvature"), PATTERN_SNAPSHOTS))
 
 
 def mark(store: CaseStore) -> tuple:
@@ -75,7 +85,8 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
         regime, prefix = unclassified.get(case.status, (UNDECIDED, "not run yet"))
         reason = prefix + first.removeprefix(MODEL_LIMIT_PREFIX) if case.status in unclassified else prefix
         empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
-        return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan}
+        return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan,
+                **dict.fromkeys(TOPOLOGY_COLUMNS, math.nan)}
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
         found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
@@ -88,4 +99,16 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
     rtol = case.rtol if math.isfinite(case.rtol) else None
     flips = bool(found.theta_min < 0)                     # tumbling: no rule (accuracy.py)
     return {**base, **found.row(), "period_dt_err": accuracy.period_error(found.period, rtol, flips),
-            "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips)}
+            "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips),
+            **pattern_columns(case.patterns, found.t_settle)}
+
+
+def pattern_columns(patterns: dict, t_settle: float) -> dict:
+    """The topology columns of a row from the last snapshots (those from t_settle on, where it is known)."""
+    t = patterns.get("t", ())
+    chosen = [i for i in range(len(t)) if not math.isfinite(t_settle) or t[i] >= t_settle]
+    found, steady = common_topology([patterns["psi"][i] for i in chosen], [patterns["curvature"][i] for i in chosen])
+    if found is None:
+        return dict.fromkeys(TOPOLOGY_COLUMNS, math.nan)
+    return {"soft_domains": float(found.domains), "domains_on_tips": float(found.on_tips),
+            "two_fold": float(found.two_fold), "topology_steady": float(steady)}
