@@ -37,7 +37,8 @@ from pathlib import Path
 import claims
 from hpcves.analysis import accuracy
 from hpcves.reports import case_pages
-from hpcves.reports.analyze import analyze, period_cell, read_source
+from hpcves.reports import attractor_map
+from hpcves.reports.analyze import analyze, pattern_cell, period_cell, read_source
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
 from hpcves.campaign.progress import WORK_LEFT
@@ -332,6 +333,7 @@ class Context:
     out: Path
     directory: Path
     toml: str
+    grid: str = "coarse"
 
     @property
     def study(self):
@@ -389,6 +391,29 @@ def sc_psi_section(c: Context) -> list[str]:
     return lines + _images([p for p in c.figures if "critical" in p.name])
 
 
+def attractor_lines(c: Context, x_key: str, y_key: str) -> list[str]:
+    """For a study from the authors' start: its points beside its twin's from the ellipse -- the map of
+    where the two starts reach different attractors, and the count (hpcves/reports/attractor_map.py)."""
+    twin = c.name.removesuffix("_smoothed")
+    if twin == c.name:
+        return []
+    twin_output = load_study(JOBS[c.grid] / f"{twin}.toml").output
+    heading = [f"### Attractor map: from the ellipse ({twin}) and from the authors' start", ""]
+    if not Path(twin_output).exists():
+        return heading + [f"Not drawn: the campaign file of {twin} is not on this machine (`make reproduce "
+                          f"STUDY={twin},{c.name}` draws it).", ""]
+    twin_rows = analyze(twin_output, c.out / twin, case_figures="none").rows
+    compared = attractor_map.compare({"ellipse": twin_rows, "authors' start": c.report.rows})
+    starts = ("ellipse", "authors' start")
+    fig = attractor_map.figure(compared, starts, x_key, y_key, f"{c.name}: the two starts point by point")
+    path = c.directory / f"{c.name}_attractor_map.png"
+    fig.savefig(path, dpi=100)
+    return heading + ["Each point run from both starts is split between the regime reached from the ellipse "
+                      "(left) and from the authors' start (right), and ringed where they reached different "
+                      "attractors (another regime or pattern topology, or theta or the period apart by more than "
+                      "their error bars).", "", attractor_map.summary(compared, starts), ""] + _images([path])
+
+
 def cases_section(c: Context) -> list[str]:
     lines = [f"## The cases Delta = 0.94, S = 4 and Delta = 2.3, S = 28 (psi_bar = 0.48), {c.start}", "",
              "Run until decided (at most 1000 shear times), snapshots every 0.02; case pages with kymographs.", ""]
@@ -396,19 +421,22 @@ def cases_section(c: Context) -> list[str]:
         page, row = copy_case_page(c.report, c.out, c.directory, c.name, excess_length=delta, shear_rate=shear)
         if row is not None:
             lines += [f"Delta = {delta:g}, S = {shear:g}: {row['regime']} at t = {row['t']:.4g} -- "
-                      f"{row['reason']}", ""] + _images([page])
-    return lines
+                      f"{row['reason']}" + (f"; pattern: {pattern_cell(row)}" if pattern_cell(row) else ""),
+                      ""] + _images([page])
+    return lines + attractor_lines(c, "shear_rate", "excess_length")
 
 
 def delta_s_section(c: Context) -> list[str]:
-    return [f"## Phase diagram Delta x S at psi_bar = 0.48 (refined), {c.start}", ""] + _phase_section(c)
+    return ([f"## Phase diagram Delta x S at psi_bar = 0.48 (refined), {c.start}", ""] + _phase_section(c)
+            + attractor_lines(c, "shear_rate", "excess_length"))
 
 
 def s_psi_section(c: Context) -> list[str]:
     delta = c.study.base.physics.excess_length
     lines = [f"## Phase diagram S x psi_bar at Delta = {delta:.2f} (refined), {c.start}", ""] + _phase_section(c)
     lines += ["Shapes over one settled period at psi_bar = 0.5 (the coarse shear rates):", ""]
-    return lines + _images([shape_sequence(c.study.output, c.directory, c.name)])
+    return (lines + _images([shape_sequence(c.study.output, c.directory, c.name)])
+            + attractor_lines(c, "shear_rate", "psi_bar"))
 
 
 def _phase_section(c: Context) -> list[str]:
@@ -458,7 +486,7 @@ def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, to
     start = time.monotonic()
     report = analyse({name: toml}, out, np_)[name]
     figures = copy_figures({name: report}, FIGURES[grid])[name]
-    lines = SECTIONS[name](Context(name, report, figures, out, FIGURES[grid], toml))
+    lines = SECTIONS[name](Context(name, report, figures, out, FIGURES[grid], toml, grid))
     rows = read_table(load_study(toml).output).rows
     meta = {"study": name, "job": toml, "written": str(datetime.date.today()), "machine": platform.node(),
             "processor": platform.processor() or platform.machine(), "ranks": np_,

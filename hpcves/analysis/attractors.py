@@ -3,7 +3,7 @@
 Where several stable states coexist, runs from different starts settle on different ones. Two runs
 reached the same attractor when they have the same regime and the same pattern topology
 (analysis/pattern.py) and their mean inclinations -- and periods, where they have one -- agree within
-the sum of their error bars (statistical plus time step). Runs that are not decided (undecided, failed,
+the sum of their error bars (statistical plus time step; an infinite bar: not compared). Runs that are not decided (undecided, failed,
 at the model's limit) reached none that can be named and are left out. Grouping is greedy in the
 order given: a run joins the first attractor whose first run it matches.
 """
@@ -50,6 +50,8 @@ class Attractor:
 def _agree(a: float, b: float, a_err: float, b_err: float) -> bool:
     if math.isnan(a) or math.isnan(b):
         return math.isnan(a) and math.isnan(b)
+    if math.isinf(a_err) or math.isinf(b_err):          # a quantity that does not tell states apart
+        return True
     bar = (a_err if math.isfinite(a_err) else 0.0) + (b_err if math.isfinite(b_err) else 0.0)
     return abs(a - b) <= bar
 

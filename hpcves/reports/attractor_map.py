@@ -1,0 +1,130 @@
+"""Attractor maps: the runs of several starts over one parameter plane, point by point.
+
+Each start is a campaign (or any list of regimes.csv rows) over the same plane; a [refine] campaign
+splits cells at the same midpoints whatever it finds, so two starts share many points. At every point
+run from more than one start, the runs are grouped into distinct attractors (analysis/attractors.py);
+the map draws each shared point as a marker split between the starts' regimes, ringed where they
+reached different attractors, and the summary counts the points by what the starts found.
+"""
+from __future__ import annotations
+
+import math
+
+from hpcves.analysis.accuracy import TUMBLING_ORBIT_SPREAD
+from hpcves.analysis.attractors import Run, group
+from hpcves.analysis.pattern import Topology
+from hpcves.model.params import SWEEPABLE
+from hpcves.reports.tables import markdown_table
+
+
+def _bar(row: dict, name: str) -> float:
+    parts = [row.get(f"{name}_err", math.nan), row.get(f"{name}_dt_err", math.nan)]
+    finite = [p for p in parts if math.isfinite(p)]
+    return sum(finite) if finite else math.nan
+
+
+def run_from_row(row: dict, start: str) -> Run:
+    """An analysis Run from a regimes.csv row (its topology where the row has one). A tumbling run has no
+    time-step bar (accuracy.py): its period is compared within TUMBLING_ORBIT_SPREAD, its mean inclination
+    (an average over flips) not at all."""
+    topology = None
+    if math.isfinite(row.get("soft_domains", math.nan)):
+        topology = Topology(int(row["soft_domains"]), int(row["domains_on_tips"]), bool(row["two_fold"]))
+    theta_bar, period_bar = _bar(row, "theta_mean"), _bar(row, "period")
+    if row["regime"] == "TU" and not math.isfinite(row.get("period_dt_err", math.nan)):
+        theta_bar = math.inf
+        if math.isfinite(row["period"]):
+            period_bar = (period_bar if math.isfinite(period_bar) else 0.0) + TUMBLING_ORBIT_SPREAD * row["period"]
+    return Run(start, row["regime"], topology, row["theta_mean"], theta_bar, row["period"], period_bar)
+
+
+def _point(row: dict) -> tuple:
+    return tuple(round(row[k], 9) for k in SWEEPABLE)
+
+
+def compare(rows_by_start: dict) -> list[dict]:
+    """One entry per parameter point of any start: its parameters, the starts that ran it (their last
+    run, at the largest N) and the attractors they reached."""
+    runs: dict = {}
+    for start, rows in rows_by_start.items():
+        last = {}
+        for r in rows:
+            if _point(r) not in last or r["N"] >= last[_point(r)]["N"]:
+                last[_point(r)] = r
+        for key, r in last.items():
+            runs.setdefault(key, {"parameters": {k: r[k] for k in SWEEPABLE}, "rows": {}})["rows"][start] = r
+    out = []
+    for entry in runs.values():
+        found = group(run_from_row(r, start) for start, r in entry["rows"].items())
+        out.append({**entry["parameters"], "rows": entry["rows"], "attractors": found})
+    return out
+
+
+def summary(compared: list[dict], starts: tuple) -> str:
+    """Markdown: the points run from every start, counted by what each start found and whether they
+    reached one attractor or more."""
+    shared = [c for c in compared if all(s in c["rows"] for s in starts)]
+    counts: dict = {}
+    for c in shared:
+        decided = sum(len(a.runs) for a in c["attractors"])
+        verdict = ("not comparable (a run not decided)" if decided < len(starts) else
+                   "the same" if len(c["attractors"]) == 1 else f"{len(c['attractors'])} different")
+        key = (tuple(c["rows"][s]["regime"] for s in starts), verdict)
+        counts[key] = counts.get(key, 0) + 1
+    body = [[" / ".join(regimes), verdict, str(count)]
+            for (regimes, verdict), count in sorted(counts.items(), key=lambda kv: -kv[1])]
+    head = (f"{len(shared)} points run from {' and '.join(starts)} ({len(compared) - len(shared)} more from one "
+            "of them only).")
+    if not body:
+        return head
+    return head + "\n\n" + markdown_table([" / ".join(starts), "attractors", "points"], body, left=(0, 1))
+
+
+def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: str = ""):
+    """Shared points as markers split between the regimes of the two ``starts`` (left: the first),
+    ringed in black where they reached different attractors; points of one start only as small dots."""
+    import matplotlib.ticker
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE
+
+    first, second = starts
+    colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
+    fig = Figure(figsize=(10, 6), constrained_layout=True)
+    ax = fig.subplots()
+    differ = 0
+    for c in compared:
+        rows = c["rows"]
+        x, y = c[x_key], c[y_key]
+        if first in rows and second in rows:
+            two = len(c["attractors"]) > 1
+            differ += two
+            ax.plot([x], [y], marker="o", markersize=9, fillstyle="left", linestyle="none",
+                    markerfacecolor=colour.get(rows[first]["regime"], "w"),
+                    markerfacecoloralt=colour.get(rows[second]["regime"], "w"),
+                    markeredgecolor="k" if two else "0.6", markeredgewidth=2.0 if two else 0.5, zorder=3)
+        else:
+            start = first if first in rows else second
+            ax.plot([x], [y], marker=".", markersize=5, linestyle="none", color=colour.get(rows[start]["regime"], "k"),
+                    zorder=2)
+    handles = [Line2D([], [], marker="s", linestyle="none", markersize=9, color=colour[r], label=REGIME_STYLE[r][2])
+               for r in ("TT", "PT", "TU", "undecided", "failed")]
+    handles += [Line2D([], [], marker="o", linestyle="none", markersize=9, fillstyle="left", markerfacecolor="w",
+                       markerfacecoloralt="0.7", markeredgecolor="0.6", label=f"left: {first}, right: {second}"),
+                Line2D([], [], marker="o", linestyle="none", markersize=9, markerfacecolor="w", markeredgecolor="k",
+                       markeredgewidth=2.0, label=f"two attractors ({differ} point{'s' * (differ != 1)})"),
+                Line2D([], [], marker=".", linestyle="none", color="0.4", label="run from one start only")]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
+    for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
+        if key == "shear_rate":                          # 1, 2, 5, 10, 20, ..., as in the phase diagrams
+            setter("log")
+            axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            axis.set_minor_locator(matplotlib.ticker.NullLocator())
+    ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
+    ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
+    ax.grid(alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=13)
+    return fig
