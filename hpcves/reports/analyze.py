@@ -242,7 +242,7 @@ def regimes_markdown(source: Source, rows: list[dict]) -> str:
                fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"), pattern_cell(row),
                fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
-    left = (0, len(keys) + 1, len(header) - 1)
+    left = (0, len(keys) + 1, header.index("pattern"), len(header) - 1)
     return (f"# Regimes of {source.kind} {source.name!r}\n\n{source.path}: {len(rows)} cases: {summary}.\n\n"
             + markdown_table(header, body, left) + "\n\n" + ERROR_BARS + "\n")
 
