@@ -504,6 +504,11 @@ def _minutes(seconds) -> str:
     return "not recorded" if seconds is None else f"{seconds / 60:.1f} min"
 
 
+def _campaign_minutes(seconds) -> str:
+    over = seconds is not None and seconds > 3600 * STUDY_TARGET_HOURS
+    return _minutes(seconds) + (f" (over the {STUDY_TARGET_HOURS:g} h a study should take)" if over else "")
+
+
 def assemble(path: Path, grid: str) -> None:
     """REPRODUCTION.md from the section of every study (a study without one is listed as not run)."""
     found = {name: read_section(SECTION_DIRS[grid] / f"{name}.md") for name in STUDIES}
@@ -524,7 +529,7 @@ def assemble(path: Path, grid: str) -> None:
         + (f"; not recorded for {', '.join(unrecorded)}" if unrecorded else "") + ".", "",
         markdown_table(["campaign", "numerics", "cases", "core-min", "campaign wall", "analysis", "written"],
                        [[f"`{m['job']}`", m["numerics"], str(m["cases"]), f"{m['compute_s'] / 60:.1f}",
-                         _minutes(m["campaign_wall_s"]), _minutes(m["analysis_wall_s"]),
+                         _campaign_minutes(m["campaign_wall_s"]), _minutes(m["analysis_wall_s"]),
                          f"{m['written']} ({m['machine']}, {m['ranks']} ranks)"] for m in metas]),
         ""]
     notes = list(dict.fromkeys(note for m in metas for note in m.get("notes", [])))
