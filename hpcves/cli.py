@@ -214,6 +214,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
                f"S = {case.physics.shear_rate:g}, psi_bar = {case.physics.psi_bar:g}, "
                f"excess length = {case.physics.excess_length:g}"
                + (f", {case.physics.initial_shape} start" if case.physics.initial_shape != "ellipse" else "")
+               + (f", {case.physics.initial_phase} phase" if case.physics.initial_phase != "published" else "")
                + ("  (resuming)" if resume else ""),
                err=True)
     progress = None if quiet else ProgressLine()

@@ -611,10 +611,13 @@ def case_title(attrs) -> str:
 
 
 def _start_label(attrs) -> str:
-    """", smoothed start" for a case that did not start from the ellipse (files before the option: "")."""
-    shape = attrs.get("physics.initial_shape", "ellipse")
-    shape = shape.decode() if isinstance(shape, bytes) else str(shape)
-    return "" if shape == "ellipse" else f", {shape} start"
+    """", smoothed start", ", domains phase": how a case started where it is not the published start (files
+    from before the options: "")."""
+    def text(key, default):
+        value = attrs.get(key, default)
+        return value.decode() if isinstance(value, bytes) else str(value)
+    shape, phase = text("physics.initial_shape", "ellipse"), text("physics.initial_phase", "published")
+    return (("" if shape == "ellipse" else f", {shape} start") + ("" if phase == "published" else f", {phase} phase"))
 
 
 def step_label(attrs) -> str:
