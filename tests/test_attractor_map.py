@@ -35,3 +35,11 @@ def test_tumbling_periods_compare_within_the_orbit_spread():
     near, far = dict(a, period=4.7385, theta_mean=0.16), dict(a, period=4.9)     # 0.27 % and 3.7 % apart
     assert len(attractor_map.compare({"a": [a], "b": [near]})[0]["attractors"]) == 1
     assert len(attractor_map.compare({"a": [a], "b": [far]})[0]["attractors"]) == 2
+
+
+def test_starts_at_slightly_different_parameters_compare_by_regime_and_topology():
+    a, b = _row(80, 0.5, "PT", 1, theta=0.59, period=0.0862), _row(80, 0.5, "PT", 1, theta=0.60, period=0.0870)
+    assert len(attractor_map.compare({"a": [a], "b": [b]})[0]["attractors"]) == 2
+    assert len(attractor_map.compare({"a": [a], "b": [b]}, values=False)[0]["attractors"]) == 1
+    c = _row(80, 0.5, "PT", 2, theta=0.60, period=0.0870)
+    assert len(attractor_map.compare({"a": [a], "c": [c]}, values=False)[0]["attractors"]) == 2

@@ -9,6 +9,7 @@ reached different attractors, and the summary counts the points by what the star
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from hpcves.analysis.accuracy import TUMBLING_ORBIT_SPREAD
 from hpcves.analysis.attractors import Run, group
@@ -42,9 +43,11 @@ def _point(row: dict) -> tuple:
     return tuple(round(row[k], 9) for k in SWEEPABLE)
 
 
-def compare(rows_by_start: dict) -> list[dict]:
+def compare(rows_by_start: dict, values: bool = True) -> list[dict]:
     """One entry per parameter point of any start: its parameters, the starts that ran it (their last
-    run, at the largest N) and the attractors they reached."""
+    run, at the largest N) and the attractors they reached. ``values`` False: attractors told apart by
+    regime and pattern topology only, not by theta and the period (starts whose runs are not at quite
+    the same parameters, such as a phase that does not have the mean psi_bar)."""
     runs: dict = {}
     for start, rows in rows_by_start.items():
         last = {}
@@ -55,7 +58,10 @@ def compare(rows_by_start: dict) -> list[dict]:
             runs.setdefault(key, {"parameters": {k: r[k] for k in SWEEPABLE}, "rows": {}})["rows"][start] = r
     out = []
     for entry in runs.values():
-        found = group(run_from_row(r, start) for start, r in entry["rows"].items())
+        runs_here = [run_from_row(r, start) for start, r in entry["rows"].items()]
+        if not values:
+            runs_here = [replace(run, theta_err=math.inf, period_err=math.inf) for run in runs_here]
+        found = group(runs_here)
         out.append({**entry["parameters"], "rows": entry["rows"], "attractors": found})
     return out
 
