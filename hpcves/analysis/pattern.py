@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hpcves.numerics.runs import periodic_runs
+
 #: the value of psi between the hard (0) and the soft (1) phase that separates them
 INTERFACE = 0.5
 
@@ -22,17 +24,7 @@ def soft_domains(psi: np.ndarray, interface: float = INTERFACE) -> list[tuple[in
     """The soft domains of ``psi`` (values at equispaced material points, periodic) as
     (first node, node count) pairs in the order of alpha; a domain through alpha = 0 starts
     before it (its first node is the one after the last hard node)."""
-    soft = np.asarray(psi) > interface
-    n = soft.size
-    if soft.all():
-        return [(0, n)]
-    if not soft.any():
-        return []
-    start = int(np.argmin(soft))                       # a hard node: domains do not wrap past it
-    rolled = np.roll(soft, -start)
-    edges = np.diff(np.r_[0, rolled.astype(np.int8), 0])
-    firsts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    return sorted(((int(f) + start) % n, int(e - f)) for f, e in zip(firsts, ends))
+    return periodic_runs(np.asarray(psi) > interface)
 
 
 #: a pattern is two-fold symmetric where psi(alpha + 1/2) and psi(alpha) differ by less than this

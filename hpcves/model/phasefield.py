@@ -15,6 +15,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from hpcves.numerics.reductions import maximum, minimum
+from hpcves.numerics.runs import periodic_runs
 
 
 def double_well(psi):
@@ -96,17 +97,8 @@ SPINODAL = (0.5 - SPINODAL_HALF_WIDTH, 0.5 + SPINODAL_HALF_WIDTH)
 
 def longest_spinodal_run(psi, length):
     """Arclength of the longest stretch (periodic) on which g''(psi) < 0."""
-    inside = (psi > SPINODAL[0]) & (psi < SPINODAL[1])
-    count = np.count_nonzero(inside)
-    if count == 0 or count == psi.size:
-        return float(length) * count / psi.size
-    # rotate an outside point to the front and close with one: runs then never wrap
-    N, j = psi.size, int(np.argmin(inside))
-    closed = np.zeros(N + 1, dtype=np.int8)
-    closed[: N - j] = inside[j:]
-    closed[N - j: N] = inside[:j]
-    edges = np.flatnonzero(np.diff(closed))                 # alternately starts - 1 and ends
-    return float((edges[1::2] - edges[0::2]).max()) * length / psi.size
+    runs = periodic_runs((psi > SPINODAL[0]) & (psi < SPINODAL[1]))
+    return float(max((count for _, count in runs), default=0)) * length / psi.size
 
 
 #: a linearly implicit step whose result leaves this range is rejected (see :func:`plausible`)
