@@ -89,11 +89,10 @@ def summary(compared: list[dict], starts: tuple) -> str:
 def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: str = ""):
     """Shared points as markers split between the regimes of the two ``starts`` (left: the first),
     ringed in black where they reached different attractors; points of one start only as small dots."""
-    import matplotlib.ticker
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE
+    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
 
     first, second = starts
     colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
@@ -123,11 +122,9 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
                 Line2D([], [], marker=".", linestyle="none", color="0.4", label="run from one start only")]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
     for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
-        if key == "shear_rate":                          # 1, 2, 5, 10, 20, ..., as in the phase diagrams
+        if key == "shear_rate":
             setter("log")
-            axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
-            axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
-            axis.set_minor_locator(matplotlib.ticker.NullLocator())
+            plain_log_ticks(axis)
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)

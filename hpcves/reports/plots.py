@@ -343,9 +343,8 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             if log_keys is None and len(values) <= MAX_SWEEP_TICKS:   # ticks at the swept values
                 axis.set_ticks(values, [f"{v:g}" for v in values])
-            else:                                       # 1, 2, 5, 10, 20, ..., not 10^1 and 10^2
-                axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
-                axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            else:
+                plain_log_ticks(axis)
             axis.set_minor_locator(matplotlib.ticker.NullLocator())
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
@@ -355,6 +354,13 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
     if title:
         ax.set_title(title, fontsize=13)
     return fig
+
+
+def plain_log_ticks(axis) -> None:
+    """Major ticks of a log axis at 1, 2, 5, 10, 20, ..., written as numbers, not 10^1 and 10^2; no minor ones."""
+    axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_locator(matplotlib.ticker.NullLocator())
 
 
 #: regimes whose regions are shaded (the others -- undecided, model limit, failed -- stay white)
