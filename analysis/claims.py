@@ -20,6 +20,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hpcves.reports.attractor_map import last_runs
+
 AGREES, MOSTLY, DIFFERS, NO_CASES = "agrees", "mostly", "differs", "no cases"
 DECIDED = ("TT", "PT", "TU")
 
@@ -32,6 +34,13 @@ class Claim:
     studies: tuple      # the campaigns that measure it: (from the ellipse, from the authors' start)
 
 
+def _twins(study: str) -> tuple:
+    """A deflated study from the ellipse and its twin from the authors' start."""
+    return study, f"{study}_smoothed"
+
+
+DELTA_S, CASES, DELTA_094, DELTA_230 = (_twins(s) for s in ("psi048_delta_S", "psi048_cases", "delta094_S_psi",
+                                                           "delta230_S_psi"))
 CLAIMS = (
     Claim("theta_flat", "fig. Oinclineangle0", "psi_bar = 0: theta settles at ~0.6 rad for every S in [2, 350]",
           ("homogeneous",)),
@@ -43,39 +52,29 @@ CLAIMS = (
     Claim("sc_gap", "fig. criticalshearate (b, c)", "S_C grows with the bending-energy gap Delta E_b", ("sc_psi",)),
     Claim("sc_symmetric", "fig. criticalshearate (c)", "at B2 = 0.8, S_C and Delta E_b are symmetric about psi_bar = 0.5",
           ("sc_psi",)),
-    Claim("fig7a_tu", "fig. phasediagram (a)", "psi_bar = 0.48: tumbling for S < 4 and Delta > 0.8",
-          ("psi048_delta_S", "psi048_delta_S_smoothed")),
-    Claim("fig7a_tu_onset", "fig. phasediagram (a)", "no tumbling for Delta < 0.8",
-          ("psi048_delta_S", "psi048_delta_S_smoothed")),
-    Claim("fig7a_pt", "fig. phasediagram (a)", "phase-treading for S > 15 and Delta < 3",
-          ("psi048_delta_S", "psi048_delta_S_smoothed")),
-    Claim("fig7a_no_tt", "fig. phasediagram (a)", "no tank-treading for Delta > 1.6",
-          ("psi048_delta_S", "psi048_delta_S_smoothed")),
-    Claim("fig8", "fig. dynamicstu", "Delta = 0.94, S = 4, psi_bar = 0.48 tumbles", ("psi048_cases", "psi048_cases_smoothed")),
-    Claim("fig9", "fig. dynamicspt", "Delta = 2.3, S = 28, psi_bar = 0.48 phase-treads", ("psi048_cases",
-                                                                                            "psi048_cases_smoothed")),
+    Claim("fig7a_tu", "fig. phasediagram (a)", "psi_bar = 0.48: tumbling for S < 4 and Delta > 0.8", DELTA_S),
+    Claim("fig7a_tu_onset", "fig. phasediagram (a)", "no tumbling for Delta < 0.8", DELTA_S),
+    Claim("fig7a_pt", "fig. phasediagram (a)", "phase-treading for S > 15 and Delta < 3", DELTA_S),
+    Claim("fig7a_no_tt", "fig. phasediagram (a)", "no tank-treading for Delta > 1.6", DELTA_S),
+    Claim("fig8", "fig. dynamicstu", "Delta = 0.94, S = 4, psi_bar = 0.48 tumbles", CASES),
+    Claim("fig9", "fig. dynamicspt", "Delta = 2.3, S = 28, psi_bar = 0.48 phase-treads", CASES),
     Claim("fig10a_tu", "fig. phasediagram2 (a)", "Delta = 0.94: tumbling for S < 4 near psi_bar = 0.5 (0.4-0.6 here)",
-          ("delta094_S_psi", "delta094_S_psi_smoothed")),
+          DELTA_094),
     Claim("fig10a_order", "fig. phasediagram2 (a)", "Delta = 0.94: above that, tank-treading, then phase-treading at higher S",
-          ("delta094_S_psi", "delta094_S_psi_smoothed")),
+          DELTA_094),
     Claim("fig10b_tu", "fig. phasediagram2 (b)", "Delta = 2.3: tumbling for S < 4 near psi_bar = 0.5 (0.44-0.58 here)",
-          ("delta230_S_psi", "delta230_S_psi_smoothed")),
+          DELTA_230),
     Claim("fig10b_pt", "fig. phasediagram2 (b)", "Delta = 2.3: phase-treading for S >= 4 at psi_bar 0.44-0.58",
-          ("delta230_S_psi", "delta230_S_psi_smoothed")),
+          DELTA_230),
     Claim("fig10b_tt", "fig. phasediagram2 (b)", "Delta = 2.3: tank-treading for psi_bar > 0.58 or < 0.44 over a wide range of S",
-          ("delta230_S_psi", "delta230_S_psi_smoothed")),
-    Claim("fig10b_sc", "fig. phasediagram2 (b)", "Delta = 2.3, psi_bar = 0.44: S_C = 120", ("delta230_S_psi", "delta230_S_psi_smoothed")),
+          DELTA_230),
+    Claim("fig10b_sc", "fig. phasediagram2 (b)", "Delta = 2.3, psi_bar = 0.44: S_C = 120", DELTA_230),
 )
 
 
 def points(rows: list[dict]) -> list[dict]:
     """One row per parameter point: its last run (the one at the largest N, for [refine] retries)."""
-    best = {}
-    for r in rows:
-        key = (r["shear_rate"], r["psi_bar"], r["excess_length"], r["B2"])
-        if key not in best or r["N"] >= best[key]["N"]:
-            best[key] = r
-    return list(best.values())
+    return list(last_runs(rows).values())
 
 
 def region(rows: list[dict], inside, regime: str) -> dict:

@@ -39,8 +39,14 @@ def run_from_row(row: dict, start: str) -> Run:
     return Run(start, row["regime"], topology, row["theta_mean"], theta_bar, row["period"], period_bar)
 
 
-def _point(row: dict) -> tuple:
-    return tuple(round(row[k], 9) for k in SWEEPABLE)
+def last_runs(rows) -> dict:
+    """{parameter point: its last run}, the run at the largest N where a refinement ran a point again."""
+    last: dict = {}
+    for r in rows:
+        point = tuple(round(r[k], 9) for k in SWEEPABLE)
+        if point not in last or r["N"] >= last[point]["N"]:
+            last[point] = r
+    return last
 
 
 def compare(rows_by_start: dict, values: bool = True) -> list[dict]:
@@ -50,11 +56,7 @@ def compare(rows_by_start: dict, values: bool = True) -> list[dict]:
     the same parameters, such as a phase that does not have the mean psi_bar)."""
     runs: dict = {}
     for start, rows in rows_by_start.items():
-        last = {}
-        for r in rows:
-            if _point(r) not in last or r["N"] >= last[_point(r)]["N"]:
-                last[_point(r)] = r
-        for key, r in last.items():
+        for key, r in last_runs(rows).items():
             runs.setdefault(key, {"parameters": {k: r[k] for k in SWEEPABLE}, "rows": {}})["rows"][start] = r
     out = []
     for entry in runs.values():
