@@ -233,6 +233,7 @@ class Solver:
                                                       num.phase_stabilization)
             self.cahn_hilliard = phasefield.LinearizedImplicit(self.sp, phys.mobility, phys.a0, phys.epsilon)
         self._applicable_memo: tuple = ()
+        self._start_shape = None               # (theta_tilde, ellipse parameters t) of the start
         start = self.initial_state()
         self.area0 = geometry.enclosed_area(start.theta + self.sp.circle_angle, self.sp)
         #: the spectral tails of the initial data (theta, psi): the ellipse's own, which its fast
@@ -246,12 +247,14 @@ class Solver:
         """The ellipse of the case's length and excess length, or its smoothed form (physics.initial_shape);
         phase as in SPEC section 1."""
         phys, sp = self.case.physics, self.sp
-        a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
-        t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
-        if phys.initial_shape == "smoothed":
-            theta = geometry.smoothed_ellipse(a, b, sp.N)
-        theta = sp.project(theta - sp.circle_angle, self._resolved) + sp.circle_angle
-        theta = geometry.close_curve(theta) - sp.circle_angle
+        if self._start_shape is None:          # once per solver: the smoothed shape takes ~30 ms
+            a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
+            t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
+            if phys.initial_shape == "smoothed":
+                theta = geometry.smoothed_ellipse(a, b, sp.N)
+            theta = sp.project(theta - sp.circle_angle, self._resolved) + sp.circle_angle
+            self._start_shape = (geometry.close_curve(theta) - sp.circle_angle, t)
+        theta, t = self._start_shape[0].copy(), self._start_shape[1]
         if phys.homogeneous:
             psi = np.full(sp.N, phys.psi_bar)
         else:
