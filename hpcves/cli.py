@@ -645,7 +645,7 @@ def _status_table(name, rows, totals, writing, left) -> None:
     header = ["case", *keys, "status", "t / t_end", "wall", "steps/s", "reason"]
     lines = []
     for r in rows:
-        lines.append([r["case"], *(f"{r[k]:g}" for k in keys), r["status"], f"{r['t']:.4g} / {r['t_end']:.4g}",
+        lines.append([r["case"], *(f"{r[k]:g}" if isinstance(r[k], float) else r[k] or "-" for k in keys), r["status"], f"{r['t']:.4g} / {r['t_end']:.4g}",
                       _duration(r["wall"]) if r["wall"] > 0 else "-",
                       f"{r['steps_per_second']:,.0f}" if r["steps_per_second"] > 0 else "-",
                       (r["message"].splitlines() or [""])[0][:80]])

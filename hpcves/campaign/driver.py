@@ -44,7 +44,6 @@ import logging
 import threading
 import time
 import traceback
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -61,6 +60,7 @@ from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
+from hpcves.campaign.queue import Task, WorkQueue
 from hpcves.campaign.relay import Relay
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
@@ -70,7 +70,7 @@ log = logging.getLogger(__name__)
 
 TAG_REQUEST = 11      # worker -> rank 0: ("ready",) | ("done", CaseResult) | ("progress", id, fraction) | ("stop",)
                       #   | with --io relay, its file writes and reads (relay.py), on this tag to keep their order
-TAG_TASK = 12         # rank 0 -> worker: (case_id, resume) or None (no more work)
+TAG_TASK = 12         # rank 0 -> worker: a queue.Task or None (no more work)
 TAG_STOP = 13         # rank 0 -> worker: checkpoint the running case and report
 TAG_REPLY = 14        # rank 0 -> worker: the answer to a file read (--io relay only)
 PROGRESS_SECONDS = 2.0
@@ -87,6 +87,7 @@ class CaseResult:
     steps: int
     wall: float
     rank: int
+    end: tuple | None = None        # (theta_tilde, psi) it ended in, when a chain's next case waits for it
 
 
 @dataclass(frozen=True)
@@ -178,10 +179,11 @@ def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[
     return todo
 
 
-def run_one(campaign: CampaignFile, case_id: str, resume: bool, flush: Callable[[], None], rank: int,
+def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank: int,
             stop_requested: Callable[[], bool], progress: Callable[[float], None],
             analysis: AnalysisSettings) -> CaseResult:
     """Run one case to its end (or to a stop request); an exception is recorded, never raised."""
+    case_id = task.case_id
     store = campaign.store(case_id)
     t0 = time.perf_counter()
 
@@ -189,9 +191,10 @@ def run_one(campaign: CampaignFile, case_id: str, resume: bool, flush: Callable[
         progress(t.t / t.t_end)
 
     try:
-        out = runner.run(store, flush, resume=resume, progress=tick, stop_requested=stop_requested,
-                         analysis=analysis)
-        return CaseResult(case_id, out.status, out.message, out.t, out.steps, out.wall, rank)
+        out = runner.run(store, flush, resume=task.resume, progress=tick, stop_requested=stop_requested,
+                         analysis=analysis, start=task.start)
+        return CaseResult(case_id, out.status, out.message, out.t, out.steps, out.wall, rank,
+                          out.end if task.keep_end else None)
     except StorageError as exc:                  # the file, not the case: nothing more is written
         return CaseResult(case_id, NOT_WRITTEN, str(exc), float("nan"), 0, time.perf_counter() - t0, rank)
     except Exception as exc:                     # noqa: BLE001 -- recorded in the file, the campaign goes on
@@ -215,7 +218,8 @@ class Master:
         self.relay = relay                       # applies the other ranks' file writes (--io relay)
         self.size = 1 if comm is None else comm.Get_size()
         self.campaign, self.study, self.flush = campaign, study, flush
-        self.pending = deque(todo)
+        self.queue = WorkQueue(todo, lambda c: study.by_id(c).cost, campaign.chain_links(), campaign.statuses(),
+                               lambda c: campaign.store(c).end_fields())
         self.stop_flag = stop_flag
         self.stop_timeout = stop_timeout
         self.display = display
@@ -261,13 +265,13 @@ class Master:
                     continue
                 self.waiting.add(source)
             for rank in sorted(self.waiting):
-                if not self.pending or self.stopping:
+                task = None if self.stopping else self.queue.pop()
+                if task is None:
                     break
-                case_id, resume = self.pending.popleft()
-                self.comm.send((case_id, resume), dest=rank, tag=TAG_TASK)
+                self.comm.send(task, dest=rank, tag=TAG_TASK)
                 self.waiting.discard(rank)
-                self.busy[rank] = case_id
-                self.fraction[case_id] = 0.0
+                self.busy[rank] = task.case_id
+                self.fraction[task.case_id] = 0.0
                 active = True
         if self.display is not None:
             self.display(self)
@@ -288,6 +292,7 @@ class Master:
         self.results.append(result)
         self.fraction[result.case_id] = 1.0 if result.status in ENDED else self.fraction.get(
             result.case_id, 0.0)
+        self.not_run(self.queue.ended(result.case_id, result.status, result.end))
         if result.status == FAILED:
             first = result.message.splitlines()[0] if result.message else ""
             log.warning("case %s (%s) failed on rank %d: %s", result.case_id,
@@ -297,6 +302,17 @@ class Master:
                      self.study.by_id(result.case_id).label(), result.t, runner.model_limit_cause(result.message))
         if result.status == INTERRUPTED and not self.stopping:
             self.begin_stop(f"rank {result.rank} was stopped")
+
+    def not_run(self, broken) -> None:
+        """Record as failed the cases of a chain that cannot start (queue.WorkQueue.ended)."""
+        for case_id, why in broken:
+            try:
+                self.campaign.store(case_id).set_status(FAILED, why)
+                self.flush()
+            except StorageError as exc:
+                self.refused(str(exc))
+                return
+            log.warning("case %s (%s): %s", case_id, self.study.by_id(case_id).label(), why)
 
     def begin_stop(self, why: str) -> None:
         """No new cases; every busy rank checkpoints and reports; abort if that takes too long."""
@@ -322,11 +338,13 @@ class Master:
     # -- the loop
     def run(self) -> list[CaseResult]:
         backoff = Backoff()
+        self.not_run(self.queue.broken)
         while True:
             if self.service():
                 backoff.reset()
-            if self.pending and not self.stopping:
-                case_id, resume = self.pending.popleft()
+            task = None if self.stopping else self.queue.pop()
+            if task is not None:
+                case_id = task.case_id
                 self.fraction[case_id] = 0.0
                 self.busy[0] = case_id
 
@@ -337,7 +355,7 @@ class Master:
                 def progress(fraction, case_id=case_id):
                     self.fraction[case_id] = fraction
 
-                result = run_one(self.campaign, case_id, resume, self.flush, 0, poll, progress, self.study.analysis)
+                result = run_one(self.campaign, task, self.flush, 0, poll, progress, self.study.analysis)
                 del self.busy[0]
                 self.record(result)
                 backoff.reset()
@@ -362,7 +380,7 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: Analys
             task = comm.recv(source=0, tag=TAG_TASK)
             if task is None:
                 break
-            case_id, resume = task
+            case_id = task.case_id
             last = [0.0]
 
             def stop_requested() -> bool:
@@ -374,7 +392,7 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: Analys
                     last[0] = now
                     comm.send(("progress", case_id, fraction), dest=0, tag=TAG_REQUEST)
 
-            result = run_one(campaign, case_id, resume, flush, rank, stop_requested, progress, analysis)
+            result = run_one(campaign, task, flush, rank, stop_requested, progress, analysis)
             comm.send(("done", result), dest=0, tag=TAG_REQUEST)
             backoff.reset()
         else:

@@ -5,7 +5,8 @@
                file's text), sweep_keys, n_cases
                mode ("grid", "search" or "refine")
     index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
-               search (n,) int (the search -- or refinement -- of each case; -1 in a grid) --
+               search (n,) int (the search -- or refinement -- of each case; -1 in a grid);
+               chain studies: after (n,) strings, the case each starts from ("" for none) --
                all resizable: a search or refinement adds its cases stage by stage
     searches/  search files: one (n_searches,) dataset per swept key
     refinements/  refine files: one (n_refinements,) dataset per swept key that is not an axis
@@ -76,6 +77,8 @@ class CampaignFile:
             index.create_dataset(key, dtype="f8", **growing)
         index.create_dataset("cost", dtype="f8", **growing)
         index.create_dataset("search", dtype="i4", **growing)
+        if study.chain:
+            index.create_dataset("after", dtype=f"S{study.id_width}", **growing)
         if study.search:
             searches = h5.create_group("searches")
             for key in study.sweep:
@@ -113,6 +116,8 @@ class CampaignFile:
         columns = {"case_id": [c.case_id.encode() for c in cases], "cost": [c.cost for c in cases],
                    "search": [c.search for c in cases]}
         columns.update({k: [c.swept[k] for c in cases] for k in self.sweep_keys})
+        if "after" in index:
+            columns["after"] = [c.after.encode() for c in cases]
         for key, values in columns.items():
             dataset = index[key]
             dataset.resize((stop,))
@@ -204,6 +209,15 @@ class CampaignFile:
         n = int(self.h5.attrs["n_cases"])
         return [attr_text(i) for i in self.h5["index/case_id"][:n]]
 
+    def chain_links(self) -> dict[str, str]:
+        """{case id: the case whose end state it starts from} of a chain study's linked cases ({} else)."""
+        index = self.h5["index"]
+        if "after" not in index:
+            return {}
+        n = int(self.h5.attrs["n_cases"])
+        return {case_id: attr_text(after) for case_id, after in zip(self.case_ids, index["after"][:n])
+                if attr_text(after)}
+
     def store(self, case_id: str) -> CaseStore:
         return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
 
@@ -242,6 +256,7 @@ class CampaignFile:
         keys = self.sweep_keys
         n = int(self.h5.attrs["n_cases"])
         swept = {k: self.h5["index"][k][:n] for k in keys}
+        links = self.chain_links()
         for i, case_id in enumerate(self.case_ids):
             values = {k: float(swept[k][i]) if i < len(swept[k]) else float("nan") for k in keys}
             try:
@@ -259,8 +274,11 @@ class CampaignFile:
             except (FileFormatError, *HDF5_ERRORS) as exc:
                 t = t_end = wall = rate = float("nan")
                 name, message = DAMAGED, f"unreadable ({str(exc).strip().splitlines()[0] if str(exc) else exc})"
-            rows.append({"case": case_id, **values, "status": name, "t": t, "t_end": t_end, "wall": wall,
-                         "steps_per_second": rate, "message": message})
+            row = {"case": case_id, **values, "status": name, "t": t, "t_end": t_end, "wall": wall,
+                   "steps_per_second": rate, "message": message}
+            if links:
+                row["after"] = links.get(case_id, "")
+            rows.append(row)
         return rows
 
 

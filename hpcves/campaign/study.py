@@ -53,6 +53,29 @@ The ``[sweep]`` values of the two axes are the coarse grid; every combination
 of the other swept keys is a refinement of its own. Cases are made stage by
 stage as the refinements ask for them; every point of the coarse grids is
 validated up front.
+
+A ``[starts]`` table runs every point from several starts (docs/analysis.md)::
+
+    [starts]                                  # name = the start's physics keys (START_KEYS)
+    ellipse = {}                              # the base case's start
+    smoothed = { initial_shape = "smoothed", psi_init_coordinate = "ellipse_parameter" }
+    one_domain = { initial_phase = "domains", phase_domains = 1, delta = 0.16 }
+
+It is swept like a parameter, as the last key (``start``: 0, 1, ... in the order
+given; the file's index holds the number, its tables the name). With ``[refine]``
+every start is a refinement of its own; with ``[search]`` a search of its own.
+
+A ``[chain]`` table makes a grid study a continuation (docs/analysis.md)::
+
+    [chain]
+    along = "shear_rate"   # a swept key: its values in [sweep] order make a chain for every combination
+                           # of the other swept keys
+    back = true            # then back through the same values (hysteresis); default false
+
+The first case of a chain starts as the base case says; every other case from the
+end state of the case before it (continuation.carried_start: the shape rescaled to
+its excess length, psi shifted to its psi_bar), so it runs only once that case has
+finished. Cases are numbered chain by chain, each chain in its order.
 """
 from __future__ import annotations
 
@@ -74,6 +97,9 @@ from hpcves.analysis.refine import RefinePlan, RefineSettings
 from hpcves.analysis.search import SearchSettings
 
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
+#: what a named start of ``[starts]`` may set: the physics of the initial shape and phase
+START_KEYS = ("initial_shape", "psi_init_coordinate", "initial_phase", "phase_domains", "phase_center",
+              "phase_seed", "delta")
 CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "samples_per_shear_time", "stop_timeout")
 #: more cases than this in one study is surely a mistake (checked before any case is built: building
 #: and validating 10^5 cases takes ~6 s; 10^6 took 60 s and 680 MB)
@@ -88,6 +114,7 @@ class StudyCase:
     case: Case
     swept: dict                    # {"shear_rate": 80.0, ...} in sweep order
     search: int = -1               # search (refine) studies: which search (refinement) the case belongs to
+    after: str = ""                # chain studies: the case whose end state this one starts from ("": none)
 
     @property
     def cost(self) -> float:
@@ -120,6 +147,8 @@ class Study:
     searches: tuple = ()           # search studies: the swept values of each search, in sweep order
     refine: RefinePlan | None = None
     refinements: tuple = ()        # refine studies: the values of the other swept keys of each refinement
+    chain: ChainPlan | None = None  # a continuation: cases start from the end of the one before
+    starts: tuple = ()             # ((name, {physics key: value}), ...) of [starts]; swept as "start"
 
     @property
     def mode(self) -> str:
@@ -156,9 +185,12 @@ class Study:
             payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
                        "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
                        "refine": plan, "analysis": dataclasses.asdict(self.analysis)}
+            if self.starts:
+                payload["starts"] = [list(s) for s in self.starts]
         elif self.search is None:
             payload = {"name": self.name,
-                       "cases": [[c.case_id, c.case.significant()] for c in self.cases]}
+                       "cases": [[c.case_id, c.case.significant()] + ([c.after] if self.chain else [])
+                                 for c in self.cases]}
             if self.base.run.until_decided:          # the thresholds decide when its cases stop
                 payload["analysis"] = dataclasses.asdict(self.analysis)
         else:
@@ -169,6 +201,8 @@ class Study:
                        "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
             if samples is not None:        # absent from files written before the rule existed
                 payload["samples_per_shear_time"] = samples
+            if self.starts:
+                payload["starts"] = [list(s) for s in self.starts]
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
     def by_id(self, case_id: str) -> StudyCase:
@@ -179,6 +213,8 @@ class Study:
         """Every case the study can have: the grid, or max_cases for every search or refinement."""
         if self.refine:
             return len(self.refinements) * self.refine.max_cases
+        if self.chain:
+            return sum(1 for _ in self.chain.links(self.sweep))
         points = math.prod(len(v) for v in self.sweep.values())
         return points * (self.search.max_cases if self.search else 1)
 
@@ -187,12 +223,17 @@ class Study:
         """Digits of a case id: enough for every case the study can have."""
         return max(4, len(str(self.most_cases - 1)))
 
-    def make_case(self, case_id: str, swept: dict, search: int = -1, N: int | None = None) -> StudyCase:
+    def make_case(self, case_id: str, swept: dict, search: int = -1, N: int | None = None,
+                  after: str = "") -> StudyCase:
         """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated);
-        ``N``: another resolution than the base case's (a refinement's retry)."""
+        ``N``: another resolution than the base case's (a refinement's retry); ``after``: the case whose
+        end state it starts from (a chain)."""
         where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
         try:
-            physics = dataclasses.replace(self.base.physics, **swept)
+            values = {k: v for k, v in swept.items() if k != "start"}
+            if "start" in swept:
+                values.update(self.starts[int(swept["start"])][1])
+            physics = dataclasses.replace(self.base.physics, **values)
             S, run = physics.shear_rate, self.base.run
             run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
                                       sample_interval=self.times.sample_interval(S, run.sample_interval,
@@ -201,7 +242,7 @@ class Study:
             case = Case(physics=physics, numerics=numerics, run=run)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
-        return StudyCase(case_id, case, swept, search)
+        return StudyCase(case_id, case, swept, search, after)
 
     def search_case(self, search: int, shear_rate: float, case_id: str) -> StudyCase:
         """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
@@ -303,7 +344,8 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     is_search, is_refine = "search" in data, "refine" in data
     if is_search and is_refine:
         raise ConfigError("[search] and [refine] are two kinds of campaign: give one")
-    tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search", "refine")}
+    is_chain = "chain" in data
+    tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search", "refine", "chain", "starts")}
     for table, value in tables.items():
         if not isinstance(value, dict):
             raise ConfigError(f"[{table}] must be a table")
@@ -311,6 +353,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     problems = Problems()              # the tables are independent: every problem of them at once
     with problems.check():
         refuse_unknown(campaign, CAMPAIGN_KEYS, "[campaign]")
+    base, sweep = None, {}
     with problems.check("base case: "):
         base = case_from_dict(data)
     name = campaign.get("name", default_name)
@@ -335,6 +378,9 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         allowed = SEARCHABLE if is_search else SWEEPABLE
         unknown = [k for k in sweep_spec if k not in allowed]
         if unknown:
+            if "start" in unknown:
+                raise ConfigError("sweep over start: name the starts in a [starts] table instead "
+                                  "(name = { initial_shape = ..., ... }); they are swept as the last key")
             if is_search and unknown == ["shear_rate"]:
                 raise ConfigError("[search] runs along the shear rate: leave shear_rate out of [sweep] "
                                   "(the search range is [search] low and high)")
@@ -343,7 +389,18 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         for key, spec in sweep_spec.items():
             with problems.check():
                 sweep[key] = sweep_values(key, spec)
+    starts = ()
+    with problems.check():
+        starts = start_table(tables["starts"], base) if base is not None else ()
+        if starts:
+            sweep["start"] = tuple(float(i) for i in range(len(starts)))
+    chain = None
+    if is_chain:
+        with problems.check():
+            chain = ChainPlan.from_dict(tables["chain"], sweep, staged=is_search or is_refine)
     problems.raise_any()
+    if is_refine and "start" in (tables["refine"].get("axes") or ()):
+        raise ConfigError("[refine]: the starts are not an axis of a plane; every start is a refinement of its own")
     refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
     if refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
         raise ConfigError(f"[refine]: max_N = {refine.max_N}: an under-resolved case runs again at twice its "
@@ -352,7 +409,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     refinements = tuple(dict(zip(others, values)) for values in itertools.product(*(sweep[k] for k in others)))
     study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
                   analysis=analysis, base=base, times=times, search=search, refine=refine,
-                  refinements=refinements if refine else ())
+                  refinements=refinements if refine else (), chain=chain, starts=starts)
     if study.most_cases > MAX_CASES:
         raise ConfigError(f"the sweep has {study.most_cases} cases; more than {MAX_CASES} is surely a mistake")
     if refine is not None:          # validate every point of every coarse grid
@@ -361,6 +418,10 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
                 for y in sweep[refine.axes[1]]:
                     study.refine_case(i, x, y, f"of refinement {i}")
         return study
+    if chain is not None:
+        width = study.id_width
+        return study.with_cases(study.make_case(f"{i:0{width}d}", swept, after=f"{i - 1:0{width}d}" if linked else "")
+                                for i, (swept, linked) in enumerate(chain.links(sweep)))
     points = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())]
     if search is None:
         width = study.id_width
@@ -427,3 +488,62 @@ class TimeRules:
             if not samples > 0:
                 raise ConfigError(f"campaign.samples_per_shear_time = {samples}: must be > 0")
         return cls(absolute, shear_times, floor, samples)
+
+
+@dataclass(frozen=True)
+class ChainPlan:
+    """``[chain]`` of a campaign file: continuation along one swept key (see the module's docstring)."""
+
+    along: str
+    back: bool = False
+
+    @classmethod
+    def from_dict(cls, values: dict, sweep: dict, staged: bool = False) -> "ChainPlan":
+        refuse_unknown(values, ("along", "back"), "[chain]")
+        if staged:
+            raise ConfigError("[chain] runs a grid of continuations: it cannot be combined with [search] "
+                              "or [refine]")
+        along = values.get("along")
+        if along == "start":
+            raise ConfigError("chain.along = 'start': a chain runs along a parameter; every start begins "
+                              "chains of its own")
+        if not isinstance(along, str) or along not in sweep:
+            raise ConfigError(f"chain.along = {along!r}: must name a swept key "
+                              f"({', '.join(sweep) or 'nothing is swept'})")
+        if len(sweep[along]) < 2:
+            raise ConfigError(f"chain.along = {along!r}: sweeps one value; a chain needs at least two")
+        back = values.get("back", False)
+        if not isinstance(back, bool):
+            raise ConfigError(f"chain.back = {back!r}: must be true or false")
+        return cls(along, back)
+
+    def values(self, sweep: dict) -> tuple:
+        """The values of the chained key in the order a chain visits them (there and, with back, back)."""
+        forth = tuple(sweep[self.along])
+        return forth + (forth[-2::-1] if self.back else ())
+
+    def links(self, sweep: dict):
+        """(swept values, starts from the case before) of every case, chain by chain."""
+        others = [k for k in sweep if k != self.along]
+        for fixed in itertools.product(*(sweep[k] for k in others)):
+            point = dict(zip(others, fixed))
+            for j, value in enumerate(self.values(sweep)):
+                yield {k: value if k == self.along else point[k] for k in sweep}, j > 0
+
+
+def start_table(table: dict, base: Case) -> tuple:
+    """((name, {key: value}), ...) of a ``[starts]`` table, each start validated on the base case."""
+    if not table:
+        return ()
+    starts = []
+    for name, values in table.items():
+        where = f"starts.{name}"
+        if not isinstance(values, dict):
+            raise ConfigError(f"{where} = {values!r}: must be a table of {', '.join(START_KEYS)} (or {{}})")
+        refuse_unknown(values, START_KEYS, where)
+        try:
+            dataclasses.replace(base.physics, **values)
+        except (ConfigError, TypeError) as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+        starts.append((name, dict(values)))
+    return tuple(starts)

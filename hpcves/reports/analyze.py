@@ -59,6 +59,9 @@ class Source:
     cases: tuple
     mode: str = "grid"         # campaigns: "grid", "search" or "refine"
     toml: str = ""             # campaigns: the campaign file's text
+    links: tuple = ()          # chain campaigns: (case, the case it starts from) of every linked case
+    chain_along: str = ""      # chain campaigns: the swept key the chains run along
+    starts: tuple = ()         # campaigns with [starts]: the name of each case's start, in case order
 
 
 def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
@@ -73,6 +76,24 @@ def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
         why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     parameters = {k: float(swept.get(k, math.nan)) for k in PARAMETERS}
     return CaseData(case_id, parameters, DAMAGED, math.nan, math.nan, why, {"t": np.zeros(0)}, search, (DAMAGED,))
+
+
+def start_names(toml_text: str) -> list[str]:
+    """The names of a campaign's ``[starts]``, in the order swept."""
+    try:
+        table = tomllib.loads(toml_text).get("starts", {})
+    except tomllib.TOMLDecodeError:
+        return []
+    return list(table) if isinstance(table, dict) else []
+
+
+def chain_along(toml_text: str) -> str:
+    """The key of a chain campaign's ``[chain] along`` ("" where the text has none)."""
+    try:
+        along = tomllib.loads(toml_text).get("chain", {}).get("along", "")
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return ""
+    return along if isinstance(along, str) else ""
 
 
 def settings_of(toml_text: str, where: str) -> AnalysisSettings:
@@ -103,8 +124,15 @@ def read_source(path) -> Source:
                 swept = {k: index[k][i] for k in campaign.sweep_keys}
                 cases.append(_read_case(h5["cases"].get(c), c, search, swept))
             toml = attr_text(h5.attrs.get("campaign_toml", ""))
+            links = tuple(campaign.chain_links().items())
+            starts = ()
+            if "start" in campaign.sweep_keys:
+                names = start_names(toml)
+                starts = tuple(names[int(i)] if int(i) < len(names) else f"start {int(i)}"
+                               for i in index["start"][:len(cases)])
             return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys),
-                          settings_of(toml, str(path)), tuple(cases), campaign.mode, toml)
+                          settings_of(toml, str(path)), tuple(cases), campaign.mode, toml, links,
+                          chain_along(toml) if links else "", starts)
         store = CaseStore.open(h5, where=str(path))           # a single run (or a clear refusal)
         problems = store.problems()
         if problems:
@@ -117,6 +145,8 @@ def analyse_source(source: Source, settings: AnalysisSettings | None = None, pro
     rows = []
     for i, case in enumerate(source.cases):
         rows.append(analyse_case(case, settings))
+        if source.starts:
+            rows[-1]["start"] = source.starts[i]
         if progress is not None:
             progress(i + 1, len(source.cases))
     return rows
@@ -224,11 +254,16 @@ def read_back(path) -> list[dict]:
 
 # ---------------------------------------------------------------------- tables
 def write_csv(rows: list[dict], path: Path) -> None:
+    """regimes.csv: COLUMNS, with the start's name after the parameters where the study has [starts]."""
+    columns = COLUMNS
+    if rows and "start" in rows[0]:
+        at = COLUMNS.index(PARAMETERS[-1]) + 1
+        columns = COLUMNS[:at] + ("start",) + COLUMNS[at:]
     with open(path, "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(COLUMNS)
+        writer.writerow(columns)
         for row in rows:
-            writer.writerow([cell(row[c]) for c in COLUMNS])
+            writer.writerow([cell(row[c]) for c in columns])
 
 
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
@@ -315,8 +350,8 @@ def grid_axes(source: Source, rows: list[dict], axes: tuple[str, str] | None = N
             if k not in PARAMETERS:
                 raise ConfigError(f"--axes: {k!r} is not one of {', '.join(PARAMETERS)}")
         x, y = axes
-    else:
-        ordered = sorted(varied, key=lambda k: (k != "shear_rate", varied.index(k)))
+    else:                                  # a start is a facet, never an axis
+        ordered = sorted((k for k in varied if k != "start"), key=lambda k: (k != "shear_rate", varied.index(k)))
         if len(ordered) >= 2:
             x, y = ordered[0], ordered[1]
         elif ordered:
@@ -335,7 +370,7 @@ def facets(rows: list[dict], others: list[str]):
 
 def facet_suffix(fixed: dict) -> str:
     """``_B20.3``: the fixed values in a file name."""
-    return "".join(f"_{LABELS.get(k, k)}{v:g}" for k, v in fixed.items())
+    return "".join(f"_{LABELS.get(k, k)}{'_' * isinstance(v, str)}{_value(v)}" for k, v in fixed.items())
 
 
 def shared_parameters(rows: list[dict], axes=()) -> dict:
@@ -347,7 +382,12 @@ def shared_parameters(rows: list[dict], axes=()) -> dict:
 
 def facet_label(fixed: dict) -> str:
     """``B2 = 0.3``: the fixed values in a heading or a title."""
-    return ", ".join(f"{LABELS.get(k, k)} = {v:g}" for k, v in fixed.items())
+    return ", ".join(f"{LABELS.get(k, k)} = {_value(v)}" for k, v in fixed.items())
+
+
+def _value(v) -> str:
+    """A swept value as text: a number to 6 digits, a start by its name."""
+    return v if isinstance(v, str) else f"{v:g}"
 
 
 def regime_counts(rows: list[dict]) -> dict:
@@ -540,10 +580,97 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
     return written
 
 
+#: how a chain's legs are named, by the key it runs along
+LEG_NAMES = {"shear_rate": "S", "excess_length": "Delta", "psi_bar": "psi_bar", "B2": "B2"}
+
+
+def chain_legs(source: Source, rows: list[dict]) -> dict[str, list[dict]]:
+    """The rows of a chain campaign by leg: "<key> up" -- the first case of every chain, and every case
+    at a larger value of the chained key than the case it starts from -- and "<key> down"; {} for
+    other files."""
+    if not source.links or not source.chain_along:
+        return {}
+    key, before = source.chain_along, dict(source.links)
+    name = LEG_NAMES.get(key, key)
+    up, down = f"{name} up", f"{name} down"
+    by_id = {r["case"]: r for r in rows}
+    legs = {up: [], down: []}
+    for r in rows:
+        previous = by_id.get(before.get(r["case"], ""))
+        legs[down if previous is not None and r[key] < previous[key] else up].append(r)
+    return legs
+
+
+def continuation_maps(f: Findings, out: Path) -> list[Path]:
+    """A chain campaign's two legs compared point by point: continuation.md (where they reached
+    different attractors: hysteresis) and continuation.png, one per facet."""
+    from hpcves.reports import attractor_map
+
+    legs = chain_legs(f.source, f.rows)
+    if not legs:
+        return []
+    starts = tuple(legs)
+    compared = attractor_map.compare(legs)
+    key = f.source.chain_along
+    two = [c for c in compared if len(c["attractors"]) > 1]
+    text = [f"# Continuation of {f.source.name!r} along {key}\n",
+            f"Each case of a chain started from the end state of the case before it ({starts[0]}: the first "
+            f"case and those run at a larger {key} than the one before; {starts[1]}: on the way back). At a "
+            "point run on both legs, the two runs are grouped into attractors (same regime and pattern "
+            "topology, theta and period within their error bars; docs/analysis.md): two attractors at one "
+            "point are coexisting states, and the branch a run is on depends on where it came from "
+            "(hysteresis).\n", attractor_map.summary(compared, starts) + "\n"]
+    if two:
+        text.append(f"## Points with two attractors ({len(two)})\n")
+        body = [[cell(c[k]) for k in (f.x_key, f.y_key, *f.others)]
+                + ["; ".join(a.text() for a in c["attractors"])] for c in two]
+        text.append(markdown_table([f.x_key, f.y_key, *f.others, "attractors"], body) + "\n")
+    (out / "continuation.md").write_text("\n".join(text))
+    written = [out / "continuation.md"]
+    for fixed, subset in facets(compared, f.others):
+        title = f"{f.source.name}: continuation along {key}" + (f" ({facet_label(fixed)})" if fixed else "")
+        fig = attractor_map.figure(subset, starts, f.x_key, f.y_key, title=title)
+        written += _save(fig, out / f"continuation{facet_suffix(fixed)}")
+    return written
+
+
+def start_attractors(f: Findings, out: Path) -> list[Path]:
+    """A campaign with several [starts]: the attractors each point's runs reached, and from which
+    starts (attractors.md), and the map of them (attractors.png, one per facet of the other keys)."""
+    from hpcves.reports import attractor_map
+
+    names = tuple(dict.fromkeys(f.source.starts))
+    if len(names) < 2:
+        return []
+    by_start = {name: [r for r in f.rows if r["start"] == name] for name in names}
+    compared = attractor_map.compare(by_start)
+    others = [k for k in f.others if k != "start"]
+    several = [c for c in compared if len(c["attractors"]) > 1]
+    text = [f"# Attractors of {f.source.name!r}\n",
+            f"Every point was run from {len(names)} starts ({', '.join(names)}; the campaign file's [starts]). "
+            "The runs of a point are grouped into attractors: the same regime and pattern topology, theta "
+            "and period within their error bars (docs/analysis.md). Where a point has more than one, "
+            "several stable states coexist there, and which one a run settles on depends on its start.\n",
+            attractor_map.summary(compared, names) + "\n"]
+    if several:
+        text.append(f"## Points with more than one attractor ({len(several)})\n")
+        body = [[cell(c[k]) for k in (f.x_key, f.y_key, *others)]
+                + ["; ".join(a.text() for a in c["attractors"])] for c in several]
+        text.append(markdown_table([f.x_key, f.y_key, *others, "attractors (and the starts that reached each)"],
+                                   body) + "\n")
+    (out / "attractors.md").write_text("\n".join(text))
+    written = [out / "attractors.md"]
+    for fixed, subset in facets(compared, others):
+        title = f"{f.source.name}: attractors from {len(names)} starts" + (f" ({facet_label(fixed)})" if fixed else "")
+        written += _save(attractor_map.attractors_figure(subset, f.x_key, f.y_key, title=title),
+                         out / f"attractors{facet_suffix(fixed)}")
+    return written
+
+
 #: the writers of an analysis, in the order they run: each writes its artefacts (or none) into the
 #: output folder and returns their paths
 WRITERS = (regime_tables, refinement_tables, critical_shear_tables, critical_shear_figures, period_table,
-           phase_diagrams)
+           phase_diagrams, continuation_maps, start_attractors)
 
 
 def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,

@@ -133,3 +133,57 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
     if title:
         ax.set_title(title, fontsize=13)
     return fig
+
+
+def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str = ""):
+    """Every point by the attractors its runs reached: one regime colour where they reached one, a marker
+    split between the first two (ringed in black, with the count where there are more) where they reached
+    several; a point without a decided run is grey."""
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
+
+    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
+
+    colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
+    fig = Figure(figsize=(10, 6), constrained_layout=True)
+    ax = fig.subplots()
+    several = undecided = 0
+    for c in compared:
+        x, y, found = c[x_key], c[y_key], c["attractors"]
+        if not found:
+            ax.plot([x], [y], marker="o", markersize=7, linestyle="none", color=colour["undecided"], zorder=2)
+            continue
+        two = len(found) > 1
+        several += two
+        ax.plot([x], [y], marker="o", markersize=10, fillstyle="left" if two else "full", linestyle="none",
+                markerfacecolor=colour[found[0].regime],
+                markerfacecoloralt=colour[found[1].regime] if two else colour[found[0].regime],
+                markeredgecolor="k" if two else "0.6", markeredgewidth=2.0 if two else 0.5, zorder=3)
+        if len(found) > 2:
+            ax.annotate(str(len(found)), (x, y), xytext=(7, 5), textcoords="offset points", fontsize=9)
+        if sum(len(a.runs) for a in found) < len(c["rows"]):
+            undecided += 1
+            ax.plot([x], [y], marker="o", markersize=3.5, linestyle="none", color=colour["undecided"],
+                    markeredgecolor="k", markeredgewidth=0.4, zorder=4)
+    handles = [Line2D([], [], marker="s", linestyle="none", markersize=9, color=colour[r], label=REGIME_STYLE[r][2])
+               for r in ("TT", "PT", "TU")]
+    handles += [Line2D([], [], marker="o", linestyle="none", markersize=7, color=colour["undecided"],
+                       label="no run decided"),
+                Line2D([], [], marker="o", linestyle="none", markersize=10, fillstyle="left", markerfacecolor="w",
+                       markerfacecoloralt="0.7", markeredgecolor="k", markeredgewidth=2.0,
+                       label=f"two or more attractors ({several} point{'s' * (several != 1)}):\nthe first two reached; "
+                             "their number if more"),
+                Line2D([], [], marker="o", linestyle="none", markersize=3.5, color=colour["undecided"],
+                       markeredgecolor="k", markeredgewidth=0.4,
+                       label=f"a run there not decided ({undecided} point{'s' * (undecided != 1)})")]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
+    for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
+        if key == "shear_rate":
+            setter("log")
+            plain_log_ticks(axis)
+    ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
+    ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
+    ax.grid(alpha=0.3)
+    if title:
+        ax.set_title(title, fontsize=13)
+    return fig

@@ -50,6 +50,7 @@ class Outcome:
     t: float
     steps: int           # steps taken in this call
     wall: float          # seconds spent in this call
+    end: tuple | None = None   # FINISHED: (theta_tilde, psi) of the state it ended in (kept as its checkpoint)
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,8 @@ def one_thread():
 def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
         progress: Callable[[Tick], None] | None = None,
         stop_requested: Callable[[], bool] = lambda: False,
-        max_steps: int | None = None, analysis: AnalysisSettings = AnalysisSettings()) -> Outcome:
+        max_steps: int | None = None, analysis: AnalysisSettings = AnalysisSettings(),
+        start: tuple | None = None) -> Outcome:
     """Run (or continue) the case in ``store`` to its end time (or, with run.until_decided, until
     decided by the classification with the thresholds ``analysis``: decision.py).
 
@@ -122,15 +124,17 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
     polled every step; when it returns True the current state is checkpointed
     and the run returns as INTERRUPTED. ``max_steps`` stops after that many
     steps in this call, the same way (for tests and for time-sliced work).
+    ``start``: (theta_tilde, psi) of another state the case starts from (a chain's case: the end
+    of the one before; Solver), given again on every resume.
     BLAS and OpenMP run on one thread meanwhile (:func:`one_thread`).
     """
     with one_thread():
-        return _run(store, flush, resume, progress, stop_requested, max_steps, analysis)
+        return _run(store, flush, resume, progress, stop_requested, max_steps, analysis, start)
 
 
-def _run(store, flush, resume, progress, stop_requested, max_steps, analysis) -> Outcome:
+def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, start) -> Outcome:
     case = store.case
-    solver = Solver(case)
+    solver = Solver(case, start=start)
     state = None
     wall_before = 0.0                  # wall time of earlier calls on this case
     if resume:
@@ -145,10 +149,11 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis) ->
     clock = schedule.clock(case)
     record = _Record(store, flush, solver, state.step, wall_before)
     samples = Samples(record)
-    cadences = [Checkpoints(record, clock, case.run.checkpoint_wall), Interruption(record), samples,
+    decisions = Decisions(record, analysis) if case.run.until_decided else None
+    cadences = [Checkpoints(record, clock, case.run.checkpoint_wall, decisions), Interruption(record), samples,
                 Snapshots(record, clock)]
-    if case.run.until_decided:
-        cadences.append(Decisions(record, analysis))
+    if decisions is not None:
+        cadences.append(decisions)
     store.set_decision(*checkpoint_module.NOT_DECIDED)
     cadences += [End(record), SampleFlush(record)]
     if progress is not None:
@@ -234,25 +239,30 @@ class _Record:
         self.store.set_progress(*self.progress(state, now))
         self.store.set_status(status, message)
         self.flush()
+        end = None
         if status == FINISHED:
             faults.point("finished")
+            end = (state.theta, state.psi)
         return Outcome(status, message, self.solver.time(state), state.step - self.start_step,
-                       now - self.start_wall)
+                       now - self.start_wall, end)
 
 
 class Checkpoints:
     """State n written whole on the clock's checkpoint grid, every run.checkpoint_wall seconds, at a
-    stop and at the end -- never the state a call starts from (it is on file). A checkpoint of state
-    n counts only what was recorded *before* it, so a run resumed from it records state n again, once."""
+    stop and at the end (the end time, or the state a run is decided at: a chain's next case starts
+    from it) -- never the state a call starts from (it is on file). A checkpoint of state n counts only
+    what was recorded *before* it, so a run resumed from it records state n again, once."""
 
-    def __init__(self, record: _Record, clock, wall_interval: float):
+    def __init__(self, record: _Record, clock, wall_interval: float, decisions: "Decisions | None" = None):
         self.record, self.clock, self.wall_interval = record, clock, wall_interval
+        self.decisions = decisions
         self.last_wall = record.start_wall
 
     def due(self, m: Moment) -> bool:
         return m.state.step > self.record.start_step and (
             m.stop or m.done or self.clock.checkpoint_due(m.state)
-            or (self.wall_interval > 0 and m.wall - self.last_wall >= self.wall_interval))
+            or (self.wall_interval > 0 and m.wall - self.last_wall >= self.wall_interval)
+            or (self.decisions is not None and self.decisions.decided(m) is not None))
 
     def __call__(self, m: Moment):
         self.record.write_rows(m.state)
@@ -312,20 +322,28 @@ class Decisions:
         self.case = record.solver.case     # not store.case: that parses the stored TOML (~10 ms a call)
         recorded = record.store.timeseries()
         self.history = {name: list(recorded[name]) for name in decision.SERIES}
+        self._step, self._decided = None, None
+
+    def decided(self, m: Moment):
+        """The decision at state n (None: not decided); its sample joins the history once, whoever asks
+        first (Checkpoints asks, to keep the state a run ends in)."""
+        if m.row is None:
+            return None
+        if self._step != m.state.step:
+            self._step = m.state.step
+            for name in decision.SERIES:
+                self.history[name].append(m.row[name])
+            case = self.case
+            self._decided = None if len(self.history["t"]) % case.run.decision_samples else decision.decide(
+                {name: np.asarray(v) for name, v in self.history.items()}, case.physics.shear_rate, case.run,
+                self.analysis)
+        return self._decided
 
     def due(self, m: Moment) -> bool:
-        return m.row is not None
+        return self.decided(m) is not None
 
     def __call__(self, m: Moment) -> Outcome | None:
-        for name in decision.SERIES:
-            self.history[name].append(m.row[name])
-        case = self.case
-        if len(self.history["t"]) % case.run.decision_samples:
-            return None
-        decided = decision.decide({name: np.asarray(v) for name, v in self.history.items()},
-                                  case.physics.shear_rate, case.run, self.analysis)
-        if decided is None:
-            return None
+        decided = self.decided(m)
         self.record.write_rows()
         self.record.store.set_decision(decision.CODES[decided.regime], m.state.t, m.state.step)
         return self.record.finish(FINISHED, decided.message(), m.state)

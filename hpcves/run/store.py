@@ -535,6 +535,20 @@ class CaseStore:
         g["meta"][0] = 1
         flush()
 
+    def end_fields(self) -> tuple[np.ndarray, np.ndarray]:
+        """(theta_tilde, psi) of the state a finished case ended in -- its newest checkpoint, written at
+        its end -- where a chain's next case starts (Outcome.end, read back)."""
+        where = self.group.name
+        if self.status != FINISHED:
+            raise FileFormatError(f"{where}: {STATUS_NAMES.get(self.status, self.status)}, not finished: "
+                                  "no end state to start from")
+        found = self.read_checkpoint()
+        t_end = float(self.progress[0])
+        if found is None or found[0].t != t_end:
+            raise FileFormatError(f"{where}: its end state (t = {t_end:g}) was not kept as a checkpoint "
+                                  "(a file of an older hpcves)")
+        return found[0].theta, found[0].psi
+
     def read_checkpoint(self) -> tuple[State, int, int] | None:
         """(state, n_samples, n_snapshots) from the newest valid slot, or None."""
         slot = self.newest_checkpoint_slot()

@@ -81,7 +81,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hpcves.model import geometry
+from hpcves.model import continuation, geometry
 from hpcves.model import phasefield
 from hpcves.model.flow import Flow, MembraneFlow
 from hpcves.model.forces import bending_energy, phase_energy
@@ -214,8 +214,11 @@ def _scale(a, b) -> float:
 class Solver:
     """One vesicle: operators precomputed for a :class:`Case`; steps are pure functions of a State."""
 
-    def __init__(self, case: Case, fft_backend: str = "fftw"):
+    def __init__(self, case: Case, fft_backend: str = "fftw", start: tuple | None = None):
+        """``start``: (theta_tilde, psi) of another state to start from (continuation.carried_start),
+        instead of the case's own initial shape and phase."""
         self.case = case
+        self._given_start = start
         phys, num = case.physics, case.numerics
         self.dt = num.dt
         self.sp = Spectral(num.N, phys.length, backend=fft_backend)
@@ -245,8 +248,13 @@ class Solver:
     # ------------------------------------------------------------------ set-up
     def initial_state(self) -> State:
         """The ellipse of the case's length and excess length, or its smoothed form (physics.initial_shape);
-        phase as in SPEC section 1."""
+        phase as in SPEC section 1. Or the given start carried over to this case (continuation.py)."""
         phys, sp = self.case.physics, self.sp
+        if self._given_start is not None:
+            if self._start_shape is None:
+                self._start_shape = continuation.carried_start(*self._given_start, phys, sp, self._resolved)
+            theta, psi = self._start_shape
+            return State(step=0, theta=theta.copy(), psi=psi.copy(), center=0j)
         if self._start_shape is None:          # once per solver: the smoothed shape takes ~30 ms
             a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
             t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
