@@ -52,6 +52,10 @@ def check_type(where: str, value, kind):
         if not isinstance(value, bool):
             raise ConfigError(f"{where} = {value!r}: must be true or false")
         return value
+    if kind is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where} = {value!r}: must be a string")
+        return value
     arguments = typing.get_args(kind)
     if type(None) in arguments and len(arguments) == 2:       # "float | None": TOML has no null, a value is given
         return check_type(where, value, next(a for a in arguments if a is not type(None)))

@@ -2,6 +2,8 @@
 ([chain]), their scheduling, and a chain killed with SIGKILL then resumed bitwise like one run
 without a stop."""
 
+import dataclasses
+
 import h5py
 import numpy as np
 import pytest
@@ -275,3 +277,55 @@ def test_the_analysis_compares_the_two_legs_of_a_chain_point_by_point(decided_ch
         assert abs(rows[up]["theta_mean"] - rows[down]["theta_mean"]) <= rows[up]["theta_mean_err"] + \
             rows[down]["theta_mean_err"]
     assert "| TT / TT | the same | 2 |" in text
+
+
+# ---------------------------------------------------------------------- a start from another file
+def test_a_stored_state_is_read_back_from_its_snapshot_as_from_its_checkpoint(decided_chain):
+    study, output = decided_chain
+    with h5py.File(output, "r") as f:
+        ended_on_snapshot = [c.case_id for c in study.cases
+                             if CaseStore.open(f[f"cases/{c.case_id}"]).snapshots()["t"][-1]
+                             == CaseStore.open(f[f"cases/{c.case_id}"]).progress[0]]
+        assert ended_on_snapshot
+        store = CaseStore.open(f[f"cases/{ended_on_snapshot[0]}"])
+        theta, psi, t = store.fields_at(-1.0)
+        theta_s, psi_s, t_s = store.fields_at(t + 0.3)          # the nearest snapshot: the last one
+    assert t_s == t and np.array_equal(psi_s, psi)
+    offset = np.round((theta_s - theta).mean() / (2 * np.pi)) * 2 * np.pi     # a whole turn is the same shape
+    # positions are the antiderivative of e^{i theta} on N nodes, whose modes beyond N/2 are lost: the
+    # angle read back from them differs by about what theta holds in its highest resolved modes (2e-12
+    # at N = 128, 3e-9 at 64, 1e-5 at this N = 32), and by no more
+    N = theta.size
+    modes = np.abs(np.fft.rfft(theta)) / N
+    difference = np.abs(np.fft.rfft(theta_s - offset - theta)) / N
+    assert np.max(difference) <= np.max(modes[N // 2 - 4:N // 2 - 1])
+
+
+def test_a_case_starts_from_the_stored_state_of_a_case_in_another_file(decided_chain, tmp_path):
+    from jobs import run_in_process
+
+    study, output = decided_chain
+    physics = dataclasses.replace(study.cases[7].case.physics, initial_shape="stored", stored_file=str(output),
+                                  stored_case="0007", stored_time=1.0, shear_rate=30.0)
+    case = dataclasses.replace(study.cases[7].case, physics=physics, numerics=Numerics(N=64, dt=1e-3),
+                               run=dataclasses.replace(study.cases[7].case.run, t_end=0.1, until_decided=False))
+    assert run_in_process(case, tmp_path / "from_stored.h5").status == FINISHED
+    with h5py.File(output, "r") as f:
+        _, source_psi, t = CaseStore.open(f["cases/0007"]).fields_at(1.0)
+    assert t == pytest.approx(1.0)
+    with h5py.File(tmp_path / "from_stored.h5", "r") as f:
+        started = f["snapshots/psi"][0]
+    assert np.max(np.abs(started - continuation.resampled(source_psi, 64))) < 1e-13
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"stored_file": "nowhere.h5"}, "no such file"),
+    ({"stored_case": "9999"}, "has no case '9999'"),
+])
+def test_a_stored_start_that_is_not_there_is_refused_by_name(decided_chain, change, message):
+    from hpcves.run.store import read_stored_start
+
+    _, output = decided_chain
+    physics = Physics(initial_shape="stored", stored_file=str(output), stored_case="0001")
+    with pytest.raises(ConfigError, match=message):
+        read_stored_start(dataclasses.replace(physics, **change))

@@ -99,7 +99,7 @@ from hpcves.analysis.search import SearchSettings
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
 #: what a named start of ``[starts]`` may set: the physics of the initial shape and phase
 START_KEYS = ("initial_shape", "psi_init_coordinate", "initial_phase", "phase_domains", "phase_center",
-              "phase_seed", "delta")
+              "phase_seed", "delta", "stored_file", "stored_case", "stored_time")
 CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "samples_per_shear_time", "stop_timeout")
 #: more cases than this in one study is surely a mistake (checked before any case is built: building
 #: and validating 10^5 cases takes ~6 s; 10^6 took 60 s and 680 MB)

@@ -30,7 +30,7 @@ REFERENCE_EXCESS_LENGTH = 0.19385328260599
 MAX_STEPS = 10**9
 
 PSI_COORDINATES = ("arclength", "ellipse_parameter")
-INITIAL_SHAPES = ("ellipse", "smoothed")
+INITIAL_SHAPES = ("ellipse", "smoothed", "stored")
 INITIAL_PHASES = ("published", "domains", "random")
 #: Beyond this excess length the smoothed start (geometry.smoothed_ellipse) crosses itself: its flanks
 #: touch at Delta = 7.7708 (bisection, tests/test_geometry.py).
@@ -88,7 +88,12 @@ class Physics:
     that ellipse with its tangent angle cut to the modes |k| <= 4 and rescaled to the ellipse's
     area, as the authors' code starts (geometry.smoothed_ellipse; the same length, area and
     excess length, blunter tips: curvature 8.1 instead of 26.0 at Delta = 2.3). alpha of the
-    initial phase is then still that of the ellipse's nodes.
+    initial phase is then still that of the ellipse's nodes. ``"stored"``: the shape and phase of
+    another case's stored state -- case ``stored_case`` of the campaign file ``stored_file`` (or the
+    single-run file, ``stored_case`` empty) at the snapshot nearest ``stored_time``, or at its last
+    state (its newest checkpoint: the end of a finished case) with ``stored_time`` = -1 -- carried
+    over to this case's N, excess length and psi_bar (continuation.carried_start); the initial phase
+    options are then not used.
     ``initial_phase`` is the pattern psi starts from (phasefield.py): ``"published"`` (above);
     ``"domains"``, psi_bar + delta cos(2 pi m (alpha - a0)) with m = ``phase_domains`` and a0 =
     ``phase_center``: m soft domains, the first centred at a0; ``"random"``, random amplitudes of the
@@ -111,7 +116,10 @@ class Physics:
     delta: float = 0.05
     mobility: float = 1.0
     psi_init_coordinate: Literal["arclength", "ellipse_parameter"] = "arclength"
-    initial_shape: Literal["ellipse", "smoothed"] = "ellipse"
+    initial_shape: Literal["ellipse", "smoothed", "stored"] = "ellipse"
+    stored_file: str = ""
+    stored_case: str = ""
+    stored_time: float = -1.0
     initial_phase: Literal["published", "domains", "random"] = "published"
     phase_domains: int = 1
     phase_center: float = 0.0
@@ -150,6 +158,10 @@ class Physics:
         _require(self.initial_shape != "smoothed" or self.excess_length <= SMOOTHED_MAX_EXCESS_LENGTH,
                  f"physics.excess_length = {self.excess_length}: the smoothed start crosses itself beyond "
                  f"{SMOOTHED_MAX_EXCESS_LENGTH}; use physics.initial_shape = \"ellipse\"")
+        _require(self.initial_shape != "stored" or bool(self.stored_file),
+                 "physics.initial_shape = \"stored\" needs physics.stored_file: the file of the state to start from")
+        _require(self.stored_time == -1.0 or self.stored_time >= 0,
+                 f"physics.stored_time = {self.stored_time}: a time >= 0, or -1 for the last stored state")
         _require(self.initial_phase in INITIAL_PHASES, f"physics.initial_phase = {self.initial_phase!r}: must be "
                  "one of " + ", ".join(repr(c) for c in INITIAL_PHASES))
         _require(isinstance(self.phase_domains, int) and 1 <= self.phase_domains <= 16,
@@ -400,6 +412,9 @@ class Case:
             del out["physics"]["bending_law"], out["physics"]["bending_width"]
         if self.physics.initial_shape == "ellipse":   # the start of files from before the option
             del out["physics"]["initial_shape"]
+        if self.physics.initial_shape != "stored":
+            for key in ("stored_file", "stored_case", "stored_time"):
+                del out["physics"][key]
         if self.physics.initial_phase == "published":  # likewise the initial phase
             for key in ("initial_phase", "phase_domains", "phase_center", "phase_seed"):
                 del out["physics"][key]

@@ -28,7 +28,7 @@ from hpcves.run import diagnostics
 from hpcves.files import faults
 from hpcves.run import schedule
 from hpcves.run import store as checkpoint_module
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore, read_stored_start
 from hpcves.model.flow import TensionSolveError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.run.timestepping import Solver, State
@@ -134,6 +134,8 @@ def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
 
 def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, start) -> Outcome:
     case = store.case
+    if start is None and case.physics.initial_shape == "stored":
+        start = read_stored_start(case.physics)
     solver = Solver(case, start=start)
     state = None
     wall_before = 0.0                  # wall time of earlier calls on this case

@@ -549,6 +549,31 @@ class CaseStore:
                                   "(a file of an older hpcves)")
         return found[0].theta, found[0].psi
 
+    def fields_at(self, time: float) -> tuple[np.ndarray, np.ndarray, float]:
+        """(theta_tilde, psi, t) of the snapshot nearest ``time`` (the tangent angle from the positions:
+        theta = arg dz/dalpha, unwrapped, minus 2 pi alpha -- without the two highest modes, which the
+        positions are drawn without), or with ``time`` = -1 of the newest
+        checkpoint (the end of a finished case): the state another case may start from."""
+        where = self.group.name
+        if time == -1.0:
+            found = self.read_checkpoint()
+            if found is None:
+                raise FileFormatError(f"{where}: no checkpoint yet: no last state to start from")
+            return found[0].theta, found[0].psi, found[0].t
+        times = self._snap["t"][:self.n_snapshots]
+        if times.size == 0:
+            raise FileFormatError(f"{where}: no snapshots: no state at t = {time:g} to start from")
+        i = int(np.argmin(np.abs(times - time)))
+        z = self._snap["x"][i] + 1j * self._snap["y"][i]
+        N = z.size
+        k = np.fft.fftfreq(N, 1.0 / N)
+        k[N // 2] = 0.0                  # the Nyquist mode has no derivative that keeps the curve real
+        dz = np.fft.ifft(2j * np.pi * k * np.fft.fft(z))
+        theta = np.unwrap(np.angle(dz))
+        theta_tilde = theta - 2.0 * np.pi * np.arange(N) / N
+        theta_tilde -= 2.0 * np.pi * np.round(theta_tilde[0] / (2.0 * np.pi))
+        return theta_tilde, self._snap["psi"][i].copy(), float(times[i])
+
     def read_checkpoint(self) -> tuple[State, int, int] | None:
         """(state, n_samples, n_snapshots) from the newest valid slot, or None."""
         slot = self.newest_checkpoint_slot()
@@ -604,3 +629,28 @@ def _unpack_scalars(values: np.ndarray, layout=_SCALAR_LAYOUT) -> dict:
             out[name] = float(values[i])
         i += width
     return out
+
+
+def read_stored_start(physics) -> tuple[np.ndarray, np.ndarray]:
+    """(theta_tilde, psi) of the stored state a case with physics.initial_shape = "stored" starts from:
+    case ``stored_case`` of the campaign file ``stored_file`` (a single-run file: ``stored_case`` empty)
+    at ``stored_time`` (CaseStore.fields_at). Read without locking: the file must not be changing."""
+    path, case_id = physics.stored_file, physics.stored_case
+    where = f"physics.stored_file = {path!r}"
+    try:
+        h5 = open_file(path, "r", locking=False)
+    except FileNotFoundError:
+        raise ConfigError(f"{where}: no such file") from None
+    except HDF5_ERRORS as exc:
+        raise ConfigError(f"{where}: cannot be read ({_first_line(exc)})") from None
+    with h5, reading(path):
+        if "cases" in h5:
+            if case_id not in h5["cases"]:
+                raise ConfigError(f"{where}: has no case {case_id!r} (physics.stored_case)")
+            group = h5["cases"][case_id]
+        elif case_id:
+            raise ConfigError(f"{where}: a single-run file; leave physics.stored_case out")
+        else:
+            group = h5
+        theta, psi, _ = CaseStore.open(group, where=f"{path}:{case_id}").fields_at(physics.stored_time)
+    return theta, psi

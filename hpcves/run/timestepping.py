@@ -86,7 +86,7 @@ from hpcves.model import phasefield
 from hpcves.model.flow import Flow, MembraneFlow
 from hpcves.model.forces import bending_energy, phase_energy
 from hpcves.model.geometry import Shape
-from hpcves.model.params import Case
+from hpcves.model.params import Case, ConfigError
 from hpcves.numerics.spectral import Spectral, spectral_tail
 
 
@@ -255,6 +255,9 @@ class Solver:
                 self._start_shape = continuation.carried_start(*self._given_start, phys, sp, self._resolved)
             theta, psi = self._start_shape
             return State(step=0, theta=theta.copy(), psi=psi.copy(), center=0j)
+        if phys.initial_shape == "stored":
+            raise ConfigError("physics.initial_shape = \"stored\": the runner reads the stored state "
+                              "(store.read_stored_start) and gives it to the solver")
         if self._start_shape is None:          # once per solver: the smoothed shape takes ~30 ms
             a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
             t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)
