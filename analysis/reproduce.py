@@ -312,6 +312,9 @@ def numerics_line(toml: str) -> str:
     elif study.search:
         mode = (f"; {len(study.searches)} searches over S in [{study.search.low:g}, {study.search.high:g}] to "
                 f"{study.search.rel_tol:g}")
+    elif study.chain:
+        mode = (f"; chains along {study.chain.along}" + (" there and back" if study.chain.back else "")
+                + (f" from {len(study.starts)} starts" if study.starts else ""))
     return f"N = {num.N}, {step}, {end}, {sampling}{mode}"
 
 
@@ -442,6 +445,27 @@ def s_psi_section(c: Context) -> list[str]:
             + attractor_lines(c, "shear_rate", "psi_bar"))
 
 
+def chain_section(c: Context) -> list[str]:
+    """A continuation along S from two starts: the inclination and period along both legs, and the
+    attractors of every S (hpcves analyze: continuation.png, attractors.md)."""
+    physics, along = c.study.base.physics, c.study.chain.along
+    values = ", ".join(f"{v:g}" for v in c.study.sweep[along])
+    lines = [f"## Continuation along S at Delta = {physics.excess_length:g}, psi_bar = {physics.psi_bar:g}, "
+             "from the ellipse and from the authors' start", "",
+             f"S = {values} and back, each case starting from the settled end of the one before (its shape "
+             "carried over, psi shifted to psi_bar; docs/analysis.md, \"Continuation\"), each chain once "
+             "from the ellipse and once from the authors' smoothed start. Every case stops once decided.", ""]
+    counts = ", ".join(f"{n} {r}" for r, n in c.report.counts().items())
+    lines += [f"{len(c.report.rows)} cases: {counts}.", ""]
+    lines += _images([p for p in c.figures if p.name.endswith("_continuation.png")])
+    attractors = c.out / c.name / "attractors.md"
+    if attractors.exists():
+        body = attractors.read_text().split("\n", 2)[2]           # without its title
+        lines += [line.replace("## ", "### ", 1) if line.startswith("## ") else line
+                  for line in body.splitlines()] + [""]
+    return lines + _images([p for p in c.figures if p.name.endswith("_attractors.png")])
+
+
 def _phase_section(c: Context) -> list[str]:
     counts = ", ".join(f"{n} {r}" for r, n in c.report.counts().items())
     lines = [f"{len(c.report.rows)} cases: {counts}.", ""]
@@ -463,6 +487,7 @@ SECTIONS = {
     "delta094_S_psi_smoothed": s_psi_section,
     "delta230_S_psi": s_psi_section,
     "delta230_S_psi_smoothed": s_psi_section,
+    "delta230_chain": chain_section,
 }
 STUDIES = tuple(SECTIONS)
 SECTION_TAG = "<!-- hpcves reproduce section "

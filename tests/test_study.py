@@ -119,7 +119,7 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
     coarse = sorted(jobs.glob("*.toml"))
     deflated = ("psi048_cases", "psi048_delta_S", "delta094_S_psi", "delta230_S_psi")
     assert {p.stem for p in coarse} == {"homogeneous", "periods", "sc_b2", "sc_psi", *deflated,
-                                       *(f"{name}_smoothed" for name in deflated)}
+                                       *(f"{name}_smoothed" for name in deflated), "delta230_chain"}
     for name in deflated:              # each deflated study twice: from the ellipse and from the authors' start
         for folder in (jobs, jobs / "fine"):
             ellipse, smoothed = load_study(folder / f"{name}.toml"), load_study(folder / f"{name}_smoothed.toml")
@@ -139,6 +139,15 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
             assert {k: fine.sweep[k] for k in fine.refine.axes} == {k: study.sweep[k] for k in study.refine.axes}
         if study.search:
             assert fine.search.rel_tol <= study.search.rel_tol and len(fine.searches) >= len(study.searches)
+        if study.chain:               # the same chains from the same starts, over a range at least as wide
+            assert fine.chain == study.chain and fine.starts == study.starts, path
+            values, fine_values = study.sweep[study.chain.along], fine.sweep[study.chain.along]
+            assert min(fine_values) <= min(values) and max(fine_values) >= max(values) and \
+                len(fine_values) >= len(values), path
+    # the continuation starts from the ellipse and from the authors' start
+    chain = load_study(jobs / "delta230_chain.toml")
+    assert [(name, values.get("initial_shape", "ellipse")) for name, values in chain.starts] == \
+        [("ellipse", "ellipse"), ("authors", "smoothed")]
     # the plane of each refined diagram spans what the publication shows, low S included
     delta_s = load_study(jobs / "psi048_delta_S.toml")
     assert min(delta_s.sweep["shear_rate"]) == 1.0 and max(delta_s.sweep["shear_rate"]) == 350.0

@@ -584,93 +584,86 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
 LEG_NAMES = {"shear_rate": "S", "excess_length": "Delta", "psi_bar": "psi_bar", "B2": "B2"}
 
 
-def chain_legs(source: Source, rows: list[dict]) -> dict[str, list[dict]]:
-    """The rows of a chain campaign by leg: "<key> up" -- the first case of every chain, and every case
-    at a larger value of the chained key than the case it starts from -- and "<key> down"; {} for
-    other files."""
-    if not source.links or not source.chain_along:
-        return {}
-    key, before = source.chain_along, dict(source.links)
-    name = LEG_NAMES.get(key, key)
-    up, down = f"{name} up", f"{name} down"
-    by_id = {r["case"]: r for r in rows}
-    legs = {up: [], down: []}
-    for r in rows:
-        previous = by_id.get(before.get(r["case"], ""))
-        legs[down if previous is not None and r[key] < previous[key] else up].append(r)
-    return legs
+def run_labels(source: Source, rows: list[dict]) -> list[str]:
+    """Where each row's run came from, in words: its start's name ([starts]) and, in a chain campaign,
+    its leg -- "<key> up" for the first case of a chain and every case run at a larger value than the
+    one before, "<key> down" for the others; "" where the campaign has neither."""
+    legs = [""] * len(rows)
+    if source.links and source.chain_along:
+        key, before = source.chain_along, dict(source.links)
+        name = LEG_NAMES.get(key, key)
+        by_id = {r["case"]: r for r in rows}
+        for i, r in enumerate(rows):
+            previous = by_id.get(before.get(r["case"], ""))
+            legs[i] = f"{name} {'down' if previous is not None and r[key] < previous[key] else 'up'}"
+    starts = [r.get("start", "") for r in rows]
+    return [" ".join(part for part in (s, leg) if part) for s, leg in zip(starts, legs)]
 
 
-def continuation_maps(f: Findings, out: Path) -> list[Path]:
-    """A chain campaign's two legs compared point by point: continuation.md (where they reached
-    different attractors: hysteresis) and continuation.png, one per facet."""
+def attractor_maps(f: Findings, out: Path) -> list[Path]:
+    """A campaign whose points were run more than once -- from several [starts], or on both legs of a
+    chain: each point's runs grouped into attractors (attractors.md, attractors.png per facet), and for
+    a chain its two legs side by side (continuation.png per start and facet: hysteresis)."""
     from hpcves.reports import attractor_map
 
-    legs = chain_legs(f.source, f.rows)
-    if not legs:
-        return []
-    starts = tuple(legs)
-    compared = attractor_map.compare(legs)
-    key = f.source.chain_along
-    two = [c for c in compared if len(c["attractors"]) > 1]
-    text = [f"# Continuation of {f.source.name!r} along {key}\n",
-            f"Each case of a chain started from the end state of the case before it ({starts[0]}: the first "
-            f"case and those run at a larger {key} than the one before; {starts[1]}: on the way back). At a "
-            "point run on both legs, the two runs are grouped into attractors (same regime and pattern "
-            "topology, theta and period within their error bars; docs/analysis.md): two attractors at one "
-            "point are coexisting states, and the branch a run is on depends on where it came from "
-            "(hysteresis).\n", attractor_map.summary(compared, starts) + "\n"]
-    if two:
-        text.append(f"## Points with two attractors ({len(two)})\n")
-        body = [[cell(c[k]) for k in (f.x_key, f.y_key, *f.others)]
-                + ["; ".join(a.text() for a in c["attractors"])] for c in two]
-        text.append(markdown_table([f.x_key, f.y_key, *f.others, "attractors"], body) + "\n")
-    (out / "continuation.md").write_text("\n".join(text))
-    written = [out / "continuation.md"]
-    for fixed, subset in facets(compared, f.others):
-        title = f"{f.source.name}: continuation along {key}" + (f" ({facet_label(fixed)})" if fixed else "")
-        fig = attractor_map.figure(subset, starts, f.x_key, f.y_key, title=title)
-        written += _save(fig, out / f"continuation{facet_suffix(fixed)}")
-    return written
-
-
-def start_attractors(f: Findings, out: Path) -> list[Path]:
-    """A campaign with several [starts]: the attractors each point's runs reached, and from which
-    starts (attractors.md), and the map of them (attractors.png, one per facet of the other keys)."""
-    from hpcves.reports import attractor_map
-
-    names = tuple(dict.fromkeys(f.source.starts))
+    labels = run_labels(f.source, f.rows)
+    names = tuple(dict.fromkeys(labels))
     if len(names) < 2:
         return []
-    by_start = {name: [r for r in f.rows if r["start"] == name] for name in names}
-    compared = attractor_map.compare(by_start)
+    by_label = {name: [r for r, label in zip(f.rows, labels) if label == name] for name in names}
+    compared = attractor_map.compare(by_label)
     others = [k for k in f.others if k != "start"]
     several = [c for c in compared if len(c["attractors"]) > 1]
+    chain = f"; a chain's case starts from the end of the one before it along {f.source.chain_along} " \
+            "(up: the first and those at a larger value than the one before; down: on the way back)" \
+        if f.source.links else ""
     text = [f"# Attractors of {f.source.name!r}\n",
-            f"Every point was run from {len(names)} starts ({', '.join(names)}; the campaign file's [starts]). "
-            "The runs of a point are grouped into attractors: the same regime and pattern topology, theta "
-            "and period within their error bars (docs/analysis.md). Where a point has more than one, "
-            "several stable states coexist there, and which one a run settles on depends on its start.\n",
+            f"Every point was run {len(names)} ways ({', '.join(names)}{chain}). The runs of a point are "
+            "grouped into attractors: the same regime and pattern topology, theta and period within their "
+            "error bars (docs/analysis.md). Where a point has more than one, stable states coexist there, "
+            "and which one a run settles on depends on where it came from.\n",
             attractor_map.summary(compared, names) + "\n"]
     if several:
         text.append(f"## Points with more than one attractor ({len(several)})\n")
         body = [[cell(c[k]) for k in (f.x_key, f.y_key, *others)]
                 + ["; ".join(a.text() for a in c["attractors"])] for c in several]
-        text.append(markdown_table([f.x_key, f.y_key, *others, "attractors (and the starts that reached each)"],
+        text.append(markdown_table([f.x_key, f.y_key, *others, "attractors (and the runs that reached each)"],
                                    body) + "\n")
     (out / "attractors.md").write_text("\n".join(text))
     written = [out / "attractors.md"]
     for fixed, subset in facets(compared, others):
-        title = f"{f.source.name}: attractors from {len(names)} starts" + (f" ({facet_label(fixed)})" if fixed else "")
+        title = f"{f.source.name}: attractors of {len(names)} runs a point" + (
+            f" ({facet_label(fixed)})" if fixed else "")
         written += _save(attractor_map.attractors_figure(subset, f.x_key, f.y_key, title=title),
                          out / f"attractors{facet_suffix(fixed)}")
+    if f.source.links:
+        written += _continuation_figures(f, labels, others, out)
+    return written
+
+
+def _continuation_figures(f: Findings, labels: list[str], others: list[str], out: Path) -> list[Path]:
+    """continuation.png per facet of the keys other than the chained one: the settled inclination and
+    period against the chained key, a line per start and leg (hysteresis)."""
+    from hpcves.reports import attractor_map
+
+    key = f.source.chain_along
+    rest = [k for k in f.source.sweep_keys if k not in (key, "start") and len({r[k] for r in f.rows}) > 1]
+    labelled = [{**r, "_label": label} for r, label in zip(f.rows, labels)]
+    written = []
+    for fixed, subset in facets(labelled, rest):
+        runs = {}
+        for r in subset:
+            runs.setdefault(r["_label"], []).append(r)
+        title = f"{f.source.name}: continuation along {key}" + (f" ({facet_label(fixed)})" if fixed else "")
+        written += _save(attractor_map.hysteresis_figure(runs, key, title=title),
+                         out / f"continuation{facet_suffix(fixed)}")
     return written
 
 
 #: the writers of an analysis, in the order they run: each writes its artefacts (or none) into the
 #: output folder and returns their paths
 WRITERS = (regime_tables, refinement_tables, critical_shear_tables, critical_shear_figures, period_table,
-           phase_diagrams, continuation_maps, start_attractors)
+           phase_diagrams, attractor_maps)
 
 
 def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,
