@@ -269,7 +269,7 @@ def test_the_analysis_compares_the_two_legs_of_a_chain_point_by_point(decided_ch
     report = analyze(output, tmp_path / "analysis", case_figures="none", write_to_file=False)
     rows = {r["case"]: r for r in report.rows}
     text = (tmp_path / "analysis" / "attractors.md").read_text()
-    assert (tmp_path / "analysis" / "continuation.png").exists()
+    assert len(list((tmp_path / "analysis").glob("continuation*.png"))) == 2     # one per psi_bar
     assert "4 points run from S up and S down (2 more from one of them only)" in text
     # at low psi_bar the vesicle tank-treads at one inclination whichever way S came: one attractor
     for up, down in (("0000", "0004"), ("0001", "0003")):
