@@ -54,12 +54,12 @@ def trace(study, max_stages=60):
         if outcome.state.status != refine.RUNNING:
             return found, outcome
         for x, y in outcome.state.next_points:
-            attempt = outcome.retries.get((x, y), 0)
+            attempt = outcome.retries.get((x, y, None), 0)
             assert attempt == sum(p == (x, y) for p in runs)       # a point is asked for again only to retry
             regime, needed = truth(x, y)
             N = study.base.numerics.N * 2 ** attempt
             runs.append((x, y))
-            found.append((0, x, y, regime, False) if N >= needed else (0, x, y, "failed", True))
+            found.append((0, x, y, regime, False, None) if N >= needed else (0, x, y, "failed", True, None))
     raise AssertionError("no end")
 
 
@@ -72,7 +72,7 @@ def test_an_under_resolved_point_runs_again_at_twice_its_n_until_max_n():
     # with max_N = 256 only the points that need 1024 stay failed, each run twice (N = 128, 256)
     assert failed and all(truth(*p)[1] == 1024 for p in failed)
     runs = {}
-    for _, x, y, _, _ in with_retries:
+    for _, x, y, _, _, _ in with_retries:
         runs[(x, y)] = runs.get((x, y), 0) + 1
     assert max(runs.values()) == 2 and all(runs[p] == 2 for p in failed)
     assert outcome.spent == len(with_retries) == sum(runs.values()) > len(outcome.regimes)

@@ -59,6 +59,24 @@ from hpcves.analysis.regimes import PT, TT, TU
 
 CONVERGED, RUNNING, BUDGET = "converged", "running", "budget spent"
 DECIDED = (TT, PT, TU)
+#: an outcome of several regimes at one point (a refinement of attractors: its starts reached them all)
+JOINT = "+"
+
+
+def decided(outcome: str) -> bool:
+    """Whether an outcome is a regime, or (refine.attractors) a set of regimes joined by JOINT."""
+    return all(part in DECIDED for part in outcome.split(JOINT))
+
+
+def joint(regimes) -> str:
+    """The outcome of a point run from several starts: their regimes, each once, sorted and joined
+    ("PT+TT"); the first outcome that is not a regime where any run is undecided, failed or at the
+    model's limit (the point then says nothing sure of what coexists there)."""
+    regimes = list(regimes)
+    for regime in regimes:
+        if regime not in DECIDED:
+            return regime
+    return JOINT.join(sorted(set(regimes)))
 
 
 @dataclass(frozen=True)
@@ -188,6 +206,8 @@ class RefinePlan:
         max_cases = 150                                # per refinement (coarse grid included)
         straight_span = 4       # a boundary crossing a cell is taken as straight over at most 4 tolerances
         max_N = 256             # an under-resolved case runs again at 2 N, up to N = 256 (default: never)
+        attractors = true       # with [starts]: every point runs from every start, and a cell is mixed
+                                # where the sets of regimes they reach differ (coexistence is traced)
 
     The coarse grid is the ``[sweep]`` values of the two axes; every combination of the
     other swept keys gets a refinement of its own.
@@ -198,6 +218,7 @@ class RefinePlan:
     max_cases: int = 200
     straight_span: float = 4.0
     max_N: int = 0            # 0: an under-resolved case is not run again
+    attractors: bool = False  # with [starts]: a point's outcome is the set of regimes its starts reach
 
     def settings(self, sweep: dict) -> RefineSettings:
         """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
@@ -213,7 +234,7 @@ class RefinePlan:
     @classmethod
     def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
         """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
-        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span", "max_N"), where)
+        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span", "max_N", "attractors"), where)
         swept = [k for k, v in sweep.items() if len(v) > 1]
         axes = values.get("axes", swept[:2])
         if (not isinstance(axes, list | tuple) or len(axes) != 2
@@ -247,7 +268,8 @@ class RefinePlan:
         max_N = check_type("refine.max_N", values.get("max_N", 0), int)
         if max_N < 0:
             raise ConfigError(f"{where}: max_N = {max_N}: must be >= 0 (0: an under-resolved case is not run again)")
-        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N)
+        attractors = check_type("refine.attractors", values.get("attractors", False), bool)
+        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N, attractors)
         try:
             plan.settings(sweep)
         except ConfigError as exc:
@@ -312,13 +334,13 @@ def _outcomes_on(cell: Cell, settings: RefineSettings, known: list) -> set:
 
 
 def _mixed(outcomes: set) -> bool:
-    return len(outcomes) > 1 or not outcomes <= set(DECIDED)
+    return len(outcomes) > 1 or not all(decided(o) for o in outcomes)
 
 
 def _changes(settings, results: dict, known: list, edge) -> bool:
     """Whether a boundary crosses the edge: two neighbouring known points on it differ, or one is
     not TT, PT or TU."""
-    return any(results[p] != results[q] or results[p] not in DECIDED
+    return any(results[p] != results[q] or not decided(results[p])
                for p, q in _edge_pieces(settings, known, *edge))
 
 
@@ -399,7 +421,7 @@ def _crossings(settings, results, cells):
                     ub = (settings.x.u(b[0]), settings.y.u(b[1]))
                     mx, my = point(settings, 0.5 * (ua[0] + ub[0]), 0.5 * (ua[1] + ub[1]))
                     found[key] = Crossing("|".join(sorted((ra, rb))), mx, my, min(a[0], b[0]), max(a[0], b[0]),
-                                          min(a[1], b[1]), max(a[1], b[1]), not (ra in DECIDED and rb in DECIDED))
+                                          min(a[1], b[1]), max(a[1], b[1]), not (decided(ra) and decided(rb)))
                 mine.append(key)
         per_cell.append(mine)
     return found, per_cell

@@ -16,10 +16,11 @@ boundaries in reports/refinement.py.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from hpcves.model.params import LABELS
-from hpcves.analysis.refine import RUNNING, RefineSettings, RefineState, boundary, step
+from hpcves.analysis.refine import RUNNING, RefineSettings, RefineState, boundary, joint, step
 from hpcves.campaign.search_stages import StageDriver
 from hpcves.campaign.study import Study
 from hpcves.run.verdict import under_resolved
@@ -34,17 +35,21 @@ class RefineOutcome:
     state: RefineState
     regimes: dict              # {(x, y): regime} of its classified cases (a point's last run)
     settings: RefineSettings
-    retries: dict = field(default_factory=dict)   # {(x, y): attempt} of points to run again at a larger N
+    retries: dict = field(default_factory=dict)   # {(x, y, start): attempt} of runs to run again at a larger N
     spent: int = 0             # its cases (a point run again counts each time)
+    runs: int = 0              # its distinct runs: points (and starts, in a refinement of attractors)
+    starts: int = 1            # runs a point: the starts of a refinement of attractors
 
     def row(self) -> dict:
         """One row of refinement.csv."""
         crossings = boundary(self.settings, self.regimes, self.state.cells) if self.regimes else []
         reason = self.state.reason
+        if self.starts > 1:            # refine.step counts points; each ran from every start
+            reason = reason.replace(" cases)", f" points, {self.starts} starts each)")
         if self.state.status == RUNNING:
             reason = f"unfinished: {len(self.state.next_points)} points to run next ({reason})"
         return {**self.point, "status": self.state.status, "cases": self.spent,
-                "run_again": self.spent - len(self.regimes), "full_grid_cases": self.settings.full_grid_cases(),
+                "run_again": self.spent - (self.runs or len(self.regimes)), "full_grid_cases": self.settings.full_grid_cases() * self.starts,
                 "crossings": len(crossings), "blurry": sum(c.blurry for c in crossings), "reason": reason}
 
     def brief(self) -> str:
@@ -54,25 +59,37 @@ class RefineOutcome:
 
 
 def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
-    """The state of every refinement from ``found`` = (refinement, x, y, regime, under-resolved) of its
-    ended cases, in case order.
+    """The state of every refinement from ``found`` = (refinement, x, y, regime, under-resolved, start) of
+    its ended cases, in case order (start: None, or which of [starts] in a refinement of attractors).
 
     A point's last run gives its regime. A point whose last run stopped as under-resolved runs again
     at twice that run's N while ``max_N`` allows (:meth:`RefineSettings.retry_N`); until then the
-    refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`)."""
+    refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`). In a refinement of
+    attractors each point runs from every start; its outcome is the set of regimes they reached
+    (refine.joint), known once every start's last run is, and the budget is counted in points (each
+    costs one case a start)."""
     settings = study.refine_settings
-    runs = [{} for _ in study.refinements]           # {(x, y): [under-resolved of each run]}
-    last = [{} for _ in study.refinements]           # {(x, y): regime of its last run}
-    for refinement, x, y, regime, unresolved in found:
-        runs[refinement].setdefault((x, y), []).append(unresolved)
-        last[refinement][(x, y)] = regime
+    starts = study.point_starts
+    runs = [{} for _ in study.refinements]           # {(x, y, start): [under-resolved of each run]}
+    last = [{} for _ in study.refinements]           # {(x, y, start): regime of its last run}
+    for refinement, x, y, regime, unresolved, start in found:
+        runs[refinement].setdefault((x, y, start), []).append(unresolved)
+        last[refinement][(x, y, start)] = regime
     states = []
+    per_point = dataclasses.replace(settings, max_cases=settings.max_cases // len(starts))
     for i, (point, point_runs, regimes) in enumerate(zip(study.refinements, runs, last)):
         retries = {p: len(r) for p, r in point_runs.items()
                    if r[-1] and settings.retry_N(study.refine_N(len(r) - 1)) is not None}
         spent = sum(len(r) for r in point_runs.values())
-        state = step(settings, {p: v for p, v in regimes.items() if p not in retries}, spent)
-        states.append(RefineOutcome(i, dict(point), state, regimes, settings, retries, spent))
+        known = {}
+        for x, y in {(x, y) for x, y, _ in regimes}:
+            keys = [(x, y, s) for s in starts]
+            if all(k in regimes and k not in retries for k in keys):
+                known[(x, y)] = joint(regimes[k] for k in keys) if len(starts) > 1 else regimes[keys[0]]
+        state = step(per_point, known, -(-spent // len(starts)))
+        shown = {(x, y): v for (x, y, _), v in regimes.items()} if len(starts) == 1 else known
+        states.append(RefineOutcome(i, dict(point), state, shown, settings, retries, spent, len(point_runs),
+                                    len(starts)))
     return states
 
 
@@ -92,8 +109,11 @@ def run_again(study: Study) -> frozenset:
     if not study.refine:
         return frozenset()
     x_key, y_key = study.refine.axes
-    last = {(c.search, c.swept[x_key], c.swept[y_key]): c.case_id for c in study.cases}
-    return frozenset(c.case_id for c in study.cases if last[(c.search, c.swept[x_key], c.swept[y_key])] != c.case_id)
+
+    def key(c):
+        return c.search, c.swept[x_key], c.swept[y_key], c.swept.get("start")
+    last = {key(c): c.case_id for c in study.cases}
+    return frozenset(c.case_id for c in study.cases if last[key(c)] != c.case_id)
 
 
 class RefineDriver(StageDriver):
@@ -105,10 +125,12 @@ class RefineDriver(StageDriver):
         a point's later cases are its runs at a larger N)."""
         x_key, y_key = study.refine.axes
         index = campaign.h5["index"]
-        points = list(zip(campaign.searches_of_cases(), (float(x) for x in index[x_key][:]),
-                          (float(y) for y in index[y_key][:])))
-        cases = [study.refine_case(r, x, y, case_id, attempt)
-                 for case_id, (r, x, y), attempt in zip(campaign.case_ids, points, attempts(points))]
+        n = len(campaign.case_ids)
+        starts = ([float(s) for s in index["start"][:n]] if study.refine.attractors else [None] * n)
+        points = list(zip(campaign.searches_of_cases(), (float(x) for x in index[x_key][:n]),
+                          (float(y) for y in index[y_key][:n]), starts))
+        cases = [study.refine_case(r, x, y, case_id, attempt, start)
+                 for case_id, (r, x, y, start), attempt in zip(campaign.case_ids, points, attempts(points))]
         return study.with_cases(cases)
 
     def next_stage(self, study: Study, campaign) -> tuple[list[RefineOutcome], list]:
@@ -118,15 +140,20 @@ class RefineDriver(StageDriver):
         for c in study.cases:
             row = self.row(campaign, c.case_id)
             if row is not None:
-                found.append((c.search, c.swept[x_key], c.swept[y_key], row["regime"], under_resolved(row)))
+                found.append((c.search, c.swept[x_key], c.swept[y_key], row["regime"], under_resolved(row),
+                              c.swept.get("start") if study.refine.attractors else None))
         states = outcomes(study, found)
-        taken = {(c.search, c.swept[x_key], c.swept[y_key]) for c in study.cases}
+        taken = {(c.search, c.swept[x_key], c.swept[y_key], c.swept.get("start") if study.refine.attractors else None)
+                 for c in study.cases}
         new = []
         for outcome in states:
             for x, y in outcome.state.next_points:
-                attempt = outcome.retries.get((x, y), 0)
-                if not attempt and (outcome.index, x, y) in taken:   # asked for, not ended: cannot happen
-                    raise RuntimeError(f"refinement {outcome.index}: ({x:g}, {y:g}) was run but has not ended")
-                case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
-                new.append(study.refine_case(outcome.index, x, y, case_id, attempt))
+                for start in study.point_starts:
+                    attempt = outcome.retries.get((x, y, start), 0)
+                    if not attempt and (outcome.index, x, y, start) in taken:
+                        if len(study.point_starts) > 1:       # this start's run is known: the point waits for others
+                            continue
+                        raise RuntimeError(f"refinement {outcome.index}: ({x:g}, {y:g}) was run but has not ended")
+                    case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
+                    new.append(study.refine_case(outcome.index, x, y, case_id, attempt, start))
         return states, new

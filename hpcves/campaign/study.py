@@ -182,6 +182,8 @@ class Study:
                 del plan["straight_span"]
             if not plan["max_N"]:            # no retries: as files made before the key existed
                 del plan["max_N"]
+            if not plan["attractors"]:       # one start a refinement: as files made before the key existed
+                del plan["attractors"]
             payload = {"name": self.name, "mode": "refine", "base": self.base.significant(),
                        "end_time": dataclasses.asdict(self.times), "sweep": {k: list(v) for k, v in self.sweep.items()},
                        "refine": plan, "analysis": dataclasses.asdict(self.analysis)}
@@ -207,6 +209,11 @@ class Study:
 
     def by_id(self, case_id: str) -> StudyCase:
         return self.cases[int(case_id)]
+
+    @property
+    def point_starts(self) -> tuple:
+        """The starts every point of a refinement of attractors runs from (0., 1., ...); (None,) else."""
+        return self.sweep["start"] if self.refine and self.refine.attractors else (None,)
 
     @property
     def most_cases(self) -> int:
@@ -248,11 +255,13 @@ class Study:
         """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
         return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
 
-    def refine_case(self, refinement: int, x: float, y: float, case_id: str, attempt: int = 0) -> StudyCase:
+    def refine_case(self, refinement: int, x: float, y: float, case_id: str, attempt: int = 0,
+                    start: float | None = None) -> StudyCase:
         """Case ``case_id`` of refinement number ``refinement``, at the point (x, y) of its plane;
-        ``attempt`` > 0: the point's run again after under-resolved ones, at N doubled each time."""
+        ``attempt`` > 0: the point's run again after under-resolved ones, at N doubled each time;
+        ``start``: which of [starts] (a refinement of attractors runs every point from each)."""
         x_key, y_key = self.refine.axes
-        fixed = self.refinements[refinement]
+        fixed = self.refinements[refinement] if start is None else {**self.refinements[refinement], "start": start}
         swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
         return self.make_case(case_id, swept, refinement, self.refine_N(attempt) if attempt else None)
 
@@ -405,7 +414,15 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     if refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
         raise ConfigError(f"[refine]: max_N = {refine.max_N}: an under-resolved case runs again at twice its "
                           f"N = {base.numerics.N}, so max_N must be at least {2 * base.numerics.N} (0: never)")
-    others = [k for k in sweep if refine and k not in refine.axes]
+    if refine is not None and refine.attractors:
+        if not starts or len(starts) < 2:
+            raise ConfigError("[refine]: attractors = true runs every point from every start: name at least two "
+                              "in a [starts] table")
+        coarse = len(sweep[refine.axes[0]]) * len(sweep[refine.axes[1]]) * len(starts)
+        if refine.max_cases < coarse:
+            raise ConfigError(f"[refine]: max_cases = {refine.max_cases}: fewer than the {coarse} cases of the coarse "
+                              f"grid from {len(starts)} starts")
+    others = [k for k in sweep if refine and k not in refine.axes and not (refine.attractors and k == "start")]
     refinements = tuple(dict(zip(others, values)) for values in itertools.product(*(sweep[k] for k in others)))
     study = Study(name=name, output=Path(output), sweep=sweep, cases=(), stop_timeout=stop_timeout, source=text,
                   analysis=analysis, base=base, times=times, search=search, refine=refine,
@@ -416,7 +433,8 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         for i in range(len(refinements)):
             for x in sweep[refine.axes[0]]:
                 for y in sweep[refine.axes[1]]:
-                    study.refine_case(i, x, y, f"of refinement {i}")
+                    for start in study.point_starts:
+                        study.refine_case(i, x, y, f"of refinement {i}", start=start)
         return study
     if chain is not None:
         width = study.id_width

@@ -572,7 +572,8 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
             plots.mark_critical(fig.axes[0], [r for r in f.searches if all(r[k] == v for k, v in fixed.items())],
                                 f.y_key if f.x_key == "shear_rate" else f.x_key, s_on_x=f.x_key == "shear_rate")
         if f.refined and {f.x_key, f.y_key} == set(f.study.refine.axes):
-            plots.mark_boundaries(fig.axes[0], [r for r in f.lines if all(r[k] == v for k, v in fixed.items())],
+            plots.mark_boundaries(fig.axes[0], [r for r in f.lines if all(r[k] == v for k, v in fixed.items()
+                                                                          if k in r)],      # a start: every one's
                                   f.x_key, f.y_key)
         written += _save(fig, out / f"phase_diagram{suffix}")
         if f.source.mode == "grid":
@@ -634,8 +635,11 @@ def attractor_maps(f: Findings, out: Path) -> list[Path]:
     for fixed, subset in facets(compared, others):
         title = f"{f.source.name}: attractors of {len(names)} runs a point" + (
             f" ({facet_label(fixed)})" if fixed else "")
-        written += _save(attractor_map.attractors_figure(subset, f.x_key, f.y_key, title=title),
-                         out / f"attractors{facet_suffix(fixed)}")
+        lines = None                # the borders of coexistence, where a refinement of attractors traced them
+        if f.refined and f.study.refine.attractors and {f.x_key, f.y_key} == set(f.study.refine.axes):
+            lines = [r for r in f.lines if all(r[k] == v for k, v in fixed.items() if k in r)]
+        fig = attractor_map.attractors_figure(subset, f.x_key, f.y_key, title=title, lines=lines)
+        written += _save(fig, out / f"attractors{facet_suffix(fixed)}")
     if f.source.links:
         written += _continuation_figures(f, labels, others, out)
     return written

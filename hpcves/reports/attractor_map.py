@@ -135,7 +135,7 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
     return fig
 
 
-def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str = ""):
+def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str = "", lines=None):
     """Every point by the attractors its runs reached: one regime colour where they reached one, a marker
     split between the first two (ringed in black, with the count where there are more) where they reached
     several; a point without a decided run is grey."""
@@ -176,6 +176,12 @@ def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str =
                 Line2D([], [], marker="o", linestyle="none", markersize=3.5, color=colour["undecided"],
                        markeredgecolor="k", markeredgewidth=0.4,
                        label=f"a run there not decided ({undecided} point{'s' * (undecided != 1)})")]
+    if lines:                      # the borders a refinement of attractors traced (boundaries.csv rows)
+        from hpcves.reports.plots import mark_boundaries
+
+        mark_boundaries(ax, lines, x_key, y_key)
+        drawn, _ = ax.get_legend_handles_labels()
+        handles += drawn
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
     for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
         if key == "shear_rate":

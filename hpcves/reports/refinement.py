@@ -20,8 +20,11 @@ def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome
     its status is then "running")."""
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
     x_key, y_key = study.refine.axes
-    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"], under_resolved(row))
-             for case, row in zip(source.cases, rows) if row["status"] in ENDED_NAMES]
+    names = [name for name, _ in study.starts]
+    starts = [float(names.index(s)) if study.refine.attractors else None
+              for s in (source.starts or [None] * len(source.cases))]
+    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"], under_resolved(row), start)
+             for case, row, start in zip(source.cases, rows, starts) if row["status"] in ENDED_NAMES]
     return study, outcomes(study, found)
 
 
