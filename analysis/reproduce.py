@@ -582,7 +582,9 @@ def assemble(path: Path, grid: str) -> None:
               "the end). Error bars: the statistical uncertainty plus the discretisation error of the time step "
               "(docs/error_rule.md); in brackets the part that dominates. The deflated studies run from two "
               "starts (docs/numerics.md, \"Initial shape\"): the ellipse the publication states, and the "
-              "smoothed shape its authors' code started from; each section says which.", ""]
+              "smoothed shape its authors' code started from; each section says which. What mapping both "
+              "starts costs against one, and what a cheaper scheme would miss: docs/attractor_cost.md "
+              "(analysis/attractor_cost.py).", ""]
     for _, body in present.values():
         lines += [body.rstrip(), ""]
     flagged = [line for m in metas for line in m["doubts"]]
