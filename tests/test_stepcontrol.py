@@ -402,3 +402,18 @@ def test_t_end_that_coincides_with_a_sample_to_rounding_is_sampled_and_older_fil
     assert clock.sample_due(dataclasses.replace(state, t=case.run.t_end))
     assert clock.finished_counts() == (4001, 343) and clock.legacy().finished_counts() == (4000, 343)
     assert clock.capacities() == (4001, 344)
+
+
+def test_a_state_a_tiny_step_after_a_grid_time_is_not_that_time_again():
+    """At N = 256 (psi048_delta_S_smoothed, case 0025) the controller took a step of 1.6e-10 right after
+    landing on t = 23.26; both states were within the slack of that sample time (2.3e-10 at t ~ 23)
+    and it was sampled twice, so the case's checkpoints counted one sample more than its times say
+    (damaged). The second state is not on that time again; a state whose step came from before it is."""
+    case = Case(Physics(), Numerics(N=32, rtol=1e-3),
+                RunControl(t_end=80.0, sample_interval=0.02, snapshot_interval=0.05, checkpoint_interval=2.0))
+    clock = schedule.clock(case)
+    state = Solver(case).initial_state()
+    landed = dataclasses.replace(state, step=100, t=23.26, dt_prev=0.01)
+    again = dataclasses.replace(state, step=101, t=23.260000000164045, dt_prev=1.64045e-10)
+    from_before = dataclasses.replace(state, step=101, t=23.260000000164045, dt_prev=0.01)
+    assert clock.sample_due(landed) and not clock.sample_due(again) and clock.sample_due(from_before)

@@ -11,7 +11,7 @@ from hpcves.campaign.study import Study, study_from_toml
 from hpcves.model.params import LABELS
 from hpcves.reports.tables import markdown_table
 from hpcves.run.store import ENDED_NAMES
-from hpcves.run.verdict import under_resolved
+from hpcves.run.verdict import DAMAGED, under_resolved
 
 
 def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome]]:
@@ -24,7 +24,8 @@ def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome
     starts = [float(names.index(s)) if study.refine.attractors else None
               for s in (source.starts or [None] * len(source.cases))]
     found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"], under_resolved(row), start)
-             for case, row, start in zip(source.cases, rows, starts) if row["status"] in ENDED_NAMES]
+             for case, row, start in zip(source.cases, rows, starts)
+             if row["status"] in ENDED_NAMES or row["status"] == DAMAGED]   # damaged: ended for the campaign
     return study, outcomes(study, found)
 
 
