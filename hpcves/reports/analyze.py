@@ -587,16 +587,25 @@ LEG_NAMES = {"shear_rate": "S", "excess_length": "Delta", "psi_bar": "psi_bar", 
 
 def run_labels(source: Source, rows: list[dict]) -> list[str]:
     """Where each row's run came from, in words: its start's name ([starts]) and, in a chain campaign,
-    its leg -- "<key> up" for the first case of a chain and every case run at a larger value than the
-    one before, "<key> down" for the others; "" where the campaign has neither."""
+    its leg -- "<key> up" for a case run at a larger value than the one before, "<key> down" for a
+    smaller one, the first case of a chain on the leg of the case after it; "" where the campaign has
+    neither."""
     legs = [""] * len(rows)
     if source.links and source.chain_along:
         key, before = source.chain_along, dict(source.links)
+        after = {b: c for c, b in before.items()}
         name = LEG_NAMES.get(key, key)
         by_id = {r["case"]: r for r in rows}
+
+        def leg(case_id):
+            previous, here = by_id.get(before.get(case_id, "")), by_id.get(case_id)
+            if previous is None:                       # the first of its chain: the way it goes on
+                following = by_id.get(after.get(case_id, ""))
+                return "up" if following is None or following[key] > here[key] else "down"
+            return "down" if here[key] < previous[key] else "up"
+
         for i, r in enumerate(rows):
-            previous = by_id.get(before.get(r["case"], ""))
-            legs[i] = f"{name} {'down' if previous is not None and r[key] < previous[key] else 'up'}"
+            legs[i] = f"{name} {leg(r['case'])}"
     starts = [r.get("start", "") for r in rows]
     return [" ".join(part for part in (s, leg) if part) for s, leg in zip(starts, legs)]
 
@@ -653,13 +662,18 @@ def _continuation_figures(f: Findings, labels: list[str], others: list[str], out
     key = f.source.chain_along
     rest = [k for k in f.source.sweep_keys if k not in (key, "start") and len({r[k] for r in f.rows}) > 1]
     labelled = [{**r, "_label": label} for r, label in zip(f.rows, labels)]
+    by_id, before = {r["case"]: r for r in labelled}, dict(f.source.links)
     written = []
     for fixed, subset in facets(labelled, rest):
-        runs = {}
-        for r in subset:
+        runs, joins = {}, {}
+        for r in sorted(subset, key=lambda r: r["case"]):          # cases are numbered in chain order
             runs.setdefault(r["_label"], []).append(r)
+        for label, rows in runs.items():           # a leg's line starts where the chain turned into it
+            turn = by_id.get(before.get(rows[0]["case"], ""))
+            if turn is not None:
+                joins[label] = turn
         title = f"{f.source.name}: continuation along {key}" + (f" ({facet_label(fixed)})" if fixed else "")
-        written += _save(attractor_map.hysteresis_figure(runs, key, title=title),
+        written += _save(attractor_map.hysteresis_figure(runs, key, title=title, joins=joins),
                          out / f"continuation{facet_suffix(fixed)}")
     return written
 

@@ -195,33 +195,34 @@ def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str =
     return fig
 
 
-def hysteresis_figure(runs_by_label: dict, key: str, title: str = ""):
-    """The settled inclination (top) and period (bottom) against the chained key ``key``, one line per
-    label (a start and a leg of a chain: up solid, down dashed), each point's marker in its regime's
-    style; error bars are the statistical plus time-step bars."""
+def hysteresis_figure(runs_by_label: dict, key: str, title: str = "", joins: dict | None = None):
+    """The settled inclination (top) and, where any run has one, the period (bottom) against the chained
+    key ``key``, one line per label (a start and a leg of a chain: up solid, down dashed) through its
+    runs in chain order, starting from ``joins[label]`` (the run the leg turned from), each point's
+    marker in its regime's style; error bars are the statistical plus time-step bars."""
     import numpy as np
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
     from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
 
-    fig = Figure(figsize=(10, 7.5), constrained_layout=True)
-    top, bottom = fig.subplots(2, 1, sharex=True)
+    joins = joins or {}
+    periodic = any(math.isfinite(r["period"]) for rows in runs_by_label.values() for r in rows)
+    fig = Figure(figsize=(10, 7.5 if periodic else 4.5), constrained_layout=True)
+    top, bottom = fig.subplots(2, 1, sharex=True) if periodic else (fig.subplots(), None)
     colours = {}
     for label, rows in runs_by_label.items():
         start = label.rsplit(" ", 2)[0] if label.endswith((" up", " down")) else label
         colour = colours.setdefault(start, f"C{len(colours)}")
-        rows = sorted(rows, key=lambda r: r[key])
         x = np.array([r[key] for r in rows])
-        turn = None                 # the way back starts where the way there turned: its line joins it
-        if label.endswith(" down") and runs_by_label.get(label.removesuffix("down") + "up"):
-            turn = max(runs_by_label[label.removesuffix("down") + "up"], key=lambda r: r[key])
-        for ax, name in ((top, "theta_mean"), (bottom, "period")):
+        turn = joins.get(label)
+        panels = ((top, "theta_mean"), (bottom, "period")) if periodic else ((top, "theta_mean"),)
+        for ax, name in panels:
             y = np.array([r[name] for r in rows])
             err = np.array([_bar(r, name) for r in rows])
-            line_x, line_y = (x, y) if turn is None else (np.append(x, turn[key]), np.append(y, turn[name]))
-            ax.plot(line_x, line_y, color=colour, linestyle="--" if turn is not None or label.endswith(" down")
-                    else "-", linewidth=1.2, zorder=2)
+            line_x, line_y = (x, y) if turn is None else (np.insert(x, 0, turn[key]), np.insert(y, 0, turn[name]))
+            ax.plot(line_x, line_y, color=colour, linestyle="--" if label.endswith(" down") else "-",
+                    linewidth=1.2, zorder=2)
             for xi, yi, ei, r in zip(x, y, err, rows):
                 if not np.isfinite(yi):
                     continue
@@ -230,12 +231,14 @@ def hysteresis_figure(runs_by_label: dict, key: str, title: str = ""):
                             markerfacecolor=style[0], markeredgecolor=colour, markersize=8, linestyle="none",
                             zorder=3)
     top.set_ylabel(r"mean inclination $\theta$ (rad)")
-    bottom.set_ylabel("period of $\\theta$")
-    bottom.set_xlabel(AXIS_LABELS.get(key, key))
+    lowest = bottom if periodic else top
+    if periodic:
+        bottom.set_ylabel("period of $\\theta$")
+    lowest.set_xlabel(AXIS_LABELS.get(key, key))
     if key == "shear_rate":
-        bottom.set_xscale("log")
-        plain_log_ticks(bottom.xaxis)
-    for ax in (top, bottom):
+        lowest.set_xscale("log")
+        plain_log_ticks(lowest.xaxis)
+    for ax in (top, bottom) if periodic else (top,):
         ax.grid(alpha=0.3)
     handles = [Line2D([], [], color=c, label=s or "runs") for s, c in colours.items()]
     handles += [Line2D([], [], color="0.3", linestyle="-", label="up"),
