@@ -115,6 +115,7 @@ def test_attractors_need_starts_and_a_budget_for_them():
     assert one.fingerprint != study_from_toml(plane()).fingerprint
 
 
+@pytest.mark.slow          # ~40-55 s on a loaded machine; test_starts runs [starts] through a campaign in make test
 def test_a_real_refinement_of_attractors_runs_and_is_analysed(tmp_path):
     from hpcves.reports.analyze import analyze
 
