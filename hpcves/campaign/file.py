@@ -24,6 +24,8 @@ stage's cases are added to a copy that replaces the file.
 """
 from __future__ import annotations
 
+import tomllib
+
 import numpy as np
 
 from dataclasses import dataclass
@@ -218,6 +220,14 @@ class CampaignFile:
         return {case_id: attr_text(after) for case_id, after in zip(self.case_ids, index["after"][:n])
                 if attr_text(after)}
 
+    def start_names(self) -> list[str]:
+        """The names of the study's [starts], in the order swept (from the stored campaign file)."""
+        try:
+            table = tomllib.loads(attr_text(self.h5.attrs.get("campaign_toml", ""))).get("starts", {})
+        except tomllib.TOMLDecodeError:
+            return []
+        return list(table) if isinstance(table, dict) else []
+
     def store(self, case_id: str) -> CaseStore:
         return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
 
@@ -257,8 +267,11 @@ class CampaignFile:
         n = int(self.h5.attrs["n_cases"])
         swept = {k: self.h5["index"][k][:n] for k in keys}
         links = self.chain_links()
+        starts = self.start_names() if "start" in keys else []
         for i, case_id in enumerate(self.case_ids):
             values = {k: float(swept[k][i]) if i < len(swept[k]) else float("nan") for k in keys}
+            if starts and 0 <= values["start"] < len(starts):
+                values["start"] = starts[int(values["start"])]
             try:
                 g = self._cases[case_id]
                 t, t_end, wall, rate = (float(v) for v in g["progress"][:])
