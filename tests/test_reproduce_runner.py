@@ -86,6 +86,8 @@ def test_a_campaign_with_work_left_stops_the_reproduction(tmp_path, monkeypatch)
     walls = json.loads(ledger.read_text())
     assert set(walls) == {"first", "second"} and all(w > 0 for w in walls.values())
     monkeypatch.setenv("FAKE_LEFT", "")                     # the rerun goes on from there
+    for name in ("first", "second"):                        # the files the campaigns made (the fake makes none)
+        (tmp_path / f"{name}.h5").touch()
     again = reproduce.run_campaigns(jobs, mpirun, 2, hpcves, ledger)
     assert set(again) == {"first", "second", "third"}
     assert all(json.loads(ledger.read_text())[n] > walls.get(n, 0) for n in again)
@@ -171,3 +173,10 @@ def test_an_unknown_study_is_refused(capsys):
     with pytest.raises(SystemExit) as refused:
         reproduce.main(["--study", "homogeneous,nonesuch"])
     assert refused.value.code == 2 and "no campaign nonesuch" in capsys.readouterr().err
+
+
+def test_the_wall_ledger_adds_calls_and_starts_again_with_a_new_file(tmp_path):
+    ledger = tmp_path / "walls.json"
+    reproduce._add_walls(ledger, {"a": 10.0, "b": 5.0})
+    assert reproduce._add_walls(ledger, {"a": 2.5}) == {"a": 12.5, "b": 5.0}       # a resumed campaign
+    assert reproduce._add_walls(ledger, {"a": 4.0}, restart=("a",)) == {"a": 4.0, "b": 5.0}   # made anew
