@@ -135,3 +135,11 @@ def test_a_real_refinement_of_attractors_runs_and_is_analysed(tmp_path):
     found = {refine.joint(r["regime"] for r in runs) for runs in by_point.values()}
     assert all(set(p.split("|")) <= found for p in pairs)
     assert (tmp_path / "analysis" / "attractors.png").exists()
+
+
+def test_the_plan_prices_every_start_of_the_coarse_grid():
+    from hpcves.campaign.plan import plan
+
+    study = study_from_toml(plane())
+    planned = plan(study, lambda case: 1e-3)
+    assert planned.first.cases == 2 * 2 * 2            # 2 x 2 coarse points, 2 starts each

@@ -163,8 +163,8 @@ def _first_cases(study: Study) -> list:
     if study.mode == "search":
         return [study.search_case(i, s, "plan").case for i in range(len(study.searches))
                 for s in start_rates(study.search)]
-    return [study.refine_case(i, x, y, "plan").case for i in range(len(study.refinements))
-            for x, y in coarse_points(study.refine_settings)]
+    return [study.refine_case(i, x, y, "plan", start=start).case for i in range(len(study.refinements))
+            for x, y in coarse_points(study.refine_settings) for start in study.point_starts]
 
 
 def _stages(study: Study, first: list, seconds: Callable) -> tuple:
@@ -192,7 +192,7 @@ def _search_stages(study: Study, first: tuple, seconds) -> tuple:
 
 def _refine_stages(study: Study, first: tuple) -> tuple:
     settings = study.refine_settings
-    n = len(coarse_points(settings))
+    n = len(coarse_points(settings)) * len(study.point_starts)       # a refinement of attractors: every start
     spare = settings.max_cases - n
     rounds = min(settings.stages_needed() - 1, spare)
     if rounds <= 0:
