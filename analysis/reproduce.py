@@ -521,7 +521,8 @@ def read_section(path: Path) -> tuple[dict, str] | None:
     return json.loads(first[len(SECTION_TAG):].removesuffix("-->").strip()), body
 
 
-def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, totals: dict) -> None:
+def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, totals: dict,
+                        ranks: int | None = None) -> None:
     """Analyze one campaign, copy its figures and write its section, with what it took."""
     start = time.monotonic()
     report = analyse({name: toml}, out, np_)[name]
@@ -529,7 +530,7 @@ def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, to
     lines = SECTIONS[name](Context(name, report, figures, out, FIGURES[grid], toml, grid))
     rows = read_table(load_study(toml).output).rows
     meta = {"study": name, "job": toml, "written": str(datetime.date.today()), "machine": platform.node(),
-            "processor": platform.processor() or platform.machine(), "ranks": np_,
+            "processor": platform.processor() or platform.machine(), "ranks": ranks or np_,
             "numerics": numerics_line(toml), "cases": len(report.rows),
             "compute_s": round(sum(row["wall"] for row in rows), 1),
             "campaign_wall_s": round(totals[name], 1) if name in totals else None,
@@ -646,7 +647,11 @@ def main(argv=None):
         for name in names:                 # a clear message if a campaign is missing
             read_source(load_study(jobs[name]).output)
         for name in names:
-            write_study_section(args.grid, name, jobs[name], out, args.np_, totals)
+            ranks = args.np_
+            if args.analyze_only:              # the campaign's ranks are those of the run that wrote its section
+                kept = read_section(SECTION_DIRS[args.grid] / f"{name}.md")
+                ranks = kept[0].get("ranks", ranks) if kept else ranks
+            write_study_section(args.grid, name, jobs[name], out, args.np_, totals, ranks)
     assemble(Path(args.out), args.grid)
     stale = prune_figures(Path(args.out), FIGURES[args.grid])
     print(f"wrote {args.out}" + (f"; removed {len(stale)} figures from {FIGURES[args.grid]} it does not show"
