@@ -94,7 +94,7 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
+    from hpcves.reports.plots import REGIME_STYLE
 
     first, second = starts
     colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
@@ -122,6 +122,14 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
                 Line2D([], [], marker="o", linestyle="none", markersize=9, markerfacecolor="w", markeredgecolor="k",
                        markeredgewidth=2.0, label=f"two attractors ({differ} point{'s' * (differ != 1)})"),
                 Line2D([], [], marker=".", linestyle="none", color="0.4", label="run from one start only")]
+    _finish(ax, handles, x_key, y_key, title)
+    return fig
+
+
+def _finish(ax, handles, x_key: str, y_key: str, title: str) -> None:
+    """The legend (``handles``) beside a map of the plane x_key x y_key, S on a log axis, labels, grid, title."""
+    from hpcves.reports.plots import AXIS_LABELS, plain_log_ticks
+
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
     for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
         if key == "shear_rate":
@@ -132,7 +140,6 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
     ax.grid(alpha=0.3)
     if title:
         ax.set_title(title, fontsize=13)
-    return fig
 
 
 def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str = "", lines=None):
@@ -142,7 +149,7 @@ def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str =
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
+    from hpcves.reports.plots import REGIME_STYLE
 
     colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
     fig = Figure(figsize=(10, 6), constrained_layout=True)
@@ -182,16 +189,7 @@ def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str =
         mark_boundaries(ax, lines, x_key, y_key)
         drawn, _ = ax.get_legend_handles_labels()
         handles += drawn
-    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
-    for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
-        if key == "shear_rate":
-            setter("log")
-            plain_log_ticks(axis)
-    ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
-    ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
-    ax.grid(alpha=0.3)
-    if title:
-        ax.set_title(title, fontsize=13)
+    _finish(ax, handles, x_key, y_key, title)
     return fig
 
 
