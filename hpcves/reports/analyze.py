@@ -78,15 +78,6 @@ def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
     return CaseData(case_id, parameters, DAMAGED, math.nan, math.nan, why, {"t": np.zeros(0)}, search, (DAMAGED,))
 
 
-def start_names(toml_text: str) -> list[str]:
-    """The names of a campaign's ``[starts]``, in the order swept."""
-    try:
-        table = tomllib.loads(toml_text).get("starts", {})
-    except tomllib.TOMLDecodeError:
-        return []
-    return list(table) if isinstance(table, dict) else []
-
-
 def chain_along(toml_text: str) -> str:
     """The key of a chain campaign's ``[chain] along`` ("" where the text has none)."""
     try:
@@ -127,7 +118,7 @@ def read_source(path) -> Source:
             links = tuple(campaign.chain_links().items())
             starts = ()
             if "start" in campaign.sweep_keys:
-                names = start_names(toml)
+                names = campaign.start_names()
                 starts = tuple(names[int(i)] if int(i) < len(names) else f"start {int(i)}"
                                for i in index["start"][:len(cases)])
             return Source(path, "campaign", campaign.name, tuple(campaign.sweep_keys),

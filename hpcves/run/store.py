@@ -45,6 +45,7 @@ from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.model.params import Case, ConfigError
 from hpcves.run.schedule import clock
+from hpcves.numerics.spectral import Spectral
 from hpcves.run.timestepping import State
 
 FORMAT = "hpcves-case"
@@ -565,12 +566,8 @@ class CaseStore:
             raise FileFormatError(f"{where}: no snapshots: no state at t = {time:g} to start from")
         i = int(np.argmin(np.abs(times - time)))
         z = self._snap["x"][i] + 1j * self._snap["y"][i]
-        N = z.size
-        k = np.fft.fftfreq(N, 1.0 / N)
-        k[N // 2] = 0.0                  # the Nyquist mode has no derivative that keeps the curve real
-        dz = np.fft.ifft(2j * np.pi * k * np.fft.fft(z))
-        theta = np.unwrap(np.angle(dz))
-        theta_tilde = theta - 2.0 * np.pi * np.arange(N) / N
+        alpha = Spectral(z.size, 1.0, backend="numpy")           # length 1: d/ds is d/dalpha
+        theta_tilde = np.unwrap(np.angle(alpha.ds_complex(z))) - alpha.circle_angle
         theta_tilde -= 2.0 * np.pi * np.round(theta_tilde[0] / (2.0 * np.pi))
         return theta_tilde, self._snap["psi"][i].copy(), float(times[i])
 
