@@ -103,17 +103,20 @@ def attempts(points: list) -> list[int]:
     return out
 
 
+def run_key(study: Study, c) -> tuple:
+    """(refinement, x, y, start) of a refine study's case: what its runs again share (start: which of
+    [starts] in a refinement of attractors, else None -- each start is a refinement of its own)."""
+    x_key, y_key = study.refine.axes
+    return c.search, c.swept[x_key], c.swept[y_key], c.swept.get("start") if study.refine.attractors else None
+
+
 def run_again(study: Study) -> frozenset:
     """The ids of the cases whose point a later case runs again (at a larger N): their failures are
     taken care of (none outside a refine study)."""
     if not study.refine:
         return frozenset()
-    x_key, y_key = study.refine.axes
-
-    def key(c):
-        return c.search, c.swept[x_key], c.swept[y_key], c.swept.get("start")
-    last = {key(c): c.case_id for c in study.cases}
-    return frozenset(c.case_id for c in study.cases if last[key(c)] != c.case_id)
+    last = {run_key(study, c): c.case_id for c in study.cases}
+    return frozenset(c.case_id for c in study.cases if last[run_key(study, c)] != c.case_id)
 
 
 class RefineDriver(StageDriver):
@@ -135,16 +138,14 @@ class RefineDriver(StageDriver):
 
     def next_stage(self, study: Study, campaign) -> tuple[list[RefineOutcome], list]:
         """(outcome of every refinement, the new StudyCases to run: none once every one has ended)."""
-        x_key, y_key = study.refine.axes
         found = []
         for c in study.cases:
             row = self.row(campaign, c.case_id)
             if row is not None:
-                found.append((c.search, c.swept[x_key], c.swept[y_key], row["regime"], under_resolved(row),
-                              c.swept.get("start") if study.refine.attractors else None))
+                r, x, y, start = run_key(study, c)
+                found.append((r, x, y, row["regime"], under_resolved(row), start))
         states = outcomes(study, found)
-        taken = {(c.search, c.swept[x_key], c.swept[y_key], c.swept.get("start") if study.refine.attractors else None)
-                 for c in study.cases}
+        taken = {run_key(study, c) for c in study.cases}
         new = []
         for outcome in states:
             for x, y in outcome.state.next_points:
