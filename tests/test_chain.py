@@ -16,6 +16,7 @@ from hpcves.campaign.study import study_from_toml
 from hpcves.model import continuation, geometry
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING, CaseStore
+from hpcves.numerics.spectral import resample
 from hpcves.run.timestepping import Solver
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
@@ -78,10 +79,10 @@ def test_a_carried_start_has_the_new_excess_length_and_mean_and_keeps_the_form(e
     assert state.psi.mean() == pytest.approx(psi_bar, abs=1e-15)
     assert abs(geometry.closure_defect(state.theta + sp.circle_angle)) < 1e-14
     # the pattern of psi is the source's, moved to the new mean (and resampled)
-    pattern = continuation.resampled(source.psi - source.psi.mean(), N)
+    pattern = resample(source.psi - source.psi.mean(), N)
     assert np.max(np.abs(state.psi - psi_bar - pattern)) < 1e-12
     # the form of the angle is kept: its excess only scaled (the inclination is the source's)
-    excess = continuation.resampled(source.theta - source.theta.mean(), N)
+    excess = resample(source.theta - source.theta.mean(), N)
     c = np.dot(state.theta - state.theta.mean(), excess) / np.dot(excess, excess)
     assert np.max(np.abs(state.theta - state.theta.mean() - c * excess)) < 1e-3 * np.max(np.abs(excess))
     if excess_length == 2.3:     # only what N = 64 leaves unresolved of the ellipse's tips
@@ -315,7 +316,7 @@ def test_a_case_starts_from_the_stored_state_of_a_case_in_another_file(decided_c
     assert t == pytest.approx(1.0)
     with h5py.File(tmp_path / "from_stored.h5", "r") as f:
         started = f["snapshots/psi"][0]
-    assert np.max(np.abs(started - continuation.resampled(source_psi, 64))) < 1e-13
+    assert np.max(np.abs(started - resample(source_psi, 64))) < 1e-13
 
 
 @pytest.mark.parametrize("change, message", [

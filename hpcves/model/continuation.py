@@ -19,20 +19,14 @@ composition. :func:`carried_start` makes them a start of this case:
 from __future__ import annotations
 
 import numpy as np
-from scipy import optimize, signal
+from scipy import optimize
 
 from hpcves.model import geometry
 from hpcves.model.params import ConfigError, Physics
-from hpcves.numerics.spectral import Spectral
+from hpcves.numerics.spectral import Spectral, resample
 
 #: an area within this relative distance of the target is kept as it is (no rescaling)
 AREA_KEPT = 1e-12
-
-
-def resampled(f: np.ndarray, N: int) -> np.ndarray:
-    """The periodic samples ``f`` at N equally spaced nodes (Fourier interpolation; f itself when N matches)."""
-    f = np.asarray(f, dtype=float)
-    return f.copy() if f.size == N else signal.resample(f, N)
 
 
 def target_area(length: float, excess_length: float) -> float:
@@ -45,10 +39,10 @@ def carried_start(theta_tilde: np.ndarray, psi: np.ndarray, physics: Physics, sp
     """(theta_tilde, psi) at the N nodes of ``sp`` for a case of ``physics``, from another state's fields
     (any number of nodes): the shape rescaled to physics.excess_length, psi shifted to physics.psi_bar;
     ``keep``: a 0/1 mask of the Fourier modes of theta_tilde kept (Spectral.project)."""
-    theta_tilde = resampled(theta_tilde, sp.N)
+    theta_tilde = resample(theta_tilde, sp.N)
     if keep is not None:
         theta_tilde = sp.project(theta_tilde, keep)
-    psi = resampled(psi, sp.N)
+    psi = resample(psi, sp.N)
     if not (np.all(np.isfinite(theta_tilde)) and np.all(np.isfinite(psi))):
         raise ConfigError("the stored state to start from is not finite")
     theta_tilde = _with_area(theta_tilde, sp, target_area(sp.length, physics.excess_length),

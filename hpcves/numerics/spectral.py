@@ -151,9 +151,9 @@ def spectral_tail(f_hat: np.ndarray, N: int, start: float = TAIL_FROM) -> float:
     return float(np.sqrt(power[int(np.ceil(start * N)) - 1:].sum() / total))
 
 
-def resolution_needed(f_hat: np.ndarray, N: int, target: float, largest: int = 8) -> int:
-    """The smallest N' (a multiple of 16, at most ``largest`` N) at which this field's tail would be
-    ``target`` or less, extrapolating its spectrum.
+def resolution_needed(f_hat: np.ndarray, N: int, target: float, largest: int = 8, sizes=None) -> int:
+    """The smallest N' (a multiple of 16, or one of ``sizes``; at most ``largest`` N) at which this
+    field's tail would be ``target`` or less, extrapolating its spectrum.
 
     log |f_m|^2 is fitted by a straight line over the upper part of the band
     (N/6 <= m < N/2: the exponential decay of an analytic field); modes up to
@@ -162,6 +162,8 @@ def resolution_needed(f_hat: np.ndarray, N: int, target: float, largest: int = 8
     """
     if spectral_tail(f_hat, N) <= target:
         return N
+    candidates = (range(16 * (N // 16 + 1), largest * N + 1, 16) if sizes is None
+                  else [n for n in sizes if N < n <= largest * N])
     power = np.abs(f_hat) ** 2
     m = np.arange(power.size)
     fit = (m >= N / 6.0) & (m < N // 2) & (power > 0)
@@ -170,13 +172,39 @@ def resolution_needed(f_hat: np.ndarray, N: int, target: float, largest: int = 8
     slope, intercept = np.polyfit(m[fit], np.log(power[fit]), 1)
     if not slope < 0:
         return 2 * N
-    for candidate in range(16 * (N // 16 + 1), largest * N + 1, 16):
+    for candidate in candidates:
         modes = np.arange(candidate // 2 + 1)
         extended = np.exp(intercept + slope * modes)
         extended[: power.size] = power[: candidate // 2 + 1]
         if spectral_tail(np.sqrt(extended), candidate) <= target:
             return candidate
     return largest * N
+
+
+def fft_sizes(smallest: int, largest: int) -> tuple[int, ...]:
+    """The grid sizes from ``smallest`` to ``largest`` that a run with N adapting may take: 2^k and
+    3 2^k (>= 16; FFTW's fastest sizes, and steps of 4/3 and 3/2 between neighbours)."""
+    sizes = sorted({m * 2**k for m in (2, 3) for k in range(3, 13)})
+    return tuple(n for n in sizes if smallest <= n <= largest)
+
+
+def resample(f: np.ndarray, N: int) -> np.ndarray:
+    """The trigonometric interpolant of the periodic samples ``f`` at N equispaced nodes (f's
+    spectrum padded with zeros or truncated: scipy.signal.resample). Exact for a field whose modes
+    lie below both Nyquist modes; growing and shrinking back returns f to round-off. A copy of f
+    when N is its size."""
+    f = np.asarray(f, dtype=float)
+    if f.size == N:
+        return f.copy()
+    from scipy import signal
+
+    return signal.resample(f, N)
+
+
+def tail_on(f_hat: np.ndarray, N: int, M: int) -> float:
+    """The spectral tail (:func:`spectral_tail`) the field of rfft ``f_hat`` (N samples) would have on
+    M <= N nodes: its modes up to M/2 taken as the smaller grid's spectrum."""
+    return spectral_tail(f_hat[: M // 2 + 1], M)
 
 
 class Spectral:
