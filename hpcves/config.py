@@ -9,7 +9,7 @@ A case file has up to three tables, each optional, each key optional
     excess_length = 0.19385328260599     # the 1/2 : 1/3 ellipse (the default)
 
     [numerics]
-    N = 128
+    N = 128             # or "auto": N adapts between N_min = 64 and N_max = 512 (optional keys)
     rtol = 1e-3         # adaptive step under error control; or dt = 5e-4 for a fixed one
 
     [run]
@@ -114,11 +114,35 @@ def from_table(cls, values: dict, where: str, prefix: str):
     return cls(**{key: check_type(f"{prefix}.{key}", value, types[key]) for key, value in values.items()})
 
 
+#: numerics.N = "auto": the bounds N adapts between unless N_min / N_max are given
+AUTO_N = (64, 512)
+
+
+def auto_N(values: dict) -> dict:
+    """[numerics] with N = "auto" (and the optional N_min) as Numerics takes it: N = N_min, N_max."""
+    if isinstance(values.get("N"), str) and values["N"] != "auto":
+        raise ConfigError(f'numerics.N = {values["N"]!r}: must be an integer, or "auto" (N adapts during the run)')
+    if values.get("N") != "auto":
+        if "N_min" in values:
+            raise ConfigError(f"numerics.N_min = {values['N_min']!r}: only with N = \"auto\" (the smallest N "
+                              "it adapts to); a fixed N is N itself")
+        return values
+    out = dict(values)
+    del out["N"]
+    out["N"] = out.pop("N_min", AUTO_N[0])
+    out.setdefault("N_max", AUTO_N[1])
+    if out["N_max"] == 0:
+        raise ConfigError('numerics.N_max = 0 with N = "auto": give the largest N it may grow to (default 512)')
+    return out
+
+
 def group_from_dict(name: str, values: dict, base=None):
     """Build one parameter group from a dict, starting from ``base`` (or the defaults)."""
     cls = GROUPS[name]
     if not isinstance(values, dict):
         raise ConfigError(f"[{name}] must be a table, got {type(values).__name__}")
+    if name == "numerics":
+        values = auto_N(values)
     types = typing.get_type_hints(cls)
     problems = Problems()
     with problems.check():

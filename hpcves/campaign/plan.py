@@ -30,6 +30,7 @@ from typing import Callable
 from hpcves.analysis.refine import coarse_points
 from hpcves.analysis.search import start_rates
 from hpcves.campaign.study import Study
+from hpcves.run.resolution import expected_N
 
 #: the plan's wall time is within this factor of the fastest possible one
 NEAR_FASTEST = 1.10
@@ -134,9 +135,10 @@ def plan(study: Study, step_seconds: Callable) -> Plan:
     first = _first_cases(study)
     used = {}
     for case in first:
-        low, high = used.get(case.numerics.N, (math.inf, 0.0))
+        N = expected_N(case)
+        low, high = used.get(N, (math.inf, 0.0))
         s = step_seconds(case)
-        used[case.numerics.N] = (min(low, s), max(high, s))
+        used[N] = (min(low, s), max(high, s))
     units = {"grid": 1, "search": len(study.searches), "refine": len(study.refinements)}[study.mode]
     ceiling = Plan(study.name, study.mode, _stages(study, first, lambda case: case.estimated_steps
                                                    * step_seconds(case)), used, units)

@@ -93,6 +93,7 @@ import numpy as np
 from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_text, refuse_unknown, with_prefix
 from hpcves.model.params import SWEEPABLE, Case, ConfigError     # SWEEPABLE: what [sweep] may vary
 from hpcves.analysis.regimes import AnalysisSettings
+from hpcves.run.resolution import expected_N
 from hpcves.analysis.refine import RefinePlan, RefineSettings
 from hpcves.analysis.search import SearchSettings
 
@@ -118,8 +119,9 @@ class StudyCase:
 
     @property
     def cost(self) -> float:
-        """Relative cost: steps x N^2 (the dense Stokeslet work of a step)."""
-        return self.case.estimated_steps * self.case.numerics.N ** 2
+        """Relative cost: steps x N^2 (the dense Stokeslet work of a step; N where N adapts: the grid
+        its start needs)."""
+        return self.case.estimated_steps * expected_N(self.case) ** 2
 
     def label(self) -> str:
         return ", ".join(f"{k} = {v:g}" for k, v in self.swept.items())
@@ -411,6 +413,10 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     if is_refine and "start" in (tables["refine"].get("axes") or ()):
         raise ConfigError("[refine]: the starts are not an axis of a plane; every start is a refinement of its own")
     refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
+    if refine is not None and refine.max_N and base.numerics.adaptive_N:
+        raise ConfigError(f"[refine]: max_N = {refine.max_N} runs an under-resolved case again at 2 N; with "
+                          f"numerics.N = \"auto\" each run grows N itself, up to numerics.N_max = "
+                          f"{base.numerics.N_max}: leave max_N out (or raise N_max)")
     if refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
         raise ConfigError(f"[refine]: max_N = {refine.max_N}: an under-resolved case runs again at twice its "
                           f"N = {base.numerics.N}, so max_N must be at least {2 * base.numerics.N} (0: never)")

@@ -206,7 +206,11 @@ class Physics:
 class Numerics:
     """Discretisation.
 
-    ``N`` material points, equispaced in arclength (even, >= 16). ``dt`` the time
+    ``N`` material points, equispaced in arclength (even, >= 16). With ``N_max``
+    > N, N adapts during the run between N and N_max (numerics.N = "auto" in a
+    file; run/resolution.py): it grows when the spectral tail of theta_tilde or
+    psi passes ``resize_tail`` and shrinks when the tail on a smaller grid has
+    stayed below resize_tail / 10 for ``shrink_after`` shear times. ``dt`` the time
     step of a fixed-step run. ``rtol`` (with ``atol``) makes the step adaptive
     instead: variable-step SBDF2 under error control (stepcontrol.py), steps
     up to ``dt_max``, the first one ``dt_initial``; ``dt`` is then not used.
@@ -221,6 +225,9 @@ class Numerics:
     """
 
     N: int = 128
+    N_max: int = 0
+    resize_tail: float = 1e-3
+    shrink_after: float = 20.0
     dt: float = 1e-3
     rtol: float | None = None
     atol: float = 0.0
@@ -237,7 +244,15 @@ class Numerics:
         _require(self.N % 2 == 0, f"numerics.N = {self.N}: must be even")
         _require(self.N <= 4096, f"numerics.N = {self.N}: more than 4096 points is not supported "
                  "(the Stokeslet matrix is dense)")
+        _require(isinstance(self.N_max, int) and not isinstance(self.N_max, bool),
+                 f"numerics.N_max = {self.N_max!r}: must be an integer")
+        if self.N_max:
+            _require(self.N_max > self.N, f"numerics.N_max = {self.N_max}: must be above N = {self.N} "
+                     "(or 0: N fixed)")
+            _require(self.N_max <= 4096, f"numerics.N_max = {self.N_max}: more than 4096 points is not supported")
         _finite(self)
+        _require(0 < self.resize_tail < 1, f"numerics.resize_tail = {self.resize_tail}: must lie in (0, 1)")
+        _require(self.shrink_after > 0, f"numerics.shrink_after = {self.shrink_after}: must be > 0 (shear times)")
         _require(self.dt > 0, f"numerics.dt = {self.dt}: must be > 0")
         if self.rtol is not None:
             _require(isinstance(self.rtol, float) and math.isfinite(self.rtol),
@@ -253,6 +268,11 @@ class Numerics:
         _require(self.phase_stabilization >= 0.5,
                  f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
                  "(max g'' on [0, 1])")
+
+    @property
+    def adaptive_N(self) -> bool:
+        """True when N adapts during the run, from N up to ``N_max`` (numerics.N = "auto")."""
+        return self.N_max > 0
 
     @property
     def adaptive(self) -> bool:
@@ -346,6 +366,10 @@ class Case:
                 f"spans [{p.psi_bar - amplitude:.3g}, {p.psi_bar + amplitude:.3g}], outside the "
                 f"allowed range [{r.psi_min}, {r.psi_max}] (run.psi_min, run.psi_max)",
             )
+        if self.numerics.adaptive_N:
+            _require(self.numerics.resize_tail < r.max_spectral_tail,
+                     f"numerics.resize_tail = {self.numerics.resize_tail:g}: must be below run.max_spectral_tail = "
+                     f"{r.max_spectral_tail:g} (N grows before the watch would stop the run as under-resolved)")
         if self.numerics.adaptive:
             return
         _require(self.run.sample_interval >= self.numerics.dt,
@@ -401,6 +425,8 @@ class Case:
         before these options existed keep theirs; the linear bending law and the ellipse, which they all ran)."""
         out = self.to_dict()
         unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
+        if not self.numerics.adaptive_N:
+            unused += ("N_max", "resize_tail", "shrink_after")     # N fixed, as in files from before the option
         for key in unused:
             del out["numerics"][key]
         if not self.run.until_decided:

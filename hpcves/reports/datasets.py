@@ -93,7 +93,7 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
         attrs.update(status=STATUS_NAMES.get(store.status, str(store.status)), message=store.message,
                      t_reached=float(store.progress[0]), source=str(path))
         physics = {k: float(group.attrs[f"physics.{k}"]) for k in PARAMETERS}
-        N = store.case.numerics.N
+        N = store.width
     t = data.pop("t")
     coords = {"time": t[1], "xy": ["x", "y"], **physics}
     if snapshots:

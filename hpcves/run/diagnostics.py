@@ -14,7 +14,9 @@ Conventions
 * ``tail_theta``, ``tail_psi`` -- the share of the top third of the Fourier
   modes in the variation of theta_tilde and psi (spectral.spectral_tail): the
   resolution watch; above ``run.max_spectral_tail`` the run stops as
-  under-resolved.
+  under-resolved (where N adapts: once it is N_max).
+* ``N`` -- the nodes of the run at the sample (numerics.N, or where it adapts the
+  N it has grown or shrunk to; resolution.py).
 * ``V_psi`` -- velocity (arclength per time) of the phase pattern relative to
   the material: L d(phase_position)/dt.
 * ``V_L`` -- velocity of the material point alpha = 0 relative to the point
@@ -39,10 +41,10 @@ from hpcves.run.timestepping import Rates, Solver, State
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",
           "tension_min", "tension_mean", "tension_max", "V_psi", "V_L", "phase_position",
           "psi_min", "psi_max", "area_correction", "tank_treading_velocity", "stretching",
-          "tail_theta", "tail_psi")
+          "tail_theta", "tail_psi", "N")
 
 #: series added after files of format 3 were first written: a case without them still reads
-OPTIONAL_SERIES = ("tail_theta", "tail_psi")
+OPTIONAL_SERIES = ("tail_theta", "tail_psi", "N")
 
 #: Names of the snapshot fields (one value per node).
 SNAPSHOT_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "velocity_y")
@@ -71,6 +73,7 @@ SERIES_ATTRS = {
     "stretching": ("maximum of s . du/ds over the membrane (inextensibility residual)", "1"),
     "tail_theta": ("share of the top third of the Fourier modes in the variation of theta_tilde", "1"),
     "tail_psi": ("share of the top third of the Fourier modes in the variation of psi", "1"),
+    "N": ("number of nodes the run had (numerics.N, or where N adapts the N it had grown or shrunk to)", "1"),
 }
 SNAPSHOT_ATTRS = {
     "t": ("time of the snapshot", "1"),
@@ -183,6 +186,7 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "stretching": float(np.abs(flow.stretching(shape.tangent, sp)).max()),
         "tail_theta": spectral_tail(sp.fft.rfft(state.theta), sp.N),
         "tail_psi": 0.0 if phys.homogeneous else spectral_tail(rates.psi_hat, sp.N),
+        "N": float(sp.N),
     }
 
 
@@ -264,9 +268,12 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
                 needed = resolution_needed(solver.sp.fft.rfft(array), solver.sp.N, 0.1 * run.max_spectral_tail)
                 limit = (f"run.max_spectral_tail = {run.max_spectral_tail:g}" if bound == run.max_spectral_tail
                          else f"more than the initial shape's {initial:.2g}, itself above run.max_spectral_tail")
+                num = solver.case.numerics
+                largest = (" (numerics.N_max: N grew as far as it may)"
+                           if num.adaptive_N and solver.sp.N >= num.N_max else "")
                 return Health(False, f"the top third of the Fourier modes of {field} holds {row[name]:.2g} of its "
-                                     f"variation ({limit}) at t = {row['t']:.6g}: N = {solver.sp.N} does not "
-                                     f"resolve it; N = {needed} would (from the decay of its spectrum)"
+                                     f"variation ({limit}) at t = {row['t']:.6g}: N = {solver.sp.N}{largest} does "
+                                     f"not resolve it; N = {needed} would (from the decay of its spectrum)"
                                      + _loose_step_hint(solver.case.numerics),
                               under_resolved=True)
         if abs(row["area_error"]) > run.max_area_error:

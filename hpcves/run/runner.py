@@ -16,6 +16,7 @@ the uninterrupted one bit for bit.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -25,6 +26,7 @@ from threadpoolctl import threadpool_limits
 
 from hpcves.run import decision
 from hpcves.run import diagnostics
+from hpcves.run import resolution
 from hpcves.files import faults
 from hpcves.run import schedule
 from hpcves.run import store as checkpoint_module
@@ -136,7 +138,11 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     case = store.case
     if start is None and case.physics.initial_shape == "stored":
         start = read_stored_start(case.physics)
-    solver = Solver(case, start=start)
+    if case.numerics.adaptive_N:
+        solver = Solver(case, start=start,
+                        N=resolution.starting_N(case, lambda n: Solver(case, start=start, N=n).initial_tails))
+    else:
+        solver = Solver(case, start=start)
     state = None
     wall_before = 0.0                  # wall time of earlier calls on this case
     if resume:
@@ -145,6 +151,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         if found is not None:
             state, n_samples, n_snapshots = found
             store.truncate(n_samples, n_snapshots)
+            solver = solver.at(state.N)
     if state is None:
         state = solver.initial_state()
         store.truncate(0, 0)
@@ -167,6 +174,9 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         while True:
             rates = solver.rates(state)
             row = diagnostics.sample(solver, state, rates) if clock.sample_due(state) else None
+            if row is not None and case.numerics.adaptive_N:
+                solver, state, rates, row = _resolve(solver, state, rates, row)
+                record.solver = solver
             verdict = diagnostics.health(solver, state, row, last_correction)
             if not verdict.ok:
                 if row is not None:
@@ -192,6 +202,23 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
             return record.finish(MODEL_LIMIT, f"{MODEL_LIMIT_PREFIX}{limit}{STOPPED_BY}{what}: {reason} ({kept})",
                                  state)
         return record.finish(FAILED, f"{what}: {reason} ({kept})", state)
+
+
+def _resolve(solver: Solver, state: State, rates, row: dict):
+    """N adapting (resolution.py), at a sample: (solver, state, rates, row) on the N it goes on with,
+    the state and its sample taken again after a resize (and again while it still asks to grow)."""
+    while True:
+        theta_hat = solver.sp.fft.rfft(state.theta)
+        N, quiet_since = resolution.decide(solver.case, theta_hat, rates.psi_hat, state.N, state.quiet_since,
+                                           state.t)
+        if N == state.N:
+            if not (quiet_since == state.quiet_since or (np.isnan(quiet_since) and np.isnan(state.quiet_since))):
+                state = dataclasses.replace(state, quiet_since=quiet_since)
+            return solver, state, rates, row
+        solver, state = solver.resized(state, N)
+        state = dataclasses.replace(state, quiet_since=quiet_since)
+        rates = solver.rates(state)
+        row = diagnostics.sample(solver, state, rates)
 
 
 # ---------------------------------------------------------------------- the cadences

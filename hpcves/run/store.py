@@ -45,12 +45,13 @@ from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.model.params import Case, ConfigError
 from hpcves.run.schedule import clock
-from hpcves.numerics.spectral import Spectral
+from hpcves.numerics.spectral import Spectral, resample
 from hpcves.run.timestepping import State
 
 FORMAT = "hpcves-case"
-FORMAT_VERSION = 3                  # 3: checkpoints hold t, the step controller and level n-2
-READS_VERSIONS = (2, 3)             # 2: fixed-step checkpoints (t = step dt); 1 held psi at material labels
+FORMAT_VERSION = 4                  # 4: checkpoints hold their N (N adapting) and the resize memory
+READS_VERSIONS = (2, 3, 4)          # 3: t, the step controller and level n-2; 2: fixed-step checkpoints
+                                    # (t = step dt); 1 held psi at material labels
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
@@ -71,7 +72,8 @@ _SCALAR_LAYOUTS = {
         ("prev_shift", 1), ("prev_rate_center", 2), ("prev_rate_shift", 1)),
 }
 _SCALAR_LAYOUTS[3] = _SCALAR_LAYOUTS[2] + (("t", 1), ("dt_prev", 1), ("dt_prev2", 1), ("error", 1), ("dt_next", 1))
-_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS}
+_SCALAR_LAYOUTS[4] = _SCALAR_LAYOUTS[3] + (("quiet_since", 1), ("N", 1))
+_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS}
 assert _ARRAYS[2] == ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
 _SCALAR_LAYOUT = _SCALAR_LAYOUTS[FORMAT_VERSION]
 _N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
@@ -158,6 +160,13 @@ def open_file(path, mode: str, **kwargs):
         raise FileFormatError(f"{path}: cannot open as HDF5 ({_first_line(exc)})") from None
 
 
+def stored_N(case: Case) -> int:
+    """The width of a case's snapshots and checkpoint arrays: N, or N_max when N adapts (a
+    checkpoint holds its N values first; snapshots are resampled to the width: exact for a field
+    resolved on the run's grid)."""
+    return case.numerics.N_max or case.numerics.N
+
+
 def capacities(case: Case) -> tuple[int, int]:
     """Rows to preallocate for samples and snapshots (schedule.py: every cadence time, plus one)."""
     return clock(case).capacities()
@@ -166,7 +175,7 @@ def capacities(case: Case) -> tuple[int, int]:
 def raw_bytes(case: Case) -> int:
     """The bytes :meth:`CaseStore.create` allocates for a case's datasets (all of them, up front)."""
     n_samples, n_snapshots = capacities(case)
-    N = case.numerics.N
+    N = stored_N(case)
     series = (len(SERIES) + 1) * n_samples + 2               # centroid has two columns (+ xy)
     snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots + N      # + alpha
     checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
@@ -245,13 +254,13 @@ class CaseStore:
     def create(cls, group, case: Case) -> "CaseStore":
         """Lay out a new case in an empty group (collective in parallel HDF5)."""
         n_samples, n_snapshots = capacities(case)
-        N = case.numerics.N
+        N = stored_N(case)
         a = group.attrs
         a["format"] = FORMAT
         a["format_version"] = FORMAT_VERSION
         a["hpcves_version"] = __version__
         a["config"] = case_to_toml(case)
-        a["N"] = N
+        a["N"] = case.numerics.N
         a["sample_capacity"] = n_samples
         a["snapshot_capacity"] = n_snapshots
         for key, value in case.flat().items():
@@ -303,7 +312,7 @@ class CaseStore:
     def layout(self, case: Case) -> dict:
         """Every dataset a case holds: relative name -> (shape, numpy kind)."""
         n_samples, n_snapshots = capacities(case)
-        N = case.numerics.N
+        N = stored_N(case)
         out = {"status": ((), "i"), "message": ((), "S"), "progress": ((4,), "f"),
                "timeseries/length": ((), "i"), "snapshots/length": ((), "i"),
                "snapshots/t": ((n_snapshots,), "f"), "snapshots/shift": ((n_snapshots,), "f")}
@@ -453,6 +462,11 @@ class CaseStore:
         return int(self._ts["length"][()])
 
     @property
+    def width(self) -> int:
+        """The nodes of its snapshots (stored_N of its case)."""
+        return int(self._snap["alpha"].size)
+
+    @property
     def n_snapshots(self) -> int:
         return int(self._snap["length"][()])
 
@@ -475,8 +489,11 @@ class CaseStore:
             return
         start = self.n_snapshots
         stop = start + len(snaps)
-        for name in ("t", "shift") + SNAPSHOT_FIELDS:
+        width = self._snap["alpha"].size
+        for name in ("t", "shift"):
             self._snap[name][start:stop] = np.array([snap[name] for snap in snaps], dtype=float)
+        for name in SNAPSHOT_FIELDS:           # taken at the run's N, which may be below the width
+            self._snap[name][start:stop] = np.array([resample(snap[name], width) for snap in snaps], dtype=float)
         self._snap["length"][()] = stop
 
     def timeseries(self) -> dict:
@@ -528,7 +545,12 @@ class CaseStore:
         faults.point("checkpoint")
         for name in self._arrays:
             value = getattr(state, name)
-            g[name][:] = np.nan if value is None else value
+            if value is None:
+                g[name][:] = np.nan
+            elif value.size == g[name].size:
+                g[name][:] = value
+            else:                                  # N adapting: its N values first, then NaN
+                g[name][:] = np.concatenate([value, np.full(g[name].size - value.size, np.nan)])
         g["scalars"][:] = _pack_scalars(state, self._scalars)
         g["meta"][1:] = (state.step, self.n_samples, self.n_snapshots)
         flush()
@@ -578,8 +600,9 @@ class CaseStore:
             return None
         g = self._ckpt[slot]
         meta = g["meta"][:]
-        arrays = {name: g[name][:] for name in self._arrays}
         scalars = _unpack_scalars(g["scalars"][:], self._scalars)
+        N = int(scalars.pop("N")) if "N" in scalars else stored_N(self.case)
+        arrays = {name: g[name][:N] for name in self._arrays}
         step = int(meta[1])
         if self.version == 2:                 # a fixed-step run: its time and steps are implied
             dt = self.case.numerics.dt

@@ -12,6 +12,7 @@ import tempfile
 from pathlib import Path
 
 from hpcves.model.params import Case
+from hpcves.run.resolution import expected_N
 
 
 def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
@@ -53,10 +54,11 @@ class StepCost:
 
     @staticmethod
     def kind_of(case: Case) -> tuple:
-        """(N, homogeneous, samples per step, snapshots per step), the shares to 2 digits."""
+        """(N, homogeneous, samples per step, snapshots per step), the shares to 2 digits; where N adapts,
+        the N its start needs (resolution.expected_N: the run is timed from that start)."""
         dt = case.settled_step
         share = lambda interval: float(f"{min(1.0, dt / interval):.2g}")       # noqa: E731
-        return (case.numerics.N, case.physics.homogeneous, share(case.run.sample_interval),
+        return (expected_N(case), case.physics.homogeneous, share(case.run.sample_interval),
                 share(case.run.snapshot_interval))
 
     def __call__(self, case: Case) -> float:

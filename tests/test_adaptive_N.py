@@ -1,0 +1,196 @@
+"""N adapting during a run (numerics.N = "auto"): the resize, the rule, the record, resume across a resize."""
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from hpcves.config import case_from_toml
+from hpcves.model import geometry
+from hpcves.model.params import Case, ConfigError, Numerics, Physics
+from hpcves.numerics.spectral import fft_sizes, resample, spectral_tail, tail_on
+from hpcves.run import resolution, schedule
+from hpcves.run.store import FINISHED, INTERRUPTED
+from hpcves.run.timestepping import Solver
+
+from jobs import resume_in_process, run_in_process, same_case_files
+
+
+def band_limited(N, top, seed=0):
+    """Samples on N nodes of a random real trigonometric polynomial of modes 0 ... top, and the polynomial."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=top + 1), rng.normal(size=top + 1)
+
+    def f(alpha):
+        m = np.arange(top + 1)[:, None]
+        return (a[:, None] * np.cos(2 * np.pi * m * alpha) + b[:, None] * np.sin(2 * np.pi * m * alpha)).sum(0)
+
+    return f(np.arange(N) / N), f
+
+
+def test_resampling_is_exact_for_band_limited_fields_and_growing_then_shrinking_returns_the_field():
+    samples, f = band_limited(32, 15)                     # modes below both Nyquist modes
+    for N in (48, 64, 96, 256):
+        assert np.max(np.abs(resample(samples, N) - f(np.arange(N) / N))) < 1e-12
+        assert np.max(np.abs(resample(resample(samples, N), 32) - samples)) < 1e-12
+    assert resample(samples, 32) is not samples and np.array_equal(resample(samples, 32), samples)
+
+
+def test_the_sizes_are_fft_friendly_and_the_tail_on_a_smaller_grid_is_that_grids_tail():
+    assert fft_sizes(16, 512) == (16, 24, 32, 48, 64, 96, 128, 192, 256, 384, 512)
+    samples, _ = band_limited(64, 20)
+    f_hat = np.fft.rfft(samples)
+    for M in (48, 64):
+        assert tail_on(f_hat, 64, M) == pytest.approx(spectral_tail(np.fft.rfft(resample(samples, M)), M), rel=1e-9)
+
+
+def test_N_auto_in_a_file_and_its_errors():
+    case = case_from_toml('[numerics]\nN = "auto"\nrtol = 1e-3')
+    assert (case.numerics.N, case.numerics.N_max, case.numerics.adaptive_N) == (64, 512, True)
+    case = case_from_toml('[numerics]\nN = "auto"\nN_min = 32\nN_max = 128\nrtol = 1e-3')
+    assert (case.numerics.N, case.numerics.N_max) == (32, 128)
+    assert not case_from_toml("[numerics]\nN = 64").numerics.adaptive_N
+    for text, words in (('N = "fine"', 'must be an integer, or "auto"'),
+                        ("N = 64\nN_min = 32", 'only with N = "auto"'),
+                        ("N = 128\nN_max = 64", "must be above N = 128"),
+                        ('N = "auto"\nN_max = 0', "give the largest N"),
+                        ('N = "auto"\nresize_tail = 0.01', "must be below run.max_spectral_tail")):
+        with pytest.raises(ConfigError, match=words):
+            case_from_toml(f"[numerics]\n{text}\nrtol = 1e-3")
+    # N fixed: the new options stay out of what a study's fingerprint covers (files of before keep theirs)
+    assert "N_max" not in Case().significant()["numerics"]
+
+
+def test_a_resized_state_keeps_length_area_and_the_psi_integral_and_its_history():
+    case = Case(physics=Physics(excess_length=0.94, psi_bar=0.4, shear_rate=10.0), numerics=Numerics(N=64, rtol=1e-3))
+    solver, clock = Solver(case), schedule.clock(case)
+    state = solver.initial_state()
+    for _ in range(30):                                   # a history: levels n-1, n-2 and the rates
+        state, _ = clock.take_step(solver, state, solver.rates(state))
+    for N in (96, 128):
+        larger, grown = solver.resized(state, N)
+        assert larger.sp.N == grown.N == N and larger.area0 == solver.area0
+        area = geometry.enclosed_area(grown.theta + larger.sp.circle_angle, larger.sp)
+        assert geometry.enclosed_area(state.theta + solver.sp.circle_angle, solver.sp) == pytest.approx(solver.area0,
+                                                                                                   rel=1e-13)
+        assert area == pytest.approx(solver.area0, rel=1e-13)     # the projection's target, on either grid
+        assert grown.psi.mean() == pytest.approx(state.psi.mean(), abs=1e-15)      # int psi ds = L mean(psi)
+        length = np.sum(np.abs(larger.sp.ds_complex(larger.shape(grown).z))) * larger.sp.length / N
+        assert length == pytest.approx(case.physics.length, rel=1e-11)
+        assert (grown.t, grown.step, grown.dt_prev, grown.dt_next) == (state.t, state.step, state.dt_prev, state.dt_next)
+        back, returned = larger.resized(grown, 64)       # and back: the same state to round-off
+        for name in ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_psi", "prev2_psi"):
+            assert np.max(np.abs(getattr(returned, name) - getattr(state, name))) < 1e-7, name
+        # the rate of theta_tilde, without the top two modes that 64 nodes drop from every step
+        rate = solver.sp.project(state.prev_rate_theta, solver._resolved)
+        assert np.max(np.abs(returned.prev_rate_theta - rate)) < 1e-9 * np.max(np.abs(rate))
+
+
+def spectrum(N, kappa):
+    """rfft of a field on N nodes whose modes decay as exp(-kappa m)."""
+    m = np.arange(N // 2 + 1)
+    return np.where(m > 0, np.exp(-kappa * m), 0.0).astype(complex)
+
+
+def test_the_rule_grows_on_a_tail_shrinks_after_a_quiet_time_and_answers_the_same_when_asked_again():
+    case = Case(physics=Physics(shear_rate=10.0),
+                numerics=Numerics(N=32, N_max=256, rtol=1e-3, resize_tail=1e-3, shrink_after=2.0))
+    assert resolution.sizes(case) == (32, 48, 64, 96, 128, 192, 256)
+    heavy = spectrum(32, 0.15)                            # tail ~ exp(-0.15 * 11) >> 1e-3
+    N, since = resolution.decide(case, heavy, None, 32, math.nan, 0.0)
+    assert N in resolution.sizes(case) and N > 32 and math.isnan(since)
+    below = resolution.sizes(case)[resolution.sizes(case).index(N) - 1]
+    assert spectral_tail(spectrum(N, 0.15), N) <= 1e-3 / resolution.GROW_MARGIN       # grown far enough,
+    assert spectral_tail(spectrum(below, 0.15), below) > 1e-3 / resolution.GROW_MARGIN  # and no further
+    assert resolution.decide(case, spectrum(256, 0.01), None, 256, math.nan, 0.0)[0] == 256     # N_max: stays
+    smooth = spectrum(96, 1.0)                            # 64 nodes would hold it far within the bound
+    N, since = resolution.decide(case, smooth, smooth, 96, math.nan, 1.0)
+    assert (N, since) == (96, 1.0)                        # quiet from t = 1 ...
+    assert resolution.decide(case, smooth, smooth, 96, since, 1.0) == (96, 1.0)      # (asked again: the same)
+    assert resolution.decide(case, smooth, smooth, 96, since, 1.1) == (96, 1.0)      # ... 1 shear time: not yet
+    N, since = resolution.decide(case, smooth, smooth, 96, 1.0, 1.25)                # 2.5 shear times: one size down
+    assert N == 64 and math.isnan(since)
+    noisy = spectrum(96, 0.3)            # resolved on 96 nodes (tail 7e-5), not quiet on 64 (1e-3): the clock stops
+    N, since = resolution.decide(case, smooth, noisy, 96, 1.0, 1.1)
+    assert N == 96 and math.isnan(since)
+    N, since = resolution.decide(case, spectrum(32, 1.0), None, 32, 0.0, 100.0)
+    assert N == 32 and math.isnan(since)                  # never below numerics.N
+
+
+GROWING = """
+[physics]
+psi_bar = 0.3
+shear_rate = 10.0
+[numerics]
+N = "auto"
+N_min = 16
+N_max = 64
+resize_tail = 2e-2
+rtol = 1e-3
+[run]
+t_end = {t_end}
+sample_interval = 0.01
+snapshot_interval = 0.05
+checkpoint_interval = 0.02
+max_spectral_tail = 0.05
+"""
+
+SHRINKING = """
+[physics]
+psi_bar = 0.48
+shear_rate = 28.0
+excess_length = 2.3
+[numerics]
+N = "auto"
+N_min = 16
+N_max = 96
+resize_tail = 1e-2
+shrink_after = 0.5
+rtol = 1e-3
+[run]
+t_end = {t_end}
+sample_interval = 0.005
+snapshot_interval = 0.02
+checkpoint_interval = 0.02
+max_spectral_tail = 0.05
+"""
+
+
+def history(path):
+    """[(t, N)] at each change of N in a case file's samples, from the first."""
+    with h5py.File(path, "r") as f:
+        n = int(f["timeseries/length"][()])
+        t, N = f["timeseries/t"][:n], f["timeseries/N"][:n]
+    return [(float(t[i]), int(N[i])) for i in np.r_[0, np.nonzero(np.diff(N))[0] + 1]]
+
+
+# stops: steps of each call. Growing: 24 -> 48 nodes at t = 0.01, step ~1040; shrinking: 96 -> 64 at
+# t = 0.045, step ~2420, the smaller grid quiet from t = 0.025 (step ~2380)
+@pytest.mark.parametrize("text, stops", [(GROWING, (1000, 60, None)), (SHRINKING, (2390, 40, None))],
+                         ids=["growing", "shrinking"])
+def test_a_run_resized_on_its_way_is_bitwise_the_same_when_killed_and_resumed_across_the_resizes(tmp_path, text, stops):
+    case = case_from_toml(text.format(t_end=0.1))
+    assert run_in_process(case, tmp_path / "a.h5").status == FINISHED
+    changes = history(tmp_path / "a.h5")
+    assert len(changes) == 2, changes                      # it did resize, once
+    assert run_in_process(case, tmp_path / "b.h5", max_steps=stops[0]).status == INTERRUPTED
+    resumed_from = []
+    assert resume_in_process(tmp_path / "b.h5", stops=stops[1:],
+                             before=lambda store: resumed_from.append(store.read_checkpoint()[0])).status == FINISHED
+    same_case_files(tmp_path / "a.h5", tmp_path / "b.h5", checkpoints=True)
+    # the calls stopped on both grids, and the shrinking one while the smaller grid was being watched
+    assert [s.N for s in resumed_from] == [changes[0][1], changes[1][1]]
+    assert (text is GROWING) or changes[1][0] > resumed_from[0].quiet_since > 0
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        assert f["snapshots/x"].shape[1] == case.numerics.N_max            # snapshots on the N_max grid
+        assert np.all(np.isfinite(f["snapshots/psi"][: f["snapshots/length"][()]]))
+
+
+def test_a_growing_run_starts_on_the_grid_its_start_needs_and_grows_when_psi_sharpens(tmp_path):
+    case = case_from_toml(GROWING.format(t_end=0.05))
+    run_in_process(case, tmp_path / "a.h5")
+    (t0, N0), (t1, N1) = history(tmp_path / "a.h5")[:2]
+    # the ellipse's tail on 16 nodes is above resize_tail, on 24 within: it starts on 24
+    tails = [max(Solver(case, N=n).initial_tails) for n in (16, 24)]
+    assert tails[0] > 2e-2 >= tails[1] and (t0, N0) == (0.0, 24)
+    assert t1 > 0 and N1 > N0
