@@ -194,3 +194,64 @@ def test_a_growing_run_starts_on_the_grid_its_start_needs_and_grows_when_psi_sha
     tails = [max(Solver(case, N=n).initial_tails) for n in (16, 24)]
     assert tails[0] > 2e-2 >= tails[1] and (t0, N0) == (0.0, 24)
     assert t1 > 0 and N1 > N0
+
+
+DECIDING = """
+[physics]
+psi_bar = {psi_bar}
+shear_rate = {S}
+excess_length = {Delta}
+[numerics]
+N = {N}
+rtol = 1e-3
+[run]
+t_end = {t_end}
+sample_interval = 0.005
+snapshot_interval = 0.5
+until_decided = true
+"""
+
+
+@pytest.mark.parametrize("psi_bar, S, Delta, t_end, regime", [(0.3, 80.0, 0.19385328260599, 3.0, "PT"),
+                                                               (0.5, 20.0, 2.3, 8.0, "TT")],
+                         ids=["phase-separating", "deflated-tips"])
+def test_where_a_fixed_coarse_grid_stops_as_under_resolved_N_auto_grows_and_decides(tmp_path, psi_bar, S, Delta,
+                                                                                    t_end, regime):
+    values = dict(psi_bar=psi_bar, S=S, Delta=Delta, t_end=t_end)
+    fixed = run_in_process(case_from_toml(DECIDING.format(N=32, **values)), tmp_path / "fixed.h5")
+    assert fixed.status != FINISHED and fixed.message.startswith("under-resolved"), fixed.message
+    auto = case_from_toml(DECIDING.format(N='"auto"\nN_min = 32\nN_max = 128', **values))
+    outcome = run_in_process(auto, tmp_path / "auto.h5")
+    assert outcome.status == FINISHED and outcome.message.startswith(f"decided {regime}"), outcome.message
+    changes = history(tmp_path / "auto.h5")
+    assert max(N for _, N in changes) > 32                 # it needed more than the fixed grid had
+    with h5py.File(tmp_path / "auto.h5", "r") as f:        # and held the tails within the watch's bound
+        n = f["timeseries/length"][()]
+        tails = np.maximum(f["timeseries/tail_theta"][1:n], f["timeseries/tail_psi"][1:n])
+    assert tails.max() <= auto.run.max_spectral_tail
+
+
+def test_campaigns_plan_N_auto_by_the_grid_its_start_needs_and_refuse_refine_retries():
+    from hpcves.campaign.study import study_from_toml
+
+    deflated = Case(physics=Physics(excess_length=2.3, psi_bar=0.48, shear_rate=28.0),
+                    numerics=Numerics(N=64, N_max=512, rtol=1e-3))
+    assert resolution.expected_N(deflated) == 192         # tails on 128 nodes: 2.5e-3; on 192: 4.3e-4
+    assert resolution.expected_N(Case(numerics=Numerics(N=64, rtol=1e-3))) == 64
+    text = """
+[campaign]
+name = "auto"
+output = "{out}"
+[numerics]
+N = "auto"
+rtol = 1e-3
+[sweep]
+shear_rate = [5.0, 20.0]
+psi_bar = [0.3, 0.5]
+[refine]
+max_N = 256
+"""
+    with pytest.raises(ConfigError, match='with numerics.N = "auto" each run grows N itself'):
+        study_from_toml(text.format(out="x.h5"))
+    study = study_from_toml(text.replace("[refine]\nmax_N = 256", "").format(out="x.h5"))     # a grid study
+    assert study.base.numerics.adaptive_N and study.cases[0].cost == study.cases[0].case.estimated_steps * 64**2

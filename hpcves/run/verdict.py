@@ -10,6 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields, replace
 
+import numpy as np
+
 from hpcves.analysis import accuracy
 from hpcves.analysis.pattern import common_topology
 from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
@@ -37,7 +39,8 @@ class CaseData:
     mark: tuple = ()           # (status, t, samples, snapshots) when read: tells whether it changed since
     decided: str = ""          # the regime a run with run.until_decided stopped on ("": none)
     rtol: float = math.nan     # numerics.rtol of an adaptive run (nan: fixed step)
-    N: float = math.nan        # numerics.N (a refinement may run a point again at a larger N)
+    N: float = math.nan        # numerics.N (a refinement may run a point again at a larger N); where N
+                               # adapts (numerics.N_max > 0), the largest N the run took
     patterns: dict = field(default_factory=dict)   # t, psi, curvature of the last PATTERN_SNAPSHOTS snapshots
 
 
@@ -51,10 +54,14 @@ TOPOLOGY_COLUMNS = ("soft_domains", "domains_on_tips", "two_fold", "topology_ste
 def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     attrs = store.group.attrs
     t, t_end = (float(v) for v in store.progress[:2])
+    series = store.timeseries()
+    N = float(attrs.get("numerics.N", math.nan))
+    if float(attrs.get("numerics.N_max", 0)) > 0 and len(series.get("N", ())):
+        N = float(np.max(series["N"]))
     return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
-                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, store.timeseries(),
+                    STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, series,
                     search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
-                    float(attrs.get("numerics.rtol", math.nan)), float(attrs.get("numerics.N", math.nan)),
+                    float(attrs.get("numerics.rtol", math.nan)), N,
                     store.last_snapshots(("t", "psi", "curvature"), PATTERN_SNAPSHOTS))
 
 
