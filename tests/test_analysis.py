@@ -4,6 +4,8 @@ import subprocess
 import sys
 
 import h5py
+import math
+
 import numpy as np
 import pytest
 
@@ -74,7 +76,9 @@ def test_a_tiny_campaign_is_classified_tabulated_drawn_and_stored(campaign, tmp_
     assert "TT" in periods and f"{pt['period']:.4g} +-" in periods
     # a fixed-step campaign: the discretisation error is not estimated, and the tables say so
     assert np.isnan(pt["period_dt_err"]) and np.isnan(pt["theta_mean_dt_err"]) and np.isnan(pt["rtol"])
-    assert f"{pt['period']:.4g} +- {pt['period_err']:.1g} [stat, dt n/e]" in periods
+    error, tag = accuracy.error_bar(pt, "period")
+    assert "dt n/e" in tag
+    assert f"{pt['period']:.4g} +- {error:.1g} [{tag}]" in periods
     assert "| n/e |" in (out / "regimes.md").read_text()
     for name in ("phase_diagram", "periods"):
         for ext in ("png", "pdf"):
@@ -118,8 +122,10 @@ def test_a_single_adaptive_run_is_analysed_with_discretisation_error_bars(tmp_pa
     assert row["theta_mean_dt_err"] == pytest.approx(accuracy.INCLINATION_PER_RTOL * 3e-2)
     assert 0 < row["theta_mean_err"] < row["theta_amplitude"]
     error, dominant = accuracy.error_bar(row, "period")
+    # N = 32 with the watch off: a tail (1e-2) beyond what the spatial rule holds at, so no spatial bar
+    assert np.isnan(row["period_N_err"]) and np.isnan(row["theta_mean_N_err"])
     assert error == pytest.approx(row["period_err"] + row["period_dt_err"])
-    assert dominant == ("dt" if row["period_dt_err"] >= row["period_err"] else "stat")
+    assert dominant == ("dt" if row["period_dt_err"] >= row["period_err"] else "stat") + ", N n/e"
     table = (tmp_path / "out" / "regimes.md").read_text()
     assert f"| {row['period_dt_err']:.2g} |" in table and "+- dt" in table
     stored = read_back(path)
@@ -144,13 +150,28 @@ def test_the_command_line_reports_and_refuses_bad_options(campaign, tmp_path):
 def test_error_bars_say_which_part_dominates_and_tumbling_gets_none():
     pt = {"period": 0.1, "period_err": 1e-6, "period_dt_err": accuracy.period_error(0.1, 1e-2)}
     assert pt["period_dt_err"] == pytest.approx(accuracy.PERIOD_PER_RTOL * 1e-3)
-    assert accuracy.error_bar(pt, "period") == (pytest.approx(1e-6 + pt["period_dt_err"]), "dt")
+    assert accuracy.error_bar(pt, "period") == (pytest.approx(1e-6 + pt["period_dt_err"]), "dt, N n/e")
     noisy = {**pt, "period_err": 1.0}
-    assert accuracy.error_bar(noisy, "period")[1] == "stat"
+    assert accuracy.error_bar(noisy, "period")[1] == "stat, N n/e"
+    # the grid's part: in proportion to the largest spectral tail over the settled record
+    t = np.linspace(0.0, 10.0, 11)
+    tail_theta, tail_psi = np.full(11, 1e-6), np.full(11, 2e-6)
+    tail_theta[2] = 5e-3                                   # before t_settle = 3: the start-up, not counted
+    tail_psi[8] = 4e-5
+    assert accuracy.settled_tail(t, tail_theta, tail_psi, 3.0) == 4e-5
+    assert accuracy.settled_tail(t, tail_theta, None, math.nan) == 5e-3      # no settling known: all of it
+    assert np.isnan(accuracy.settled_tail(t, None, None, 3.0))               # a file from before the tails
+    coarse = {**pt, "period_N_err": accuracy.spatial_period_error(0.1, 2e-3)}
+    assert coarse["period_N_err"] == pytest.approx(accuracy.PERIOD_PER_TAIL * 2e-4)
+    assert np.isnan(accuracy.spatial_period_error(0.1, 1e-2))              # beyond the watch: not estimated
+    assert accuracy.error_bar(coarse, "period") == (pytest.approx(1e-6 + pt["period_dt_err"] + coarse["period_N_err"]),
+                                                    "N" if coarse["period_N_err"] > pt["period_dt_err"] else "dt")
+    assert accuracy.spatial_inclination_error(0.3, 1e-4) == pytest.approx(accuracy.INCLINATION_PER_TAIL * 1e-4)
+    assert np.isnan(accuracy.spatial_period_error(7.1, 1e-3, flips=True))
     assert np.isnan(accuracy.period_error(7.1, 1e-2, flips=True))          # tumbling: no rule
     assert np.isnan(accuracy.inclination_error(0.1, 1e-2, flips=True))
     assert np.isnan(accuracy.period_error(0.1, None))                       # a fixed step: none
-    assert accuracy.error_bar({"period_err": 1e-6, "period_dt_err": np.nan}, "period") == (1e-6, "stat, dt n/e")
+    assert accuracy.error_bar({"period_err": 1e-6, "period_dt_err": np.nan}, "period") == (1e-6, "stat, dt n/e, N n/e")
 
 
 def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tmp_path):

@@ -73,9 +73,9 @@ def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_
     pt = ds.where((ds.shear_rate == 80) & (ds.psi_bar == 0.3), drop=True)
     assert list(pt["case"].values) == ["0003"]
     few = hpcves.open_campaign(campaign, variables=["theta"])
-    assert list(few.data_vars) == ["theta", "regime", "period", "period_err", "period_dt_err", "theta_mean",
-                                   "theta_mean_err", "theta_mean_dt_err", "t_settle", "cycles", "bending_gap",
-                                   "reason"]
+    assert list(few.data_vars) == ["theta", "regime", "period", "period_err", "period_dt_err", "period_N_err",
+                                   "theta_mean", "theta_mean_err", "theta_mean_dt_err", "theta_mean_N_err",
+                                   "t_settle", "cycles", "bending_gap", "reason"]
     with pytest.raises(FileFormatError, match="no series thetta"):
         hpcves.open_campaign(campaign, variables=["thetta"])
 

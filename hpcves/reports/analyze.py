@@ -38,9 +38,11 @@ from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
 from hpcves.run.verdict import DAMAGED, PARAMETERS, TOPOLOGY_COLUMNS, CaseData, analyse_case, case_data, mark
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
-#: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step, accuracy.py)
+#: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step; ``*_N_err``:
+#: spatial error, of the grid; accuracy.py)
 COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "N", "regime", "period", "period_err",
-                                     "period_dt_err", "theta_mean", "theta_mean_err", "theta_mean_dt_err",
+                                     "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
+                                     "theta_mean_dt_err", "theta_mean_N_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
                                      "theta_drift", "period_crossings", "bending_gap", "bending_gap_err") \
     + TOPOLOGY_COLUMNS + ("reason",)
@@ -259,12 +261,13 @@ def write_csv(rows: list[dict], path: Path) -> None:
 
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
-    header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "mean theta", "+- stat", "+- dt",
-                                "min theta", "amplitude", "Delta E_b", "+-", "pattern", "t settle", "evidence"]
+    header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "+- N", "mean theta", "+- stat", "+- dt",
+                                "+- N", "min theta", "amplitude", "Delta E_b", "+-", "pattern", "t settle", "evidence"]
     body = [[row["case"]] + [cell(row[k]) for k in keys]
             + [row["regime"], fmt(row["period"], ".6g"), fmt(row["period_err"], ".2g"),
-               _dt_cell(row, "period"), fmt(row["theta_mean"], ".4f"), fmt(row["theta_mean_err"], ".2g"),
-               _dt_cell(row, "theta_mean"), fmt(row["theta_min"], ".4f"), fmt(row["theta_amplitude"], ".3g"),
+               _dt_cell(row, "period"), _dt_cell(row, "period", "N"), fmt(row["theta_mean"], ".4f"),
+               fmt(row["theta_mean_err"], ".2g"), _dt_cell(row, "theta_mean"), _dt_cell(row, "theta_mean", "N"),
+               fmt(row["theta_min"], ".4f"), fmt(row["theta_amplitude"], ".3g"),
                fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"), pattern_cell(row),
                fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
@@ -280,7 +283,9 @@ ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error 
               "time step, by the rule measured against rtol (hpcves/analysis/accuracy.py, docs/error_rule.md); n/e: not "
               "estimated -- a fixed-step run (rerun with numerics.rtol), or tumbling, for which the rule does "
               "not hold: the tolerance picks the orbit, and a tumbling period was 1 % longer at rtol = 1e-2 "
-              "and 1e-3, 0.1 % at 1e-4, than at 1e-5. Delta E_b: max - min of the bending energy over a "
+              "and 1e-3, 0.1 % at 1e-4, than at 1e-5. +- N: the spatial error of the grid, by the rule "
+              "measured against the spectral tail of the settled run (docs/spatial_error.md); n/e for tumbling "
+              "and for records without the tails. Delta E_b: max - min of the bending energy over a "
               "period of a phase-treading case, averaged over its whole settled periods, +- their standard "
               "error and what the sampling can miss of the extremes (the time step's error not included).")
 
@@ -293,10 +298,11 @@ def pattern_cell(row: dict) -> str:
     return found.text() + ("" if row["topology_steady"] else " (most snapshots; it changes)")
 
 
-def _dt_cell(row: dict, quantity: str) -> str:
+def _dt_cell(row: dict, quantity: str, part: str = "dt") -> str:
+    """The discretisation error bar of a quantity: of the time step (``part`` "dt") or of the grid ("N")."""
     if not math.isfinite(row[quantity]):
         return ""
-    return fmt(row[f"{quantity}_dt_err"], ".2g") or "n/e"
+    return fmt(row.get(f"{quantity}_{part}_err", math.nan), ".2g") or "n/e"
 
 
 def period_cell(row: dict | None, tumbling: str = " (TU)", extra: str = "") -> str:
@@ -534,9 +540,11 @@ def period_table(f: Findings, out: Path) -> list[Path]:
         return []
     text = [f"# Periods of {f.source.name!r}\n\nPeriod of theta +- its uncertainty where the case "
             "phase-treads (PT) or tumbles (TU); otherwise its regime. The uncertainty is the statistical "
-            "one plus the discretisation error of the time step; in brackets the one that dominates "
-            "(stat or dt; dt n/e: not estimated, for a fixed-step run or a tumbling case -- a tumbling "
-            "period can be 1 % off at rtol >= 1e-3, docs/error_rule.md). regimes.md has both.\n"]
+            "one plus the discretisation errors of the time step and of the grid; in brackets the one that "
+            "dominates (stat, dt or N; dt n/e: not estimated, for a fixed-step run or a tumbling case -- a "
+            "tumbling period can be 1 % off at rtol >= 1e-3, docs/error_rule.md; N n/e: for a tumbling case, "
+            "a record without the spectral tails or one beyond the watch's 3e-3, docs/spatial_error.md). "
+            "regimes.md has each part.\n"]
     for fixed, table in period_tables(f.rows, f.y_key, f.x_key, f.others):
         if fixed:
             text.append(f"## {facet_label(fixed)}\n")

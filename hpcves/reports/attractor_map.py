@@ -19,7 +19,7 @@ from hpcves.reports.tables import markdown_table
 
 
 def _bar(row: dict, name: str) -> float:
-    parts = [row.get(f"{name}_err", math.nan), row.get(f"{name}_dt_err", math.nan)]
+    parts = [row.get(f"{name}_err", math.nan), row.get(f"{name}_dt_err", math.nan), row.get(f"{name}_N_err", math.nan)]
     finite = [p for p in parts if math.isfinite(p)]
     return sum(finite) if finite else math.nan
 

@@ -22,8 +22,8 @@ from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatErr
 from hpcves.run.verdict import PARAMETERS
 
 #: analysis/ columns carried per case by open_campaign (the rest are in regimes.csv)
-RESULTS = ("regime", "period", "period_err", "period_dt_err", "theta_mean", "theta_mean_err",
-           "theta_mean_dt_err", "t_settle", "cycles", "bending_gap", "reason")
+RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
+           "theta_mean_dt_err", "theta_mean_N_err", "t_settle", "cycles", "bending_gap", "reason")
 
 
 def _attrs(table: dict, name: str) -> dict:

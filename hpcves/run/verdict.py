@@ -93,6 +93,7 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
         reason = prefix + first.removeprefix(MODEL_LIMIT_PREFIX) if case.status in unclassified else prefix
         empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
         return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan,
+                "period_N_err": math.nan, "theta_mean_N_err": math.nan,
                 **dict.fromkeys(TOPOLOGY_COLUMNS, math.nan)}
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
@@ -105,8 +106,12 @@ def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
         found = replace(found, reason=f"{note}; {found.reason}")
     rtol = case.rtol if math.isfinite(case.rtol) else None
     flips = bool(found.theta_min < 0)                     # tumbling: no rule (accuracy.py)
+    series = case.series
+    tail = accuracy.settled_tail(series["t"], series.get("tail_theta"), series.get("tail_psi"), found.t_settle)
     return {**base, **found.row(), "period_dt_err": accuracy.period_error(found.period, rtol, flips),
             "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips),
+            "period_N_err": accuracy.spatial_period_error(found.period, tail, flips),
+            "theta_mean_N_err": accuracy.spatial_inclination_error(found.theta_mean, tail, flips),
             **pattern_columns(case.patterns, found.t_settle)}
 
 
