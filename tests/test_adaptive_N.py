@@ -255,3 +255,24 @@ max_N = 256
         study_from_toml(text.format(out="x.h5"))
     study = study_from_toml(text.replace("[refine]\nmax_N = 256", "").format(out="x.h5"))     # a grid study
     assert study.base.numerics.adaptive_N and study.cases[0].cost == study.cases[0].case.estimated_steps * 64**2
+
+
+@pytest.mark.parametrize("psi_bar, S, Delta, t_end, quantity", [(0.3, 80.0, 0.19385328260599, 1.0, "period"),
+                                                                 (0.3, 80.0, 0.94, 2.0, "theta_mean")],
+                         ids=["PT period", "TT inclination"])
+def test_the_error_bars_with_the_grids_part_cover_a_coarse_run_against_a_fine_one(tmp_path, psi_bar, S, Delta,
+                                                                                 t_end, quantity):
+    from hpcves.reports.analyze import analyze
+    from hpcves.analysis import accuracy
+
+    rows = {}
+    for N in (48, 96):                 # 48 nodes: tails 9e-4 and 2e-3 (docs/spatial_error.md); 96: 1e-6, 1e-5
+        text = (f"[physics]\npsi_bar = {psi_bar}\nshear_rate = {S}\nexcess_length = {Delta}\n[numerics]\nN = {N}\n"
+                f"rtol = 1e-3\n[run]\nt_end = {t_end}\nsample_interval = 0.005\n")
+        run_in_process(case_from_toml(text), tmp_path / f"{N}.h5")
+        [rows[N]] = analyze(tmp_path / f"{N}.h5", tmp_path / f"out{N}", case_figures=False).rows
+    coarse, fine = rows[48], rows[96]
+    assert coarse["regime"] == fine["regime"] == ("PT" if quantity == "period" else "TT")
+    assert coarse[f"{quantity}_N_err"] > 10 * fine[f"{quantity}_N_err"] > 0      # the coarse grid's bar is larger
+    difference = abs(coarse[quantity] - fine[quantity])
+    assert difference <= accuracy.error_bar(coarse, quantity)[0] + accuracy.error_bar(fine, quantity)[0]
