@@ -317,7 +317,7 @@ def numerics_line(toml: str) -> str:
     elif study.chain:
         mode = (f"; chains along {study.chain.along}" + (" there and back" if study.chain.back else "")
                 + (f" from {len(study.starts)} starts" if study.starts else ""))
-    return f"N = {num.N}, {step}, {end}, {sampling}{mode}"
+    return f"{num.grid()}, {step}, {end}, {sampling}{mode}"
 
 
 def _images(paths) -> list[str]:

@@ -210,7 +210,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
         store = CaseStore(h5)
     case = store.case
     step = f"rtol = {case.numerics.rtol:g}" if case.numerics.adaptive else f"dt = {case.numerics.dt:g}"
-    click.echo(f"{path}: N = {case.numerics.N}, {step}, t_end = {case.run.t_end:g}, "
+    click.echo(f"{path}: {case.numerics.grid()}, {step}, t_end = {case.run.t_end:g}, "
                f"S = {case.physics.shear_rate:g}, psi_bar = {case.physics.psi_bar:g}, "
                f"excess length = {case.physics.excess_length:g}"
                + (f", {case.physics.initial_shape} start" if case.physics.initial_shape != "ellipse" else "")

@@ -269,6 +269,10 @@ class Numerics:
                  f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
                  "(max g'' on [0, 1])")
 
+    def grid(self) -> str:
+        """``N = 128``, or where N adapts ``N = auto (64-512)``."""
+        return f"N = auto ({self.N}-{self.N_max})" if self.adaptive_N else f"N = {self.N}"
+
     @property
     def adaptive_N(self) -> bool:
         """True when N adapts during the run, from N up to ``N_max`` (numerics.N = "auto")."""

@@ -612,7 +612,9 @@ def case_title(attrs) -> str:
     get = attrs.get
     return (f"S = {get('physics.shear_rate'):g}, $\\bar\\psi$ = {get('physics.psi_bar'):g}, "
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
-            f"{get('physics.B2') / get('physics.B1'):g}, N = {get('numerics.N')}, " + step_label(attrs)
+            f"{get('physics.B2') / get('physics.B1'):g}, "
+            + (f"N = auto ({get('numerics.N')}-{get('numerics.N_max')})" if get('numerics.N_max', 0) else
+               f"N = {get('numerics.N')}") + ", " + step_label(attrs)
             + _start_label(attrs))
 
 
