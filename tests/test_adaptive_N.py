@@ -276,3 +276,45 @@ def test_the_error_bars_with_the_grids_part_cover_a_coarse_run_against_a_fine_on
     assert coarse[f"{quantity}_N_err"] > 10 * fine[f"{quantity}_N_err"] > 0      # the coarse grid's bar is larger
     difference = abs(coarse[quantity] - fine[quantity])
     assert difference <= accuracy.error_bar(coarse, quantity)[0] + accuracy.error_bar(fine, quantity)[0]
+
+
+ONE_SIZE_UP = """
+[physics]
+psi_bar = 0.3
+shear_rate = 10.0
+[numerics]
+N = {N}
+resize_tail = 2e-2
+rtol = 1e-3
+[run]
+t_end = 0.1
+sample_interval = 0.01
+snapshot_interval = 0.05
+checkpoint_interval = 0.02
+max_spectral_tail = 0.05
+"""
+
+
+def test_where_the_tension_solve_finds_the_shape_unresolved_N_auto_goes_one_size_up_and_resumes_bitwise(
+        tmp_path, monkeypatch):
+    from hpcves.model.flow import TensionSolveError
+
+    rates = Solver.rates
+
+    def unresolved_on_32_nodes_after(self, state):   # what flow.py raises when a shape outgrows its grid
+        if self.sp.N == 32 and state.t >= 0.05:
+            raise TensionSolveError("the tension leaves a stretching of 2e-6 of what it cancels: the shape is "
+                                    "no longer resolved (reduce dt or increase N)")
+        return rates(self, state)
+
+    monkeypatch.setattr(Solver, "rates", unresolved_on_32_nodes_after)
+    fixed = run_in_process(case_from_toml(ONE_SIZE_UP.format(N=32)), tmp_path / "fixed.h5")
+    assert fixed.status != FINISHED and "TensionSolveError" in fixed.message
+    auto = case_from_toml(ONE_SIZE_UP.format(N='"auto"\nN_min = 32\nN_max = 64'))
+    assert run_in_process(auto, tmp_path / "a.h5").status == FINISHED
+    (t0, N0), (t1, N1) = history(tmp_path / "a.h5")
+    assert (t0, N0) == (0.0, 32) and 0.05 <= t1 <= 0.06 and N1 == 48
+    stopped = run_in_process(auto, tmp_path / "b.h5", max_steps=1000)
+    assert stopped.status == INTERRUPTED and stopped.t < 0.05                 # before the failure on 32 nodes
+    assert resume_in_process(tmp_path / "b.h5").status == FINISHED
+    same_case_files(tmp_path / "a.h5", tmp_path / "b.h5", checkpoints=True)

@@ -11,7 +11,10 @@ every sample:
 * **shrink** one size down (not below the smallest N) when the tails on that smaller
   grid (spectral.tail_on) have stayed within resize_tail / 10 at every sample for
   ``numerics.shrink_after`` shear times; ``State.quiet_since`` keeps since when (NaN: not
-  quiet), so a run resumed from a checkpoint decides the same.
+  quiet), so a run resumed from a checkpoint decides the same;
+* **one size up** when the tension solve finds the shape no longer resolved
+  (flow.TensionSolveError, raised by the rates of a state before it is sampled): the
+  state is resized and its step taken on the larger grid (:func:`larger_N`).
 
 A run starts on the smallest size from N up whose start has both tails within
 resize_tail (:func:`starting_N`): a sharp start such as the Delta = 2.3 ellipse (tip
@@ -65,6 +68,13 @@ def grown_N(case: Case, theta_hat: np.ndarray, psi_hat: np.ndarray | None, N: in
     needed = max(resolution_needed(f, N, target, largest=math.ceil(num.N_max / N), sizes=larger)
                  for f in (theta_hat, psi_hat) if f is not None)
     return next((n for n in larger if n >= needed), num.N_max)
+
+
+def larger_N(case: Case, N: int) -> int | None:
+    """The next size up from N (None at N_max): where the tension solve finds the shape no longer
+    resolved (flow.TensionSolveError), the run goes on one size up."""
+    above = [n for n in sizes(case) if n > N]
+    return above[0] if above else None
 
 
 def smaller_N(case: Case, N: int) -> int | None:

@@ -172,7 +172,16 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     last_correction = 0.0          # relative area correction made by the last step
     try:
         while True:
-            rates = solver.rates(state)
+            try:
+                rates = solver.rates(state)
+            except TensionSolveError:          # the shape outgrew the grid: one size up, where N adapts
+                larger = resolution.larger_N(case, state.N) if case.numerics.adaptive_N else None
+                if larger is None:
+                    raise
+                solver, state = solver.resized(state, larger)
+                state = dataclasses.replace(state, quiet_since=float("nan"))
+                record.solver = solver
+                continue
             row = diagnostics.sample(solver, state, rates) if clock.sample_due(state) else None
             if row is not None and case.numerics.adaptive_N:
                 solver, state, rates, row = _resolve(solver, state, rates, row)
