@@ -17,7 +17,7 @@ every sample:
   state is resized and its step taken on the larger grid (:func:`larger_N`).
 
 A run starts on the smallest size from N up whose start has both tails within
-resize_tail (:func:`starting_N`): a sharp start such as the Delta = 2.3 ellipse (tip
+resize_tail (:func:`starting_solver`): a sharp start such as the Delta = 2.3 ellipse (tip
 curvature 26) starts finer than one that is nearly round. The watch that stops a run as
 under-resolved (run.max_spectral_tail) acts only at N_max.
 """
@@ -31,6 +31,7 @@ import numpy as np
 
 from hpcves.model.params import Case
 from hpcves.numerics.spectral import fft_sizes, resolution_needed, spectral_tail, tail_on
+from hpcves.run.timestepping import Solver
 
 #: after growing, the tails are to be within resize_tail / GROW_MARGIN
 GROW_MARGIN = 4.0
@@ -44,13 +45,14 @@ def sizes(case: Case) -> tuple[int, ...]:
     return (num.N,) + tuple(n for n in fft_sizes(num.N + 1, num.N_max))
 
 
-def starting_N(case: Case, tails_at) -> int:
-    """The first of :func:`sizes` whose start has both tails within resize_tail (N_max at most);
-    ``tails_at(N)`` gives (tail of theta_tilde, tail of psi) of the start on N nodes."""
+def starting_solver(case: Case, start: tuple | None = None) -> Solver:
+    """The case's solver on the first of :func:`sizes` whose start (``start``: another state's, as
+    Solver takes it) has both tails within resize_tail; on N_max where none has."""
     for n in sizes(case):
-        if max(tails_at(n)) <= case.numerics.resize_tail:
-            return n
-    return case.numerics.N_max
+        solver = Solver(case, start=start, N=n)
+        if max(solver.initial_tails) <= case.numerics.resize_tail:
+            return solver
+    return solver if solver.sp.N == case.numerics.N_max else Solver(case, start=start, N=case.numerics.N_max)
 
 
 def tails(theta_hat: np.ndarray, psi_hat: np.ndarray | None, N: int) -> tuple[float, float]:
@@ -122,14 +124,12 @@ def decide(case: Case, theta_hat: np.ndarray, psi_hat: np.ndarray | None, N: int
 
 @functools.lru_cache(maxsize=256)
 def _start_N(case: Case) -> int:
-    from hpcves.run.timestepping import Solver
-
-    return starting_N(case, lambda n: Solver(case, N=n).initial_tails)
+    return starting_solver(case).sp.N
 
 
 def expected_N(case: Case) -> int:
     """The N a case runs at, for planning: numerics.N, or where N adapts the grid its start needs
-    (:func:`starting_N`; numerics.N for a start read from another case's file). Cases that differ
+    (:func:`starting_solver`; numerics.N for a start read from another case's file). Cases that differ
     only in the shear rate start alike: remembered per start."""
     if not case.numerics.adaptive_N:
         return case.numerics.N

@@ -138,11 +138,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     case = store.case
     if start is None and case.physics.initial_shape == "stored":
         start = read_stored_start(case.physics)
-    if case.numerics.adaptive_N:
-        solver = Solver(case, start=start,
-                        N=resolution.starting_N(case, lambda n: Solver(case, start=start, N=n).initial_tails))
-    else:
-        solver = Solver(case, start=start)
+    solver = resolution.starting_solver(case, start) if case.numerics.adaptive_N else Solver(case, start=start)
     state = None
     wall_before = 0.0                  # wall time of earlier calls on this case
     if resume:
@@ -179,7 +175,6 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
                 if larger is None:
                     raise
                 solver, state = solver.resized(state, larger)
-                state = dataclasses.replace(state, quiet_since=float("nan"))
                 record.solver = solver
                 continue
             row = diagnostics.sample(solver, state, rates) if clock.sample_due(state) else None
@@ -221,11 +216,8 @@ def _resolve(solver: Solver, state: State, rates, row: dict):
         N, quiet_since = resolution.decide(solver.case, theta_hat, rates.psi_hat, state.N, state.quiet_since,
                                            state.t)
         if N == state.N:
-            if not (quiet_since == state.quiet_since or (np.isnan(quiet_since) and np.isnan(state.quiet_since))):
-                state = dataclasses.replace(state, quiet_since=quiet_since)
-            return solver, state, rates, row
-        solver, state = solver.resized(state, N)
-        state = dataclasses.replace(state, quiet_since=quiet_since)
+            return solver, dataclasses.replace(state, quiet_since=quiet_since), rates, row
+        solver, state = solver.resized(state, N)            # (decide gives NaN after a resize; so does resized)
         rates = solver.rates(state)
         row = diagnostics.sample(solver, state, rates)
 

@@ -489,7 +489,7 @@ class CaseStore:
             return
         start = self.n_snapshots
         stop = start + len(snaps)
-        width = self._snap["alpha"].size
+        width = self.width
         for name in ("t", "shift"):
             self._snap[name][start:stop] = np.array([snap[name] for snap in snaps], dtype=float)
         for name in SNAPSHOT_FIELDS:           # taken at the run's N, which may be below the width

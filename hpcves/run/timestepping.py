@@ -271,7 +271,8 @@ class Solver:
         projected onto closed curves of the initial area as after every step (the area the new grid's
         quadrature gives the interpolated curve differs by the old grid's quadrature error: 3e-8 at
         Delta = 0.94 from 64 to 96 nodes); the scalars, the step controller's memory included, as they
-        are. The new solver keeps this one's initial area and tails (the same targets whatever the grid)."""
+        are, but for ``quiet_since``: the watch of a smaller grid starts over on the new one. The new
+        solver keeps this one's initial area and tails (the same targets whatever the grid)."""
         if N == self.sp.N:
             return self, state
         solver = self.at(N)
@@ -288,7 +289,7 @@ class Solver:
             elif value is not None:
                 value = resample(value, N)
             arrays[name] = value
-        return solver, dataclasses.replace(state, **arrays)
+        return solver, dataclasses.replace(state, **arrays, quiet_since=float("nan"))
 
     # ------------------------------------------------------------------ set-up
     def initial_state(self) -> State:
