@@ -96,6 +96,10 @@ def test_the_rule_grows_on_a_tail_shrinks_after_a_quiet_time_and_answers_the_sam
     case = Case(physics=Physics(shear_rate=10.0),
                 numerics=Numerics(N=32, N_max=256, rtol=1e-3, resize_tail=1e-3, shrink_after=2.0))
     assert resolution.sizes(case) == (32, 48, 64, 96, 128, 192, 256)
+    odd = Case(numerics=Numerics(N=40, N_max=200, rtol=1e-3))      # bounds off the FFT sizes: both still taken
+    assert resolution.sizes(odd) == (40, 48, 64, 96, 128, 192, 200) and resolution.larger_N(odd, 192) == 200
+    with pytest.raises(ConfigError, match="N_max = 201: must be even"):
+        Numerics(N=40, N_max=201)
     heavy = spectrum(32, 0.15)                            # tail ~ exp(-0.15 * 11) >> 1e-3
     N, since = resolution.decide(case, heavy, None, 32, math.nan, 0.0)
     assert N in resolution.sizes(case) and N > 32 and math.isnan(since)

@@ -250,6 +250,7 @@ class Numerics:
             _require(self.N_max > self.N, f"numerics.N_max = {self.N_max}: must be above N = {self.N} "
                      "(or 0: N fixed)")
             _require(self.N_max <= 4096, f"numerics.N_max = {self.N_max}: more than 4096 points is not supported")
+            _require(self.N_max % 2 == 0, f"numerics.N_max = {self.N_max}: must be even")
         _finite(self)
         _require(0 < self.resize_tail < 1, f"numerics.resize_tail = {self.resize_tail}: must lie in (0, 1)")
         _require(self.shrink_after > 0, f"numerics.shrink_after = {self.shrink_after}: must be > 0 (shear times)")

@@ -40,9 +40,9 @@ SHRINK_MARGIN = 10.0
 
 
 def sizes(case: Case) -> tuple[int, ...]:
-    """The sizes N may take: numerics.N, then the FFT-friendly sizes above it up to N_max."""
+    """The sizes N may take: numerics.N, the FFT-friendly sizes above it below N_max, and N_max."""
     num = case.numerics
-    return (num.N,) + tuple(n for n in fft_sizes(num.N + 1, num.N_max))
+    return (num.N,) + tuple(n for n in fft_sizes(num.N + 1, num.N_max - 1)) + (num.N_max,)
 
 
 def starting_solver(case: Case, start: tuple | None = None) -> Solver:
