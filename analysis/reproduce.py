@@ -36,9 +36,10 @@ from pathlib import Path
 
 import claims
 from hpcves.analysis import accuracy
+from hpcves.analysis import grids
 from hpcves.reports import case_pages
 from hpcves.reports import attractor_map
-from hpcves.reports.analyze import analyze, pattern_cell, period_cell, read_source, run_labels
+from hpcves.reports.analyze import analyze, grid_use, pattern_cell, period_cell, read_source, run_labels
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
 from hpcves.campaign.progress import WORK_LEFT
@@ -532,6 +533,7 @@ def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, to
     meta = {"study": name, "job": toml, "written": str(datetime.date.today()), "machine": platform.node(),
             "processor": platform.processor() or platform.machine(), "ranks": ranks or np_,
             "numerics": numerics_line(toml), "cases": len(report.rows),
+            "grids": grids.use_text(use) if len(use := grid_use(report.source)) > 1 else "",
             "compute_s": round(sum(row["wall"] for row in rows), 1),
             "campaign_wall_s": round(totals[name], 1) if name in totals else None,
             "analysis_wall_s": round(time.monotonic() - start, 1),
@@ -569,7 +571,8 @@ def assemble(path: Path, grid: str) -> None:
         f"case pages) {analysis / 60:.0f} min"
         + (f"; not recorded for {', '.join(unrecorded)}" if unrecorded else "") + ".", "",
         markdown_table(["campaign", "numerics", "cases", "core-min", "campaign wall", "analysis", "written"],
-                       [[f"`{m['job']}`", m["numerics"], str(m["cases"]), f"{m['compute_s'] / 60:.1f}",
+                       [[f"`{m['job']}`", m["numerics"] + (f"; grids: {m['grids']}" if m.get("grids") else ""),
+                         str(m["cases"]), f"{m['compute_s'] / 60:.1f}",
                          _campaign_minutes(m["campaign_wall_s"]), _minutes(m["analysis_wall_s"]),
                          f"{m['written']} ({m['machine']}, {m['ranks']} ranks)"] for m in metas]),
         ""]

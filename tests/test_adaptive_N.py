@@ -9,6 +9,7 @@ from hpcves.config import case_from_toml
 from hpcves.model import geometry
 from hpcves.model.params import Case, ConfigError, Numerics, Physics
 from hpcves.numerics.spectral import fft_sizes, resample, spectral_tail, tail_on
+from hpcves.analysis import grids
 from hpcves.run import resolution, schedule
 from hpcves.run.store import FINISHED, INTERRUPTED
 from hpcves.run.timestepping import Solver
@@ -198,6 +199,29 @@ def test_a_growing_run_starts_on_the_grid_its_start_needs_and_grows_when_psi_sha
     tails = [max(Solver(case, N=n).initial_tails) for n in (16, 24)]
     assert tails[0] > 2e-2 >= tails[1] and (t0, N0) == (0.0, 24)
     assert t1 > 0 and N1 > N0
+    # the samples count the steps: each grid's share of them (grids.grid_use) adds up to the run's
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        n = int(f["timeseries/length"][()])
+        t, N, step = (f[f"timeseries/{k}"][:n] for k in ("t", "N", "step"))
+        taken = [int(f[f"checkpoint/{slot}/meta"][1]) for slot in ("slot0", "slot1")]   # (valid, step, ...)
+    assert step[0] == 0 and np.all(np.diff(step) > 0) and step[-1] == max(taken)
+    use = grids.grid_use(t, N, step)
+    assert set(use) == {N0, N1} | set(N[:-1].astype(int))
+    assert sum(s for _, s in use.values()) == step[-1] and math.isclose(sum(u for u, _ in use.values()), t[-1])
+    assert use[N0][1] == step[np.argmax(N > N0)]           # the steps before the first growth ran on N0
+    from hpcves.reports.analyze import analyze
+    analyze(tmp_path / "a.h5", tmp_path / "an", case_figures="none", write_to_file=False)
+    assert f"Grids (N adapting): {grids.use_text(use)}." in (tmp_path / "an" / "regimes.md").read_text()
+
+
+def test_grid_use_counts_each_interval_on_the_grid_its_first_sample_goes_on_with():
+    t, N, step = [0.0, 1.0, 2.0, 4.0, np.nan], [64, 96, 96, 64, np.nan], [0, 10, 30, 40, np.nan]
+    use = grids.grid_use(t, N, step)
+    assert use == {64: (1.0, 10.0), 96: (3.0, 30.0)}
+    assert grids.shares(use) == {64: (0.25, 0.25), 96: (0.75, 0.75)}
+    assert grids.use_text(use) == "64: 25 % of the steps (25 % of the time), 96: 75 % of the steps (75 % of the time)"
+    before = grids.grid_use(t, N)                             # a file written before the step series
+    assert grids.use_text(grids.combined([before, before])) == "64: 25 % of the simulated time, 96: 75 % of the simulated time"
 
 
 DECIDING = """

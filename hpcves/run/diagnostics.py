@@ -17,6 +17,7 @@ Conventions
   under-resolved (where N adapts: once it is N_max).
 * ``N`` -- the nodes of the run at the sample (numerics.N, or where it adapts the
   N it has grown or shrunk to; resolution.py).
+* ``step`` -- the steps taken up to the sample (with ``N``: the steps each grid took).
 * ``V_psi`` -- velocity (arclength per time) of the phase pattern relative to
   the material: L d(phase_position)/dt.
 * ``V_L`` -- velocity of the material point alpha = 0 relative to the point
@@ -41,10 +42,10 @@ from hpcves.run.timestepping import Rates, Solver, State
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",
           "tension_min", "tension_mean", "tension_max", "V_psi", "V_L", "phase_position",
           "psi_min", "psi_max", "area_correction", "tank_treading_velocity", "stretching",
-          "tail_theta", "tail_psi", "N")
+          "tail_theta", "tail_psi", "N", "step")
 
 #: series added after files of format 3 were first written: a case without them still reads
-OPTIONAL_SERIES = ("tail_theta", "tail_psi", "N")
+OPTIONAL_SERIES = ("tail_theta", "tail_psi", "N", "step")
 
 #: Names of the snapshot fields (one value per node).
 SNAPSHOT_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "velocity_y")
@@ -74,6 +75,7 @@ SERIES_ATTRS = {
     "tail_theta": ("share of the top third of the Fourier modes in the variation of theta_tilde", "1"),
     "tail_psi": ("share of the top third of the Fourier modes in the variation of psi", "1"),
     "N": ("number of nodes the run had (numerics.N, or where N adapts the N it had grown or shrunk to)", "1"),
+    "step": ("time steps taken from t = 0 up to the sample", "1"),
 }
 SNAPSHOT_ATTRS = {
     "t": ("time of the snapshot", "1"),
@@ -187,6 +189,7 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "tail_theta": spectral_tail(sp.fft.rfft(state.theta), sp.N),
         "tail_psi": 0.0 if phys.homogeneous else spectral_tail(rates.psi_hat, sp.N),
         "N": float(sp.N),
+        "step": float(state.step),
     }
 
 
