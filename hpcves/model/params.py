@@ -226,7 +226,7 @@ class Numerics:
 
     N: int = 128
     N_max: int = 0
-    resize_tail: float = 1e-5
+    resize_tail: float = 1e-4
     shrink_after: float = 20.0
     dt: float = 1e-3
     rtol: float | None = None
