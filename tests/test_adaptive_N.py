@@ -346,3 +346,54 @@ def test_where_the_tension_solve_finds_the_shape_unresolved_N_auto_goes_one_size
     assert stopped.status == INTERRUPTED and stopped.t < 0.05                 # before the failure on 32 nodes
     assert resume_in_process(tmp_path / "b.h5").status == FINISHED
     same_case_files(tmp_path / "a.h5", tmp_path / "b.h5", checkpoints=True)
+
+
+SEARCH_AUTO = """
+[campaign]
+name = "search_auto"
+output = "{output}"
+t_end = 1.5
+[numerics]
+N = "auto"
+N_min = 16
+N_max = 48
+resize_tail = 1e-2
+rtol = 1e-2
+[run]
+max_spectral_tail = 0.1
+sample_interval = 0.01
+snapshot_interval = 0.1
+checkpoint_interval = 0.25
+[search]
+low = 30.0
+high = 120.0
+rel_tol = 0.5
+[sweep]
+psi_bar = [0.3]
+"""
+
+
+def test_a_search_campaign_with_N_auto_runs_under_mpi_as_it_runs_serially(tmp_path):
+    """[search] with N adapting: every case keeps its own N history, and two ranks give the serial file."""
+    from hpcves.campaign.driver import run_campaign
+    from hpcves.campaign.study import study_from_toml
+    from hpcves.analysis.search import CONVERGED
+    from jobs import MPIRUN, assert_same_results, hpcves
+
+    serial, parallel = tmp_path / "serial.h5", tmp_path / "mpi.h5"
+    text = SEARCH_AUTO.format(output=serial)
+    summary = run_campaign(study_from_toml(text), serial)
+    search = summary.searches[0]
+    assert summary.exit_status == 0 and search.state.status == CONVERGED
+    assert 50 < search.state.low < search.state.high < 100         # TT at 70, PT at 80 (test_search_campaign)
+    with h5py.File(serial, "r") as f:
+        Ns = [f[f"cases/{c}/timeseries/N"][: int(f[f"cases/{c}/timeseries/length"][()])] for c in f["cases"]]
+        assert all(f[f"cases/{c}/snapshots/x"].shape[1] == 48 for c in f["cases"])
+    assert all(N[0] >= 16 for N in Ns) and len({int(n) for N in Ns for n in N}) > 1      # grids differ
+    if MPIRUN is None:
+        pytest.skip("no mpirun: the serial half ran")
+    path = tmp_path / "mpi.toml"
+    path.write_text(SEARCH_AUTO.format(output=parallel))
+    result = hpcves("campaign", path, "--quiet", n=2)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(parallel, serial)
