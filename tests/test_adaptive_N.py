@@ -397,3 +397,41 @@ def test_a_search_campaign_with_N_auto_runs_under_mpi_as_it_runs_serially(tmp_pa
     result = hpcves("campaign", path, "--quiet", n=2)
     assert result.returncode == 0, result.stderr
     assert_same_results(parallel, serial)
+
+
+STALLING = """
+[physics]
+psi_bar = 0.3
+shear_rate = 80.0
+[numerics]
+N = 32
+rtol = 1e-3
+[run]
+t_end = 0.2
+sample_interval = 0.01
+checkpoint_interval = 0.01
+checkpoint_wall = 0
+max_spectral_tail = 1.0
+max_steps_per_shear_time = {limit}
+"""
+
+
+def test_a_run_whose_step_collapses_stops_as_stalled_the_same_when_resumed_on_its_way(tmp_path):
+    """run.max_steps_per_shear_time: more steps in a sample interval than it allows stop the run as
+    stalled (the start-up's ~240 steps in the first 4e-5 here are more than 300 per shear time allow for
+    a sample interval of 0.8 shear times); counted from the last sample, also by a resumed run."""
+    from hpcves.run.store import FAILED
+
+    healthy = run_in_process(case_from_toml(STALLING.format(limit=2e5)), tmp_path / "healthy.h5")
+    assert healthy.status == FINISHED
+    stalling = case_from_toml(STALLING.format(limit=300))
+    outcome = run_in_process(stalling, tmp_path / "a.h5")
+    assert outcome.status == FAILED and outcome.message.startswith("stalled: the time step collapsed: 241 steps")
+    assert "run.max_steps_per_shear_time = 300" in outcome.message
+    run_in_process(stalling, tmp_path / "b.h5", max_steps=100)             # stopped inside the interval
+    resumed = resume_in_process(tmp_path / "b.h5", stops=(50, None))
+    assert resumed.status == FAILED and "(last good checkpoint kept)" in resumed.message    # the stops wrote one
+    assert resumed.message.rsplit(" (", 1)[0] == outcome.message.rsplit(" (", 1)[0]
+    same_case_files(tmp_path / "a.h5", tmp_path / "b.h5")
+    with pytest.raises(ConfigError, match="max_steps_per_shear_time = -1"):
+        case_from_toml(STALLING.format(limit=-1))

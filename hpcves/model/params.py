@@ -306,6 +306,11 @@ class RunControl:
     ``decided_shear_times`` shear times, phase-treading or tumbling over
     ``decided_periods`` settled periods, asked every ``decision_samples``
     samples; ``t_end`` is then a cap.
+    An adaptive-step run stops as stalled when it has taken more than
+    ``max_steps_per_shear_time`` steps per shear time (per time unit below S = 1)
+    of one sample interval: the step has collapsed, as it does where a deflated
+    shape nears a singularity that no grid passes (healthy runs stay below
+    1.6e4, their start-up included; docs/numerics.md, "Stalled runs"; 0: no watch).
     A run stops as diverged when the relative area or length error exceeds
     ``max_area_error`` / ``max_length_error``, when one step needs the area
     projection to undo a relative change above ``max_area_correction``, when
@@ -327,6 +332,7 @@ class RunControl:
     psi_min: float = -0.25
     psi_max: float = 1.1
     max_spectral_tail: float = 3e-3
+    max_steps_per_shear_time: float = 2e5
     until_decided: bool = False
     decided_shear_times: float = 100.0
     decided_periods: float = 10.0
@@ -337,6 +343,8 @@ class RunControl:
         _require(self.t_end > 0, f"run.t_end = {self.t_end}: must be > 0")
         _require(0 < self.max_spectral_tail <= 1,
                  f"run.max_spectral_tail = {self.max_spectral_tail}: must lie in (0, 1]")
+        _require(self.max_steps_per_shear_time >= 0,
+                 f"run.max_steps_per_shear_time = {self.max_steps_per_shear_time}: must be >= 0 (0: no watch)")
         _require(self.decided_shear_times > 0, f"run.decided_shear_times = {self.decided_shear_times}: must be > 0")
         _require(self.decided_periods >= 1, f"run.decided_periods = {self.decided_periods}: must be >= 1")
         _require(isinstance(self.decision_samples, int) and self.decision_samples >= 1,
@@ -439,6 +447,8 @@ class Case:
                 del out["run"][key]
         if self.run.max_spectral_tail == RunControl.max_spectral_tail:
             del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
+        if self.run.max_steps_per_shear_time == RunControl.max_steps_per_shear_time or not self.numerics.adaptive:
+            del out["run"]["max_steps_per_shear_time"]    # likewise (and a fixed step cannot stall)
         if self.physics.bending_law == "linear":      # the law of files from before the option
             del out["physics"]["bending_law"], out["physics"]["bending_width"]
         if self.physics.initial_shape == "ellipse":   # the start of files from before the option

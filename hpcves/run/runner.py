@@ -74,6 +74,32 @@ class UnderResolved(Diverged):
     """N is too small for the shape or the phase field (the spectral tail watch)."""
 
 
+class Stalled(Diverged):
+    """The adaptive step collapsed (run.max_steps_per_shear_time): see :func:`stalled`."""
+
+
+#: how a stalled run's reason begins
+STALLED = "stalled"
+
+
+def stalled(case, state: State, since: tuple[float, int]) -> str:
+    """Why the run stalls ("" while it does not): more steps since the sample ``since`` = (t, step)
+    than run.max_steps_per_shear_time allows for a whole sample interval, t and steps in shear times
+    (time units below S = 1). Only for an adaptive step (a fixed one cannot collapse)."""
+    limit = case.run.max_steps_per_shear_time
+    if not limit or not case.numerics.adaptive:
+        return ""
+    S = max(case.physics.shear_rate, 1.0)
+    allowed = limit * case.run.sample_interval * S
+    taken = state.step - since[1]
+    if taken <= allowed:
+        return ""
+    return (f"the time step collapsed: {taken} steps from the sample at t = {since[0]:.6g} to t = {state.t:.6g} "
+            f"({(state.t - since[0]) * S:.3g} shear times), more than run.max_steps_per_shear_time = {limit:g} "
+            f"allows for a sample interval; the last step {state.dt_prev:.2g} at N = {state.N}: the shape nears "
+            "a singularity no grid passes (docs/numerics.md, \"Stalled runs\")")
+
+
 #: how a model-limit stop's message begins, and what follows its cause (model_limit_cause)
 MODEL_LIMIT_PREFIX, STOPPED_BY = "model limit: ", "; the run stopped "
 #: how a failed case's message begins when N did not resolve it (a larger N may)
@@ -152,6 +178,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         state = solver.initial_state()
         store.truncate(0, 0)
     clock = schedule.clock(case)
+    last_sample = _last_sample(store, state)          # (t, step) of the newest sample: the stall watch
     record = _Record(store, flush, solver, state.step, wall_before)
     samples = Samples(record)
     decisions = Decisions(record, analysis) if case.run.until_decided else None
@@ -181,6 +208,8 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
             if row is not None and case.numerics.adaptive_N:
                 solver, state, rates, row = _resolve(solver, state, rates, row)
                 record.solver = solver
+            if row is not None:
+                last_sample = (state.t, state.step)
             verdict = diagnostics.health(solver, state, row, last_correction)
             if not verdict.ok:
                 if row is not None:
@@ -192,6 +221,8 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
             for cadence in cadences:
                 if cadence.due(moment) and (ended := cadence(moment)) is not None:
                     return ended
+            if why := stalled(case, state, last_sample):
+                raise Stalled(why)
             before = state.area_correction
             state, _ = clock.take_step(solver, state, rates)
             last_correction = state.area_correction - before
@@ -200,12 +231,23 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         reason = str(exc) if isinstance(exc, Diverged) else f"{type(exc).__name__}: {exc}"
         kept = ("last good checkpoint kept" if store.newest_checkpoint_slot() is not None
                 else "no checkpoint had been written yet")
-        what = UNDER_RESOLVED if isinstance(exc, UnderResolved) else "diverged"
+        what = (UNDER_RESOLVED if isinstance(exc, UnderResolved) else STALLED if isinstance(exc, Stalled)
+                else "diverged")
         limit = "" if case.physics.homogeneous else beyond_model(state, case.physics.bending_law)
         if limit:
             return record.finish(MODEL_LIMIT, f"{MODEL_LIMIT_PREFIX}{limit}{STOPPED_BY}{what}: {reason} ({kept})",
                                  state)
         return record.finish(FAILED, f"{what}: {reason} ({kept})", state)
+
+
+def _last_sample(store: CaseStore, state: State) -> tuple[float, int]:
+    """(t, step) of the last sample a run resumed at ``state`` keeps (the state's own where there is none
+    yet, or the file predates the step series)."""
+    n = store.n_samples
+    if n and "step" in store.series_names:
+        series = store.timeseries()
+        return float(series["t"][n - 1]), int(series["step"][n - 1])
+    return state.t, state.step
 
 
 def _resolve(solver: Solver, state: State, rates, row: dict):
