@@ -178,7 +178,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         state = solver.initial_state()
         store.truncate(0, 0)
     clock = schedule.clock(case)
-    last_sample = _last_sample(store, state)          # (t, step) of the newest sample: the stall watch
+    last_sample = _last_sample(store, state) if resume else (state.t, state.step)   # the stall watch
     record = _Record(store, flush, solver, state.step, wall_before)
     samples = Samples(record)
     decisions = Decisions(record, analysis) if case.run.until_decided else None
@@ -242,11 +242,11 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
 
 def _last_sample(store: CaseStore, state: State) -> tuple[float, int]:
     """(t, step) of the last sample a run resumed at ``state`` keeps (the state's own where there is none
-    yet, or the file predates the step series)."""
-    n = store.n_samples
-    if n and "step" in store.series_names:
-        series = store.timeseries()
-        return float(series["t"][n - 1]), int(series["step"][n - 1])
+    yet, or the file predates the step series). ``store`` may be a relay's RemoteCaseStore: only its
+    CaseStore interface is used."""
+    series = store.timeseries()
+    if len(series.get("step", ())):
+        return float(series["t"][-1]), int(series["step"][-1])
     return state.t, state.step
 
 
