@@ -39,7 +39,7 @@ from hpcves.analysis import accuracy
 from hpcves.analysis import grids
 from hpcves.reports import case_pages
 from hpcves.reports import attractor_map
-from hpcves.reports.analyze import analyze, grid_use, pattern_cell, period_cell, read_source, run_labels
+from hpcves.reports.analyze import analyze, grid_use_of, pattern_cell, period_cell, read_source, run_labels
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
 from hpcves.campaign.progress import WORK_LEFT
@@ -533,7 +533,7 @@ def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, to
     meta = {"study": name, "job": toml, "written": str(datetime.date.today()), "machine": platform.node(),
             "processor": platform.processor() or platform.machine(), "ranks": ranks or np_,
             "numerics": numerics_line(toml), "cases": len(report.rows),
-            "grids": grids.use_text(use) if len(use := grid_use(report.source)) > 1 else "",
+            "grids": grids.use_text(use) if len(use := grid_use_of(report.source)) > 1 else "",
             "compute_s": round(sum(row["wall"] for row in rows), 1),
             "campaign_wall_s": round(totals[name], 1) if name in totals else None,
             "analysis_wall_s": round(time.monotonic() - start, 1),

@@ -273,13 +273,13 @@ def regimes_markdown(source: Source, rows: list[dict]) -> str:
                fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, header.index("pattern"), len(header) - 1)
-    use = grid_use(source)
+    use = grid_use_of(source)
     summary += f".\n\nGrids (N adapting): {grids.use_text(use)}" if len(use) > 1 else ""
     return (f"# Regimes of {source.kind} {source.name!r}\n\n{source.path}: {len(rows)} cases: {summary}.\n\n"
             + markdown_table(header, body, left) + "\n\n" + ERROR_BARS + "\n")
 
 
-def grid_use(source: Source) -> dict[int, tuple[float, float]]:
+def grid_use_of(source: Source) -> dict[int, tuple[float, float]]:
     """{N: (simulated time, steps)} over every case of ``source`` that records its N (grids.grid_use)."""
     return grids.combined(grids.grid_use(c.series["t"], c.series["N"], c.series.get("step"))
                           for c in source.cases if len(c.series.get("N", ())))
