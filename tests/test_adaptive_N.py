@@ -11,7 +11,7 @@ from hpcves.model.params import Case, ConfigError, Numerics, Physics
 from hpcves.numerics.spectral import fft_sizes, resample, spectral_tail, tail_on
 from hpcves.analysis import grids
 from hpcves.run import resolution, schedule
-from hpcves.run.store import FINISHED, INTERRUPTED
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED
 from hpcves.run.timestepping import Solver
 
 from jobs import resume_in_process, run_in_process, same_case_files
@@ -259,7 +259,7 @@ def test_where_a_fixed_coarse_grid_stops_as_under_resolved_N_auto_grows_and_deci
     assert tails.max() <= auto.run.max_spectral_tail
 
 
-def test_campaigns_plan_N_auto_by_the_grid_its_start_needs_and_refuse_refine_retries():
+def test_campaigns_plan_N_auto_by_the_grid_its_start_needs_and_retry_with_N_max_doubled():
     from hpcves.campaign.study import study_from_toml
 
     deflated = Case(physics=Physics(excess_length=2.3, psi_bar=0.48, shear_rate=28.0),
@@ -279,8 +279,11 @@ psi_bar = [0.3, 0.5]
 [refine]
 max_N = 256
 """
-    with pytest.raises(ConfigError, match='with numerics.N = "auto" each run grows N itself'):
+    with pytest.raises(ConfigError, match='max_N = 256: with numerics.N = "auto" .* N_max = 512 .* at least 1024'):
         study_from_toml(text.format(out="x.h5"))
+    retrying = study_from_toml(text.replace("max_N = 256", "max_N = 2048").format(out="x.h5"))
+    assert [(n.N, n.N_max) for n in (retrying.refine_case(0, 5.0, 0.3, "0001", attempt).case.numerics
+                                     for attempt in (0, 1, 2))] == [(64, 512), (64, 1024), (64, 2048)]
     study = study_from_toml(text.replace("[refine]\nmax_N = 256", "").format(out="x.h5"))     # a grid study
     assert study.base.numerics.adaptive_N and study.cases[0].cost == study.cases[0].case.estimated_steps * 64**2
 
@@ -346,6 +349,28 @@ def test_where_the_tension_solve_finds_the_shape_unresolved_N_auto_goes_one_size
     assert stopped.status == INTERRUPTED and stopped.t < 0.05                 # before the failure on 32 nodes
     assert resume_in_process(tmp_path / "b.h5").status == FINISHED
     same_case_files(tmp_path / "a.h5", tmp_path / "b.h5", checkpoints=True)
+
+
+def test_where_the_tension_solve_finds_the_shape_unresolved_on_N_max_the_case_is_under_resolved(
+        tmp_path, monkeypatch):
+    from hpcves.model.flow import TensionSolveError
+    from hpcves.run.verdict import FAILED_PREFIX, under_resolved
+
+    rates = Solver.rates
+
+    def unresolved_on_every_grid_after(self, state):
+        if state.t >= 0.05:
+            raise TensionSolveError("the tension leaves a stretching of 2e-6 of what it cancels: the shape is "
+                                    "no longer resolved (reduce dt or increase N)")
+        return rates(self, state)
+
+    monkeypatch.setattr(Solver, "rates", unresolved_on_every_grid_after)
+    auto = case_from_toml(ONE_SIZE_UP.format(N='"auto"\nN_min = 32\nN_max = 64'))
+    result = run_in_process(auto, tmp_path / "a.h5")
+    assert result.status == FAILED
+    assert result.message.startswith("under-resolved: the tension solve finds the shape unresolved at t = 0.05")
+    assert "on N = 64 (numerics.N_max: N grew as far as it may): the tension leaves a stretching" in result.message
+    assert under_resolved({"regime": "failed", "reason": FAILED_PREFIX + result.message})
 
 
 SEARCH_AUTO = """
@@ -420,7 +445,6 @@ def test_a_run_whose_step_collapses_stops_as_stalled_the_same_when_resumed_on_it
     """run.max_steps_per_shear_time: more steps in a sample interval than it allows stop the run as
     stalled (the start-up's ~240 steps in the first 4e-5 here are more than 300 per shear time allow for
     a sample interval of 0.8 shear times); counted from the last sample, also by a resumed run."""
-    from hpcves.run.store import FAILED
 
     healthy = run_in_process(case_from_toml(STALLING.format(limit=2e5)), tmp_path / "healthy.h5")
     assert healthy.status == FINISHED

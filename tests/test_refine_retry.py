@@ -17,6 +17,7 @@ from hpcves.campaign.refine_stages import attempts, outcomes
 from hpcves.campaign.study import study_from_toml
 from hpcves.model.params import ConfigError
 from hpcves.reports.analyze import analyze
+from hpcves.run.store import FAILED, FINISHED
 
 PLANE = """
 [campaign]
@@ -179,7 +180,7 @@ def test_a_campaign_runs_under_resolved_cases_again_at_twice_n(retried, tmp_path
     assert [(r["status"], int(r["cases"]), r["run_again"]) for r in report.refinements] == \
         [(outcome.state.status, n, again)]
     text = (tmp_path / "analysis" / "refinement.md").read_text()
-    assert "runs again at 2 N while that is at most N = 32" in text and "| run again |" in text
+    assert "runs again at 2 N (where N adapts: N_max doubled) while that is at most N = 32" in text and "| run again |" in text
     with open(tmp_path / "analysis" / "regimes.csv") as f:
         table = list(csv.DictReader(f))
     assert [int(float(r["N"])) for r in table] == [N for _, _, N, _ in rows]
@@ -202,3 +203,30 @@ def test_a_refinement_with_retries_continues_when_its_budget_is_raised(retried, 
             assert [a.attrs[k] for k in ("numerics.N", "physics.shear_rate", "physics.psi_bar")] == \
                 [b.attrs[k] for k in ("numerics.N", "physics.shear_rate", "physics.psi_bar")]
             assert a["status"][()] == b["status"][()]
+
+
+def test_where_N_adapts_a_point_left_under_resolved_runs_again_with_N_max_doubled(tmp_path):
+    """numerics.N = "auto": a run that N_max = 24 leaves under-resolved (the two-phase points) runs again
+    with N_max = 48 (N_min unchanged) and finishes; the homogeneous points are resolved on 24 nodes."""
+    auto = (TINY.replace("N = 16\ndt = 1e-3", 'N = "auto"\nN_min = 16\nN_max = 24\nresize_tail = 0.01\nrtol = 1e-2')
+            .replace("max_N = 32", "max_N = 48"))
+    output = tmp_path / "auto.h5"
+    summary = run_campaign(study_from_toml(auto.format(output=output, max_cases=30)), output)
+    assert summary.exit_status == 0
+    by_point = {}
+    with h5py.File(output, "r") as f:
+        for i in range(int(f.attrs["n_cases"])):
+            g = f["cases"][f"{i:04d}"]
+            message = g["message"][()]
+            by_point.setdefault((float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"])), []).append(
+                (int(g.attrs["numerics.N"]), int(g.attrs["numerics.N_max"]), int(g["status"][()]),
+                 message.decode() if isinstance(message, bytes) else str(message)))
+    assert len(by_point) >= 4
+    for (S, psi), runs in by_point.items():
+        if psi == 0.0:
+            assert [(N, N_max, status) for N, N_max, status, _ in runs] == [(16, 24, FINISHED)], (S, runs)
+        else:
+            assert [(N, N_max, status) for N, N_max, status, _ in runs] == [(16, 24, FAILED), (16, 48, FINISHED)]
+            assert runs[0][3].startswith("under-resolved: ") and "N = 24 (numerics.N_max: N grew as far" in runs[0][3]
+    (outcome,) = summary.searches
+    assert "failed" not in outcome.regimes.values()

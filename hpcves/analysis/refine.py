@@ -26,8 +26,8 @@ asks for the same points in every run.
   A split asks for the new corners (edge midpoints, and the centre when it
   splits both ways, in u); once they are known its halves are refined the same way.
 * A case that stops as under-resolved (its spectrum outgrew N) says nothing of
-  the regime there; with ``max_N`` the point runs again at 2 N (and again,
-  while 2 N <= max_N), and until then it counts as not yet run: the cells
+  the regime there; with ``max_N`` the point runs again at 2 N (N_max doubled where
+  N adapts; and again, while 2 N <= max_N), and until then it counts as not yet run: the cells
   around it wait for it instead of splitting around a failure. Every run of a
   point counts against ``max_cases``.
 * Stop when no mixed cell needs a split (``converged``: every crossing

@@ -235,8 +235,8 @@ class Study:
     def make_case(self, case_id: str, swept: dict, search: int = -1, N: int | None = None,
                   after: str = "") -> StudyCase:
         """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated);
-        ``N``: another resolution than the base case's (a refinement's retry); ``after``: the case whose
-        end state it starts from (a chain)."""
+        ``N``: another resolution than the base case's (a refinement's retry: its N, or its N_max where N
+        adapts); ``after``: the case whose end state it starts from (a chain)."""
         where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
         try:
             values = {k: v for k, v in swept.items() if k != "start"}
@@ -247,7 +247,9 @@ class Study:
             run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
                                       sample_interval=self.times.sample_interval(S, run.sample_interval,
                                                                                  self.base.numerics.fixed_dt))
-            numerics = self.base.numerics if N is None else dataclasses.replace(self.base.numerics, N=N)
+            numerics = (self.base.numerics if N is None
+                        else dataclasses.replace(self.base.numerics, **{"N_max" if self.base.numerics.adaptive_N
+                                                                        else "N": N}))
             case = Case(physics=physics, numerics=numerics, run=run)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
@@ -269,8 +271,9 @@ class Study:
 
     def refine_N(self, attempt: int) -> int:
         """N of a refinement point's run number ``attempt`` (0: its first): the base N, doubled with each
-        run again after an under-resolved one."""
-        return self.base.numerics.N * 2 ** attempt
+        run again after an under-resolved one; where N adapts, its N_max so doubled."""
+        num = self.base.numerics
+        return (num.N_max if num.adaptive_N else num.N) * 2 ** attempt
 
     def with_cases(self, new) -> "Study":
         """This study with ``new`` cases appended (their ids must continue the numbering)."""
@@ -414,10 +417,11 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         raise ConfigError("[refine]: the starts are not an axis of a plane; every start is a refinement of its own")
     refine = RefinePlan.from_dict(tables["refine"], sweep) if is_refine else None
     if refine is not None and refine.max_N and base.numerics.adaptive_N:
-        raise ConfigError(f"[refine]: max_N = {refine.max_N} runs an under-resolved case again at 2 N; with "
-                          f"numerics.N = \"auto\" each run grows N itself, up to numerics.N_max = "
-                          f"{base.numerics.N_max}: leave max_N out (or raise N_max)")
-    if refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
+        if refine.max_N < 2 * base.numerics.N_max:
+            raise ConfigError(f"[refine]: max_N = {refine.max_N}: with numerics.N = \"auto\" a case that N_max = "
+                              f"{base.numerics.N_max} leaves under-resolved runs again with N_max doubled, so max_N "
+                              f"must be at least {2 * base.numerics.N_max} (0: never)")
+    elif refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
         raise ConfigError(f"[refine]: max_N = {refine.max_N}: an under-resolved case runs again at twice its "
                           f"N = {base.numerics.N}, so max_N must be at least {2 * base.numerics.N} (0: never)")
     if refine is not None and refine.attractors:

@@ -108,7 +108,8 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
             + (". " if settings.straight_span == 1 else
                f"; a boundary that crosses a cell from side to side is taken as straight over at most "
                f"{settings.straight_span:g} tolerances along it (refine.straight_span). ")
-            + (f"An under-resolved case runs again at 2 N while that is at most N = {settings.max_N} "
+            + (f"An under-resolved case runs again at 2 N (where N adapts: N_max doubled) while that is at most "
+               f"N = {settings.max_N} "
                "(refine.max_N); 'cases' counts every run, 'run again' the runs after a point's first. "
                if settings.max_N else "")
             + "A crossing lies between two cases of "

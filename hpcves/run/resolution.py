@@ -14,7 +14,8 @@ every sample:
   quiet), so a run resumed from a checkpoint decides the same;
 * **one size up** when the tension solve finds the shape no longer resolved
   (flow.TensionSolveError, raised by the rates of a state before it is sampled): the
-  state is resized and its step taken on the larger grid (:func:`larger_N`).
+  state is resized and its step taken on the larger grid (:func:`larger_N`); on N_max
+  nodes the run stops as under-resolved instead (there is no size up).
 
 A run starts on the smallest size from N up whose start has both tails within
 resize_tail (:func:`starting_solver`): a sharp start such as the Delta = 2.3 ellipse (tip

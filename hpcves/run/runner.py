@@ -197,10 +197,13 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         while True:
             try:
                 rates = solver.rates(state)
-            except TensionSolveError:          # the shape outgrew the grid: one size up, where N adapts
-                larger = resolution.larger_N(case, state.N) if case.numerics.adaptive_N else None
-                if larger is None:
+            except TensionSolveError as exc:   # the shape outgrew the grid: one size up, where N adapts
+                if not case.numerics.adaptive_N:
                     raise
+                larger = resolution.larger_N(case, state.N)
+                if larger is None:
+                    raise UnderResolved(f"the tension solve finds the shape unresolved at t = {state.t:.6g} on "
+                                        f"N = {state.N} (numerics.N_max: N grew as far as it may): {exc}") from None
                 solver, state = solver.resized(state, larger)
                 record.solver = solver
                 continue
