@@ -221,7 +221,13 @@ class Numerics:
     ``area_correction`` projects each new shape back onto the initial enclosed
     area (the exact dynamics conserve it; the projection removes the O(dt^2)
     drift of the time stepping without lowering its order, and its running sum
-    is recorded as the diagnostic ``area_correction``).
+    is recorded as the diagnostic ``area_correction``). ``filter_order`` p > 0 filters
+    the explicit part G = F + lam theta of the tangent-angle equation by
+    exp(-10 (|m| / (N/2))^p), m the mode (an exponential filter as in Hou, Lowengrub &
+    Shelley, J. Comput. Phys. 114 (1994) 312; the publication's code filters so with
+    p = 25): the modes near N/2 decay at their implicit rate instead of growing from
+    the aliasing of the products. It changes the solution where the top modes carry
+    content (docs/numerics.md, "A filter"); 0, the default, filters nothing.
     """
 
     N: int = 128
@@ -236,6 +242,7 @@ class Numerics:
     bending_stabilization: float = 1.0
     phase_stabilization: float = 1.0
     area_correction: bool = True
+    filter_order: int = 0
 
     def __post_init__(self) -> None:
         _require(isinstance(self.N, int) and not isinstance(self.N, bool),
@@ -266,6 +273,10 @@ class Numerics:
         _require(self.bending_stabilization >= 1.0,
                  f"numerics.bending_stabilization = {self.bending_stabilization}: must be >= 1 "
                  "(smaller values make the time stepping unstable)")
+        _require(isinstance(self.filter_order, int) and not isinstance(self.filter_order, bool)
+                 and (self.filter_order == 0 or 8 <= self.filter_order <= 64),
+                 f"numerics.filter_order = {self.filter_order!r}: must be 0 (no filter) or an integer in [8, 64] "
+                 "(25 filters the top fifth of the modes)")
         _require(self.phase_stabilization >= 0.5,
                  f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
                  "(max g'' on [0, 1])")
@@ -440,6 +451,8 @@ class Case:
         unused = ("dt",) if self.numerics.adaptive else ("rtol", "atol", "dt_max", "dt_initial")
         if not self.numerics.adaptive_N:
             unused += ("N_max", "resize_tail", "shrink_after")     # N fixed, as in files from before the option
+        if not self.numerics.filter_order:
+            unused += ("filter_order",)                            # no filter, as in files from before the option
         for key in unused:
             del out["numerics"][key]
         if not self.run.until_decided:

@@ -96,8 +96,8 @@ def stalled(case, state: State, since: tuple[float, int]) -> str:
         return ""
     return (f"the time step collapsed: {taken} steps from the sample at t = {since[0]:.6g} to t = {state.t:.6g} "
             f"({(state.t - since[0]) * S:.3g} shear times), more than run.max_steps_per_shear_time = {limit:g} "
-            f"allows for a sample interval; the last step {state.dt_prev:.2g} at N = {state.N}: the shape nears "
-            "a singularity no grid passes (docs/numerics.md, \"Stalled runs\")")
+            f"allows for a sample interval; the last step {state.dt_prev:.2g} at N = {state.N} (where measured, "
+            "the modes near N/2 had grown while the others decayed: docs/numerics.md, \"Stalled runs\")")
 
 
 #: how a model-limit stop's message begins, and what follows its cause (model_limit_cause)

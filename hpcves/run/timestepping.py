@@ -91,6 +91,10 @@ from hpcves.model.params import Case, ConfigError
 from hpcves.numerics.spectral import Spectral, resample, spectral_tail
 
 
+#: alpha of the exponential filter exp(-alpha (|m| / (N/2))^p), the publication's code's (4.5e-5 at m = N/2)
+FILTER_STRENGTH = 10.0
+
+
 @dataclass(frozen=True)
 class Rates:
     """Right-hand sides F at one time level, and the flow they came from."""
@@ -238,6 +242,9 @@ class Solver:
         self._resolved = np.ones_like(k)
         self._resolved[-2:] = 0.0                    # modes N/2 - 1 and N/2 of theta_tilde
         self.lam_theta = num.bending_stabilization * max(phys.B1, phys.B2) * k**3 / 4.0
+        #: the exponential filter of theta's explicit part (None: numerics.filter_order = 0)
+        self._theta_filter = (np.exp(-FILTER_STRENGTH * (np.abs(k) / abs(k[-1])) ** num.filter_order)
+                              if num.filter_order else None)
         self._theta_inverse_memo: tuple = (None, None)
         self._mobility_k2 = phys.mobility * self.sp.k2                   # symbol of nu d^2/ds^2
         if phys.homogeneous:
@@ -358,6 +365,10 @@ class Solver:
         # derivative is taken of X_t as a whole, consistently with z = int e^{i theta} ds.
         node_velocity_s = sp.ds_complex(flow.velocity - V * shape.tangent)
         theta_t = (np.conj(shape.tangent) * node_velocity_s).imag     # -n . dX_t/ds, n = -i s
+        if self._theta_filter is not None:    # G = F + lam theta filtered: F <- rho (F + lam theta) - lam theta
+            theta_hat = fft.rfft(theta)
+            theta_t = fft.irfft(self._theta_filter * (fft.rfft(theta_t) + self.lam_theta * theta_hat)
+                                - self.lam_theta * theta_hat)
         if phys.homogeneous:
             psi_t, mu = np.zeros_like(psi), None
         else:
