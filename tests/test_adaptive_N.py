@@ -441,6 +441,15 @@ max_steps_per_shear_time = {limit}
 """
 
 
+def test_the_stall_watch_counts_a_short_sample_interval_as_a_tenth_of_a_shear_time(tmp_path):
+    """At S = 1 a sample interval of 0.01 is 0.01 shear times, but the start-up takes its steps whatever
+    S is (1045 before t = 0.01 here): the watch allows limit x 0.1 steps there, not limit x 0.01."""
+    slow = STALLING.replace("shear_rate = 80.0", "shear_rate = 1.0").replace("t_end = 0.2", "t_end = 0.05")
+    assert run_in_process(case_from_toml(slow.format(limit=20000)), tmp_path / "a.h5").status == FINISHED
+    stalled = run_in_process(case_from_toml(slow.format(limit=5000)), tmp_path / "b.h5")
+    assert stalled.status == FAILED and stalled.message.startswith("stalled: the time step collapsed: 501 steps")
+
+
 def test_a_run_whose_step_collapses_stops_as_stalled_the_same_when_resumed_on_its_way(tmp_path):
     """run.max_steps_per_shear_time: more steps in a sample interval than it allows stop the run as
     stalled (the start-up's ~240 steps in the first 4e-5 here are more than 300 per shear time allow for

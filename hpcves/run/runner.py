@@ -82,15 +82,21 @@ class Stalled(Diverged):
 STALLED = "stalled"
 
 
+#: the shortest sample interval the stall watch counts, in shear times: the spinodal start-up takes
+#: its steps whatever S is (4112 steps before t = 0.02 at S = 1, psi_bar = 0.41, Delta = 0.94)
+STALL_MIN_INTERVAL = 0.1
+
+
 def stalled(case, state: State, since: tuple[float, int]) -> str:
     """Why the run stalls ("" while it does not): more steps since the sample ``since`` = (t, step)
     than run.max_steps_per_shear_time allows for a whole sample interval, t and steps in shear times
-    (time units below S = 1). Only for an adaptive step (a fixed one cannot collapse)."""
+    (time units below S = 1), the interval counted as at least STALL_MIN_INTERVAL. Only for an
+    adaptive step (a fixed one cannot collapse)."""
     limit = case.run.max_steps_per_shear_time
     if not limit or not case.numerics.adaptive:
         return ""
     S = max(case.physics.shear_rate, 1.0)
-    allowed = limit * case.run.sample_interval * S
+    allowed = limit * max(case.run.sample_interval * S, STALL_MIN_INTERVAL)
     taken = state.step - since[1]
     if taken <= allowed:
         return ""
