@@ -51,10 +51,13 @@ faults: setup
 
 # every result of the publication (REPRODUCTION.md; resumable: run it again to continue);
 # GRID=fine: tighter tolerances for a cluster (REPRODUCTION-fine.md), NP ranks;
-# STUDY=name[,name]: only these campaigns, their sections rewritten, the others kept
+# STUDY=name[,name]: only these campaigns, their sections rewritten, the others kept;
+# RETRY_FAILED=1: their failed cases run again
 STUDY   ?=
+RETRY_FAILED ?=
 reproduce: setup
 	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" $(if $(STUDY),--study $(STUDY)) \
+	    $(if $(RETRY_FAILED),--retry-failed) \
 	    --out $(if $(filter fine,$(GRID)),REPRODUCTION-fine.md,REPRODUCTION.md)
 
 clean:

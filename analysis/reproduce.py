@@ -58,9 +58,10 @@ STUDY_TARGET_HOURS = 1.0     # ... and any one of its studies (make reproduce ST
 MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 
 
-def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: Path) -> dict:
+def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: Path,
+                  retry_failed: bool = False) -> dict:
     """Run (or continue) every campaign; return its wall time in seconds in this call (0 if it was
-    complete). The wall times of every call are added up in ``ledger`` (JSON), so that an interrupted
+    complete); ``retry_failed``: run its failed cases again too (``hpcves campaign --retry-failed``). The wall times of every call are added up in ``ledger`` (JSON), so that an interrupted
     and resumed reproduction still reports what all of it took.
 
     A campaign that ends with work left (``hpcves status``: exit status 3) stops the reproduction
@@ -71,8 +72,9 @@ def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: 
     for name, toml in jobs.items():
         fresh = not Path(load_study(toml).output).exists()     # a new file: earlier calls ran another one
         start = time.monotonic()
-        command = mpirun + ["-n", str(np_), hpcves, "campaign", toml, "--resume", "--quiet"]
-        print(f"[{name}] {' '.join(command[-6:])}", flush=True)
+        command = (mpirun + ["-n", str(np_), hpcves, "campaign", toml, "--resume", "--quiet"]
+                   + (["--retry-failed"] if retry_failed else []))
+        print(f"[{name}] {' '.join(command[-7 if retry_failed else -6:])}", flush=True)
         try:
             returncode, signalled = _run_forwarding_signals(command)
             left = (_work_left(hpcves, load_study(toml).output) if not signalled and returncode in (0, 1)
@@ -623,6 +625,8 @@ def main(argv=None):
     parser.add_argument("--study", metavar="NAME,...",
                         help=f"only these campaigns: run, analyze, rewrite their sections; any of {', '.join(STUDIES)}")
     parser.add_argument("--analyze-only", action="store_true", help="only analyze the existing campaign files")
+    parser.add_argument("--retry-failed", action="store_true",
+                        help="run the failed cases of the campaigns again (hpcves campaign --retry-failed)")
     parser.add_argument("--assemble-only", action="store_true", help="only assemble the report from the sections")
     parser.add_argument("--only", metavar="NAME,...",
                         help="run (or continue) only these campaigns and stop (no analysis)")
@@ -639,13 +643,15 @@ def main(argv=None):
     out = Path("out/reproduce") / args.grid
     ledger = out / "walls.json"
     if args.only:
-        run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger)
+        run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger,
+                          args.retry_failed)
         print(f"{', '.join(names)}: run as far as this call went (stopped ones continue when rerun); "
               f"make reproduce STUDY={','.join(names)} analyzes them into {args.out}")
         return
     if not args.assemble_only:
         if not args.analyze_only:
-            run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger)
+            run_campaigns({n: jobs[n] for n in names}, shlex.split(args.mpirun), args.np_, hpcves, ledger,
+                          args.retry_failed)
         totals = json.loads(ledger.read_text()) if ledger.exists() else {}
         for name in names:                 # a clear message if a campaign is missing
             read_source(load_study(jobs[name]).output)
