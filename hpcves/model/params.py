@@ -225,8 +225,8 @@ class Numerics:
     the explicit part G = F + lam theta of the tangent-angle equation by
     exp(-10 (|m| / (N/2))^p), m the mode (an exponential filter as in Hou, Lowengrub &
     Shelley, J. Comput. Phys. 114 (1994) 312; the publication's code filters so with
-    p = 25): the modes near N/2 decay at their implicit rate instead of growing from
-    the aliasing of the products. It changes the solution where the top modes carry
+    p = 25): the modes near N/2 decay at their implicit rate instead of growing
+    (docs/numerics.md, "Stalled runs"). It changes the solution where the top modes carry
     content (docs/numerics.md, "A filter"); 0, the default, filters nothing.
     """
 
