@@ -588,9 +588,11 @@ def assemble(path: Path, grid: str) -> None:
               "publication.tex), and what the campaigns of this reproduction find (analysis/claims.py says how "
               "each is measured: a region of a diagram by its decided cases, **agrees** from 90 % with the "
               "regime it names, **mostly** from 50 %). The publication's runs used dt = 1e-5 and an ellipse "
-              "smoothed by their code; where they differ from ours, the sections below and docs/numerics.md "
-              "(\"Initial shape\", \"Resolution of deflated shapes\") give the start and the convergence "
-              "evidence.", "",
+              "smoothed by their code, which also filters the top modes of its tangent-angle equation every "
+              "step (hpcves does not: on sharp deflated shapes that filter moves tumbling periods by up to 5 %, "
+              "docs/numerics.md, \"Stalled runs\"); where they differ from ours, the sections below and "
+              "docs/numerics.md (\"Initial shape\", \"Resolution of deflated shapes\") give the start and the "
+              "convergence evidence.", "",
               markdown_table(["where", "the publication", "hpcves from the ellipse", "hpcves from the authors' start"],
                              claims.table({name: meta.get("claims") for name, (meta, _) in present.items()}),
                              left=(0, 1, 2, 3)),
