@@ -32,7 +32,7 @@ command, target = sys.argv[1], [a for a in sys.argv[2:] if not a.startswith("--"
 name = Path(target).stem
 if command == "campaign":
     with log.open("a") as f:
-        f.write(f"campaign {name}\\n")
+        f.write(f"campaign {name}{' --retry-failed' if '--retry-failed' in sys.argv else ''}\\n")
     if name == "slow":
         def stop(signum, frame):
             with log.open("a") as f:
@@ -91,6 +91,15 @@ def test_a_campaign_with_work_left_stops_the_reproduction(tmp_path, monkeypatch)
     again = reproduce.run_campaigns(jobs, mpirun, 2, hpcves, ledger)
     assert set(again) == {"first", "second", "third"}
     assert all(json.loads(ledger.read_text())[n] > walls.get(n, 0) for n in again)
+
+
+def test_retry_failed_is_passed_on_to_every_campaign(tmp_path, monkeypatch):
+    jobs = _studies(tmp_path, ["first", "second"])
+    mpirun, hpcves = _fakes(tmp_path)
+    monkeypatch.setenv("FAKE_LOG", str(tmp_path / "log"))
+    reproduce.run_campaigns(jobs, mpirun, 2, hpcves, tmp_path / "walls.json", retry_failed=True)
+    assert (tmp_path / "log").read_text().split("\n")[:-1] == ["campaign first --retry-failed",
+                                                               "campaign second --retry-failed"]
 
 
 def test_a_sigterm_is_passed_on_to_the_running_campaign_and_stops_the_reproduction(tmp_path):
