@@ -269,6 +269,34 @@ def resume_in_process(path, stops=(None,), before=None):
     return outcome
 
 
+#: a case whose N grows once on its way: 24 nodes at the start, 48 from t = 0.01 (step ~1040)
+GROWING = """
+[physics]
+psi_bar = 0.3
+shear_rate = 10.0
+[numerics]
+N = "auto"
+N_min = 16
+N_max = 64
+resize_tail = 2e-2
+rtol = 1e-3
+[run]
+t_end = {t_end}
+sample_interval = 0.01
+snapshot_interval = 0.05
+checkpoint_interval = 0.02
+max_spectral_tail = 0.05
+"""
+
+
+def history(path):
+    """[(t, N)] at each change of N in a case file's samples, from the first."""
+    with h5py.File(path, "r") as f:
+        n = int(f["timeseries/length"][()])
+        t, N = f["timeseries/t"][:n], f["timeseries/N"][:n]
+    return [(float(t[i]), int(N[i])) for i in np.r_[0, np.nonzero(np.diff(N))[0] + 1]]
+
+
 def same_case_files(a, b, checkpoints=False):
     """Every time series and snapshot of two case files is equal bit for bit (NaN = NaN); with
     ``checkpoints``, the newest checkpoints too."""

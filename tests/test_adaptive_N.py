@@ -14,7 +14,7 @@ from hpcves.run import resolution, schedule
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED
 from hpcves.run.timestepping import Solver
 
-from jobs import resume_in_process, run_in_process, same_case_files
+from jobs import GROWING, history, resume_in_process, run_in_process, same_case_files
 
 
 def band_limited(N, top, seed=0):
@@ -122,24 +122,6 @@ def test_the_rule_grows_on_a_tail_shrinks_after_a_quiet_time_and_answers_the_sam
     assert N == 32 and math.isnan(since)                  # never below numerics.N
 
 
-GROWING = """
-[physics]
-psi_bar = 0.3
-shear_rate = 10.0
-[numerics]
-N = "auto"
-N_min = 16
-N_max = 64
-resize_tail = 2e-2
-rtol = 1e-3
-[run]
-t_end = {t_end}
-sample_interval = 0.01
-snapshot_interval = 0.05
-checkpoint_interval = 0.02
-max_spectral_tail = 0.05
-"""
-
 SHRINKING = """
 [physics]
 psi_bar = 0.48
@@ -159,14 +141,6 @@ snapshot_interval = 0.02
 checkpoint_interval = 0.02
 max_spectral_tail = 0.05
 """
-
-
-def history(path):
-    """[(t, N)] at each change of N in a case file's samples, from the first."""
-    with h5py.File(path, "r") as f:
-        n = int(f["timeseries/length"][()])
-        t, N = f["timeseries/t"][:n], f["timeseries/N"][:n]
-    return [(float(t[i]), int(N[i])) for i in np.r_[0, np.nonzero(np.diff(N))[0] + 1]]
 
 
 # stops: steps of each call. Growing: 24 -> 48 nodes at t = 0.01, step ~1040; shrinking: 96 -> 64 at

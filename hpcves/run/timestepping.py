@@ -48,7 +48,9 @@ difference between the step and the quadratic through the last three levels
 (:class:`Estimate`).
 
 with F the full right-hand side (for psi without the advection, which is
-wholly implicit) and
+wholly implicit; with numerics.dealias = r, F evaluated on r N nodes from the
+state's trigonometric interpolant and truncated to the N modes, so that its
+products do not alias) and
 
     theta:  lam = c max(B1, B2) |k|^3 / 4 (diagonal; the small-scale bending
             response, 1/(4|k|) being the single-layer symbol of a flat membrane);
@@ -226,11 +228,12 @@ class Solver:
     """One vesicle: operators precomputed for a :class:`Case`; steps are pure functions of a State."""
 
     def __init__(self, case: Case, fft_backend: str = "fftw", start: tuple | None = None, N: int | None = None,
-                 reference: "Solver | None" = None):
+                 reference: "Solver | None" = None, dealias: bool = True):
         """``start``: (theta_tilde, psi) of another state to start from (continuation.carried_start),
         instead of the case's own initial shape and phase. ``N``: the nodes, when not numerics.N (N
         adapting: run/resolution.py); ``reference``: the solver the run started with, whose initial area
-        (the area projection's target) and initial tails this one keeps."""
+        (the area projection's target) and initial tails this one keeps. ``dealias`` False: rates on
+        the N nodes whatever numerics.dealias says (the padded grid's own solver)."""
         self.case = case
         self._given_start = start
         self._fft_backend = fft_backend
@@ -246,6 +249,9 @@ class Solver:
         self._theta_filter = (np.exp(-FILTER_STRENGTH * (np.abs(k) / abs(k[-1])) ** num.filter_order)
                               if num.filter_order else None)
         self._theta_inverse_memo: tuple = (None, None)
+        #: the nodes the rates are computed on (numerics.dealias N), and their solver once built
+        self.padded_N = round(num.dealias * self.sp.N) if dealias else self.sp.N
+        self._padded: Solver | None = None
         self._mobility_k2 = phys.mobility * self.sp.k2                   # symbol of nu d^2/ds^2
         if phys.homogeneous:
             self.lam_psi, self.cahn_hilliard = None, None
@@ -349,9 +355,27 @@ class Solver:
 
     # ------------------------------------------------------------------ right-hand side
     def rates(self, state: State) -> Rates:
-        """F(y): the full right-hand side at one level (psi: without the advection -V psi_s)."""
+        """F(y): the full right-hand side at one level (psi: without the advection -V psi_s); with
+        numerics.dealias, computed on the padded nodes and truncated to these (:meth:`_truncated`)."""
+        if self.padded_N == self.sp.N:
+            rates = self._rates_on_nodes(state.theta, state.psi, state.center)
+        else:
+            if self._padded is None:
+                self._padded = Solver(self.case, self._fft_backend, N=self.padded_N, reference=self, dealias=False)
+            M = self.padded_N
+            rates = self._truncated(self._padded._rates_on_nodes(resample(state.theta, M), resample(state.psi, M),
+                                                                 state.center), state)
+        if self._theta_filter is not None:    # G = F + lam theta filtered: F <- rho (F + lam theta) - lam theta
+            fft = self.sp.fft
+            theta_hat = fft.rfft(state.theta)
+            theta_t = fft.irfft(self._theta_filter * (fft.rfft(rates.theta) + self.lam_theta * theta_hat)
+                                - self.lam_theta * theta_hat)
+            rates = dataclasses.replace(rates, theta=theta_t)
+        return rates
+
+    def _rates_on_nodes(self, theta: np.ndarray, psi: np.ndarray, center: complex) -> Rates:
+        """The right-hand side evaluated on this solver's nodes, products taken pointwise."""
         sp, phys, fft = self.sp, self.case.physics, self.sp.fft
-        theta, psi, center = state.theta, state.psi, state.center
         shape = geometry.shape_from_angle(theta, center, sp)
         if phys.homogeneous:
             psi_s, psi_ss, psi_hat = np.zeros_like(psi), None, None
@@ -365,10 +389,6 @@ class Solver:
         # derivative is taken of X_t as a whole, consistently with z = int e^{i theta} ds.
         node_velocity_s = sp.ds_complex(flow.velocity - V * shape.tangent)
         theta_t = (np.conj(shape.tangent) * node_velocity_s).imag     # -n . dX_t/ds, n = -i s
-        if self._theta_filter is not None:    # G = F + lam theta filtered: F <- rho (F + lam theta) - lam theta
-            theta_hat = fft.rfft(theta)
-            theta_t = fft.irfft(self._theta_filter * (fft.rfft(theta_t) + self.lam_theta * theta_hat)
-                                - self.lam_theta * theta_hat)
         if phys.homogeneous:
             psi_t, mu = np.zeros_like(psi), None
         else:
@@ -378,6 +398,24 @@ class Solver:
         return Rates(theta=theta_t, psi=psi_t, center=complex(flow.velocity.sum() / sp.N),
                      shift=V / sp.length, mean_tangential_velocity=V, flow=flow,
                      shape=shape, psi_s=psi_s, mu=mu, psi_hat=psi_hat)
+
+    def _truncated(self, padded: Rates, state: State) -> Rates:
+        """Rates of the padded grid kept to the modes of these N nodes (spectral.resample): the
+        fields F, the flow and mu; the shape and psi's derivative are those of ``state`` here."""
+        sp, N, fft = self.sp, self.sp.N, self.sp.fft
+        if self.case.physics.homogeneous:
+            psi_s, psi_hat, psi_t, mu = np.zeros_like(state.psi), None, np.zeros_like(state.psi), None
+        else:
+            psi_hat = fft.rfft(state.psi)
+            psi_s = fft.irfft(sp.ik * psi_hat)
+            psi_t, mu = resample(padded.psi, N), resample(padded.mu, N)
+        u = padded.flow.velocity
+        flow = Flow(velocity=resample(u.real, N) + 1j * resample(u.imag, N),
+                    tension_eff=resample(padded.flow.tension_eff, N))
+        return Rates(theta=resample(padded.theta, N), psi=psi_t, center=padded.center, shift=padded.shift,
+                     mean_tangential_velocity=padded.mean_tangential_velocity, flow=flow,
+                     shape=geometry.shape_from_angle(state.theta, state.center, sp), psi_s=psi_s, mu=mu,
+                     psi_hat=psi_hat)
 
     # ------------------------------------------------------------------ stepping
     def step(self, state: State, rates: Rates | None = None, k: float | None = None

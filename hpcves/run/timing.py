@@ -54,18 +54,19 @@ class StepCost:
 
     @staticmethod
     def kind_of(case: Case) -> tuple:
-        """(N, homogeneous, samples per step, snapshots per step), the shares to 2 digits; where N adapts,
-        the N its start needs (resolution.expected_N: the run is timed from that start)."""
+        """(N, homogeneous, samples per step, snapshots per step, dealias), the shares to 2 digits; where N
+        adapts, the N its start needs (resolution.expected_N: the run is timed from that start)."""
         dt = case.settled_step
         share = lambda interval: float(f"{min(1.0, dt / interval):.2g}")       # noqa: E731
         return (expected_N(case), case.physics.homogeneous, share(case.run.sample_interval),
-                share(case.run.snapshot_interval))
+                share(case.run.snapshot_interval), case.numerics.dealias)
 
     def __call__(self, case: Case) -> float:
         kind = self.kind_of(case)
         if kind not in self.measured:
-            N, homogeneous, samples, snapshots = kind
+            N, homogeneous, samples, snapshots, dealias = kind
             self.announce(f"timing a step at N = {N}" + (" (homogeneous)" if homogeneous else "")
+                          + (f", rates on {dealias:g} N" if dealias != 1.0 else "")
                           + f", sampling every {1 / samples:.3g} steps ...")
             if not self.measured:              # the first run in a process loads and plans: not timed
                 seconds_per_step(case, steps=20, repeats=1)
