@@ -109,6 +109,8 @@ def test_dealias_is_checked_and_left_out_of_fingerprints_when_off():
     with pytest.raises(ConfigError, match="dense"):
         Numerics(N=64, N_max=4096, dealias=1.5)
     assert Numerics(dealias=2).dealias == 2.0 and isinstance(Numerics(dealias=2).dealias, float)
+    assert Numerics(N=64, N_max=256, dealias=2).grid() == "N = auto (64-256), rates on 2 N"
+    assert Numerics(N=64).grid() == "N = 64"
     off, on_ = (Case(numerics=Numerics(dealias=r)).significant()["numerics"] for r in (1.0, 1.5))
     assert "dealias" not in off and on_["dealias"] == 1.5
 

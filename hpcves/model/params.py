@@ -307,8 +307,9 @@ class Numerics:
                  "(max g'' on [0, 1])")
 
     def grid(self) -> str:
-        """``N = 128``, or where N adapts ``N = auto (64-512)``."""
-        return f"N = auto ({self.N}-{self.N_max})" if self.adaptive_N else f"N = {self.N}"
+        """``N = 128``, or where N adapts ``N = auto (64-512)``; with de-aliased rates ``, rates on 2 N``."""
+        grid = f"N = auto ({self.N}-{self.N_max})" if self.adaptive_N else f"N = {self.N}"
+        return grid + (f", rates on {self.dealias:g} N" if self.dealias != 1.0 else "")
 
     @property
     def adaptive_N(self) -> bool:
