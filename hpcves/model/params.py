@@ -345,9 +345,10 @@ class RunControl:
     samples; ``t_end`` is then a cap.
     An adaptive-step run stops as stalled when it has taken more than
     ``max_steps_per_shear_time`` steps per shear time (per time unit below S = 1)
-    of one sample interval: the step has collapsed, as it does where a deflated
-    shape nears a singularity that no grid passes (healthy runs stay below
-    1.6e4, their start-up included; docs/numerics.md, "Stalled runs"; 0: no watch).
+    of one sample interval: the step has collapsed, as it did where aliasing drove
+    the top modes of sharp deflated shapes (numerics.dealias removes that; healthy
+    runs stay below 1.6e4, their start-up included; docs/numerics.md, "Stalled runs";
+    0: no watch).
     A run stops as diverged when the relative area or length error exceeds
     ``max_area_error`` / ``max_length_error``, when one step needs the area
     projection to undo a relative change above ``max_area_correction``, when
