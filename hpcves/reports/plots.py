@@ -614,7 +614,9 @@ def case_title(attrs) -> str:
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
             f"{get('physics.B2') / get('physics.B1'):g}, "
             + (f"N = auto ({get('numerics.N')}-{get('numerics.N_max')})" if get('numerics.N_max', 0) else
-               f"N = {get('numerics.N')}") + ", " + step_label(attrs)
+               f"N = {get('numerics.N')}")
+            + (f", rates on {get('numerics.dealias'):g} N" if get('numerics.dealias', 1.0) != 1.0 else "")
+            + ", " + step_label(attrs)
             + _start_label(attrs))
 
 
