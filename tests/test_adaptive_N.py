@@ -35,6 +35,9 @@ def test_resampling_is_exact_for_band_limited_fields_and_growing_then_shrinking_
         assert np.max(np.abs(resample(samples, N) - f(np.arange(N) / N))) < 1e-12
         assert np.max(np.abs(resample(resample(samples, N), 32) - samples)) < 1e-12
     assert resample(samples, 32) is not samples and np.array_equal(resample(samples, 32), samples)
+    other, g = band_limited(32, 15, seed=1)                # complex samples: each part resampled
+    z = resample(samples + 1j * other, 64)
+    assert np.iscomplexobj(z) and np.max(np.abs(z - (f(np.arange(64) / 64) + 1j * g(np.arange(64) / 64)))) < 1e-12
 
 
 def test_the_sizes_are_fft_friendly_and_the_tail_on_a_smaller_grid_is_that_grids_tail():

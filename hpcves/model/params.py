@@ -309,7 +309,7 @@ class Numerics:
     def grid(self) -> str:
         """``N = 128``, or where N adapts ``N = auto (64-512)``; with de-aliased rates ``, rates on 2 N``."""
         grid = f"N = auto ({self.N}-{self.N_max})" if self.adaptive_N else f"N = {self.N}"
-        return grid + (f", rates on {self.dealias:g} N" if self.dealias != 1.0 else "")
+        return grid + dealias_label(self.dealias)
 
     @property
     def adaptive_N(self) -> bool:
@@ -508,6 +508,11 @@ class Case:
         option such as rtol of a fixed-step run is NaN)."""
         return {f"{group}.{key}": (math.nan if value is None else value) for group, values in self.to_dict().items()
                 for key, value in values.items()}
+
+
+def dealias_label(dealias: float) -> str:
+    """``, rates on 2 N`` for numerics.dealias = 2; nothing for rates on the N nodes."""
+    return f", rates on {dealias:g} N" if dealias != 1.0 else ""
 
 
 def _finite(obj) -> None:

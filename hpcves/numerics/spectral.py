@@ -192,7 +192,9 @@ def resample(f: np.ndarray, N: int) -> np.ndarray:
     """The trigonometric interpolant of the periodic samples ``f`` at N equispaced nodes (f's
     spectrum padded with zeros or truncated: scipy.signal.resample). Exact for a field whose modes
     lie below both Nyquist modes; growing and shrinking back returns f to round-off. A copy of f
-    when N is its size."""
+    when N is its size. Complex samples: their real and imaginary parts, each so resampled."""
+    if np.iscomplexobj(f):
+        return resample(f.real, N) + 1j * resample(f.imag, N)
     f = np.asarray(f, dtype=float)
     if f.size == N:
         return f.copy()

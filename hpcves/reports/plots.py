@@ -20,7 +20,7 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 
 from hpcves.analysis import accuracy
-from hpcves.model.params import PARAMETER_NAMES
+from hpcves.model.params import PARAMETER_NAMES, dealias_label
 
 PSI_CMAP = "coolwarm"      # blue: hard phase (psi = 0), red: soft phase (psi = 1)
 
@@ -615,7 +615,7 @@ def case_title(attrs) -> str:
             f"{get('physics.B2') / get('physics.B1'):g}, "
             + (f"N = auto ({get('numerics.N')}-{get('numerics.N_max')})" if get('numerics.N_max', 0) else
                f"N = {get('numerics.N')}")
-            + (f", rates on {get('numerics.dealias'):g} N" if get('numerics.dealias', 1.0) != 1.0 else "")
+            + dealias_label(get('numerics.dealias', 1.0))
             + ", " + step_label(attrs)
             + _start_label(attrs))
 

@@ -409,9 +409,7 @@ class Solver:
             psi_hat = fft.rfft(state.psi)
             psi_s = fft.irfft(sp.ik * psi_hat)
             psi_t, mu = resample(padded.psi, N), resample(padded.mu, N)
-        u = padded.flow.velocity
-        flow = Flow(velocity=resample(u.real, N) + 1j * resample(u.imag, N),
-                    tension_eff=resample(padded.flow.tension_eff, N))
+        flow = Flow(velocity=resample(padded.flow.velocity, N), tension_eff=resample(padded.flow.tension_eff, N))
         return Rates(theta=resample(padded.theta, N), psi=psi_t, center=padded.center, shift=padded.shift,
                      mean_tangential_velocity=padded.mean_tangential_velocity, flow=flow,
                      shape=geometry.shape_from_angle(state.theta, state.center, sp), psi_s=psi_s, mu=mu,

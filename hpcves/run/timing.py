@@ -11,7 +11,7 @@ import dataclasses
 import tempfile
 from pathlib import Path
 
-from hpcves.model.params import Case
+from hpcves.model.params import Case, dealias_label
 from hpcves.run.resolution import expected_N
 
 
@@ -66,7 +66,7 @@ class StepCost:
         if kind not in self.measured:
             N, homogeneous, samples, snapshots, dealias = kind
             self.announce(f"timing a step at N = {N}" + (" (homogeneous)" if homogeneous else "")
-                          + (f", rates on {dealias:g} N" if dealias != 1.0 else "")
+                          + dealias_label(dealias)
                           + f", sampling every {1 / samples:.3g} steps ...")
             if not self.measured:              # the first run in a process loads and plans: not timed
                 seconds_per_step(case, steps=20, repeats=1)
