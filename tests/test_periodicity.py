@@ -216,3 +216,27 @@ def test_the_bending_energy_gap_is_max_minus_min_over_a_period_and_its_error_cov
     assert pt.regime == PT and pt.bending_gap == pytest.approx(exact, rel=2e-3)
     tt = classify({**series(0.56 - 0.3 * np.exp(-t / 1.2), pattern_speed=1e-6), "E_bending": energy})
     assert tt.regime == TT and np.isnan(tt.bending_gap)
+
+
+def test_a_tumbling_vesicle_whose_flips_jitter_is_decided_by_its_flips():
+    """The authors' start at Delta = 2.3, S = 5 flips every 2.40-2.70 (its pattern modulates the flips):
+    the fast flips fall between samples at varying places, theta's sampled extremes jitter by more
+    than the settling band, and theta alone never settled. The flips settle once their intervals stop
+    trending -- not during the slower flips of a start-up -- and the mean flip interval carries the
+    spread of the intervals."""
+    h, mean, k = 0.02, 2.55, np.arange(32)
+    lengths = mean * (1 + 0.03 * np.sin(2 * np.pi * 0.382 * k))     # flips modulated quasi-periodically
+    lengths += 0.4 * np.exp(-k / 2.0)                                 # after slower ones at the start
+    ends = np.concatenate([[0.0], np.cumsum(lengths)])
+    time = np.arange(0.0, ends[-1] - 1.0, h)
+    cycle = np.searchsorted(ends, time, side="right") - 1
+    x = np.pi * (cycle + (time - ends[cycle]) / lengths[cycle])
+    theta = fold(-np.arctan2(0.05 * np.sin(x), np.cos(x)))         # a fast flip, slow elsewhere
+    assert analyse(time, theta).cycles < 3                            # on theta: not settled
+    tu = classify(series(theta, time=time))
+    assert tu.regime == TU and "settled by its flips" in tu.reason, tu
+    assert abs(tu.period - mean) <= tu.period_err < 0.01 * mean, (tu.period, tu.period_err)
+    assert tu.t_settle >= ends[3] and tu.cycles >= 10, (tu.t_settle, tu.cycles)
+    steady = classify(series(fold(-np.arctan2(0.05 * np.sin(np.pi * time / mean), np.cos(np.pi * time / mean))),
+                             time=time))
+    assert steady.regime == TU and "settled by its flips" not in steady.reason, steady   # theta settles

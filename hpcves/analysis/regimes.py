@@ -17,7 +17,8 @@ membrane's tank-treading velocity V (all recorded by diagnostics.py).
   period (checked two ways, periodicity.py), at least ``min_cycles`` settled
   periods long, with min theta >= 0.
 * **TU**: the same, but min theta < 0 over the settled signal: the vesicle flips
-  (its period from sin 2 theta, which stays continuous where theta is folded).
+  (its period from sin 2 theta, which stays continuous where theta is folded). A flipping theta
+  whose sampled extremes jitter too much to settle is settled by its flips (:func:`settled_by_flips`).
 * **undecided** otherwise -- too short, not settled, still drifting, no
   consistent period, or theta and the pattern disagree -- with the reason.
 
@@ -36,7 +37,7 @@ import numpy as np
 
 from hpcves.config import check_type, from_table
 from hpcves.model.params import ConfigError
-from hpcves.analysis.periodicity import PeriodEstimate, analyse, estimate_period
+from hpcves.analysis.periodicity import PeriodEstimate, SignalAnalysis, analyse, estimate_period
 
 TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
 REGIMES = (TT, PT, TU, UNDECIDED)
@@ -145,6 +146,10 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     t = np.asarray(series["t"], dtype=float)
     theta = np.asarray(series["theta"], dtype=float)
     a = analyse(t, theta, abs_tol=settings.abs_tol, rel_tol=settings.rel_tol)
+    # a flipping theta that does not settle on its own: judged by its flips (settled_by_flips)
+    flipping = None if a.steady or a.cycles >= settings.min_cycles else settled_by_flips(t, theta, settings)
+    if flipping is not None:
+        a = flipping
     p = a.period
     t_settle = a.t_settle if np.isfinite(a.t_settle) else (t[-1] if t.size else np.nan)
     lab = None
@@ -211,15 +216,27 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     if a.cycles < settings.min_cycles:
         return verdict(UNDECIDED, f"only {a.cycles:.1f} settled periods of {p.period:.4g} "
                                   f"(at least {settings.min_cycles:g}); run longer")
+    irregular = ""
     if a.minimum < 0:
         settled = t >= a.t_settle
         flips = flip_period(t[settled], theta[settled])
         if np.isfinite(flips.period) and flips.agree is not False:
             p = flips
+        if flipping is not None:
+            # flip times that jitter add up like a random walk, which a line fitted through them does not
+            # see: the mean interval, first to last flip, is known to the intervals' spread over the root
+            # of their number (and a sample interval over the span)
+            times = t[settled][flip_indices(theta[settled])]
+            intervals = np.diff(times)
+            mean = (times[-1] - times[0]) / intervals.size
+            p = replace(p, error=max(p.error, float(intervals.std(ddof=1) / np.sqrt(intervals.size))
+                                     + abs(p.period - mean) + (t[1] - t[0]) / (times[-1] - times[0])))
+            irregular = (f"; settled by its flips (theta's sampled extremes jitter), "
+                         f"{intervals.min():.4g} to {intervals.max():.4g} apart")
     periodic = (f"period {p.period:.5g} +- {p.error:.1g} ({cycles():.0f} cycles after t = {a.t_settle:.3g}), "
                 f"amplitude {a.amplitude:.3g} rad")
     if a.minimum < 0:
-        return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}")
+        return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}{irregular}")
     if np.isfinite(speed) and speed > settings.pattern_tol:
         found = verdict(PT, f"the pattern {pattern}; theta oscillates, min {a.minimum:.3f} > 0; {periodic}")
         if "E_bending" in series:
@@ -229,6 +246,48 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     what = (f"the pattern {pattern}" if np.isfinite(speed) else no_position
             or f"there is {_no_pattern(contrast)}")
     return verdict(UNDECIDED, f"theta oscillates ({periodic}) but {what}")
+
+
+def flip_indices(theta: np.ndarray) -> np.ndarray:
+    """Samples after which the folded angle jumps by more than pi / 2: the flips of a tumbling vesicle."""
+    return np.nonzero(np.abs(np.diff(np.asarray(theta, dtype=float))) > 0.5 * np.pi)[0]
+
+
+def settled_by_flips(t: np.ndarray, theta: np.ndarray, settings: AnalysisSettings) -> SignalAnalysis | None:
+    """Settling of a flipping vesicle judged on its flip intervals, its period on sin 2 theta.
+
+    The folded theta has its extremes at the flip, between two samples: where the flips do not keep a
+    whole number of samples apart, the sampled extremes jitter by more than the settling band, and theta
+    never settles (the authors' start at Delta = 2.3, S = 5, psi_bar = 0.48: flips 2.40-2.70 apart, the
+    sampled maxima 1.45-1.57, settled only from the last flip). Nor can sin 2 theta's envelope tell, as
+    it swings through +-1 at every flip whatever the period does. The flips settle from the first one
+    after which the intervals between them show no linear trend beyond twice its standard error (at
+    least 2 ``min_cycles`` intervals left); the period comes from sin 2 theta
+    over them (:func:`flip_period`). None where no such flip exists. theta's extremes and mean are over
+    the settled part; its drift and the error of its mean are not measured (nan).
+    """
+    t, theta = np.asarray(t, dtype=float), np.asarray(theta, dtype=float)
+    times = t[flip_indices(theta)]
+    half = max(int(np.ceil(settings.min_cycles)), 2)
+    for first in range(max(times.size - 2 * half, 0)):
+        intervals = np.diff(times[first:])
+        k = np.arange(intervals.size) - 0.5 * (intervals.size - 1)
+        slope = k @ intervals / (k @ k)                     # the intervals' linear trend, per flip
+        scatter = intervals - intervals.mean() - slope * k
+        error = np.sqrt(scatter @ scatter / (intervals.size - 2) / (k @ k))
+        if abs(slope) <= 2.0 * error + (t[1] - t[0]) / (k @ k) ** 0.5:
+            break
+    else:
+        return None
+    t_settle = times[first]
+    after = t >= t_settle
+    period = flip_period(t[after], theta[after])
+    if not np.isfinite(period.period):
+        return None
+    settled = theta[after]
+    return SignalAnalysis(float(t_settle), float(t[-1] - t_settle), False, settings.abs_tol, float("nan"),
+                          float(settled.mean()), float(settled.min()), float(settled.max()),
+                          float(0.5 * np.ptp(settled)), float("nan"), period)
 
 
 def flip_period(t: np.ndarray, theta: np.ndarray) -> PeriodEstimate:
