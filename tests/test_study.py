@@ -134,8 +134,11 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
                 ("smoothed", "ellipse_parameter")
             assert smoothed.sweep == ellipse.sweep
             if ellipse.refine:         # the same plane and retries; the coarse set may give the twin a smaller
-                # budget or looser tolerances (make reproduce's 3 h), the fine set gives none
-                assert (smoothed.refine.axes, smoothed.refine.max_N) == (ellipse.refine.axes, ellipse.refine.max_N)
+                # budget or looser tolerances (make reproduce's 3 h), and a de-aliased twin no retry on
+                # 2 N_max nodes (its rates would be on 4 N_max: hours a case), the fine set gives none
+                assert smoothed.refine.axes == ellipse.refine.axes
+                assert smoothed.refine.max_N == ellipse.refine.max_N or \
+                    (folder == jobs and smoothed.refine.max_N == 0 and smoothed.base.numerics.dealias > 1)
                 assert smoothed.refine.max_cases <= ellipse.refine.max_cases
                 assert all(s >= e for (_, s), (_, e) in zip(smoothed.refine.tolerance, ellipse.refine.tolerance))
                 assert folder == jobs or smoothed.refine == ellipse.refine
