@@ -434,6 +434,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
     sys.exit(summary.exit_status)
 
 
+@clean_errors
 def _plan(study_file, out, slurm_file, max_time) -> None:
     """``hpcves campaign --plan``: what the study will cost, and a batch script sized from it."""
     import shutil
@@ -442,6 +443,8 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     from hpcves.campaign.plan import plan
     from hpcves.campaign.slurm import JobSize, slurm_script
     from hpcves.campaign.study import load_study
+    from hpcves.files.atomic import METADATA_BYTES_PER_FILE, free_bytes, size_text
+    from hpcves.run.store import storage_bytes
     from hpcves.run.timing import StepCost
 
     try:
@@ -464,7 +467,11 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     click.echo(f"suggested: {ranks} rank{'s' * (ranks != 1)} (srun -n {ranks} / mpirun -n {ranks}), "
                f"a job of {_duration(ask)}" + (" (capped by --max-time; the job resubmits itself)"
                                                 if ask < _job_seconds(wall) else ""))
-    click.echo(f"output: {path}")
+    size = METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases)
+    free = free_bytes(path)
+    click.echo(f"output: {path} ({size_text(size)} for the {len(study.cases)} cases it starts with, every sample and "
+               f"snapshot preallocated; {size_text(free)} free there"
+               + (": not enough, the campaign would refuse to start)" if size > free else ")"))
     if not slurm_file:
         return
     hpcves = shutil.which("hpcves") or str(Path(sys.executable).with_name("hpcves"))

@@ -23,6 +23,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
+import stat
 import tomllib
 import typing
 from pathlib import Path
@@ -176,9 +178,24 @@ def case_from_dict(data: dict, base: Case | None = None) -> Case:
     return Case(**groups)
 
 
+def not_a_regular_file(path) -> str:
+    """What ``path`` is when it exists and is not a regular file (or a link to one): a device, a FIFO,
+    a socket; '' otherwise. Opened as HDF5, a device is written to (``/dev/null`` crashed h5py on close)."""
+    mode = os.stat(path).st_mode
+    for test, kind in ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return ""
+
+
 def read_text(path: Path) -> str:
-    """The text of an input file; a missing or unreadable one is a ConfigError naming it."""
+    """The text of an input file; a missing, special (a device, a pipe) or unreadable one is a
+    ConfigError naming it."""
     try:
+        kind = not_a_regular_file(path)
+        if kind:
+            raise ConfigError(f"{path}: {kind}, not a TOML file")
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
@@ -191,10 +208,26 @@ def read_text(path: Path) -> str:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
 
 
+def read_settings(path: str | Path, what: str) -> str:
+    """The text of an input file that sets something: one that is empty or holds only comments is
+    refused (a wrong path, not a request for every default), as is a path ending in '/' (which
+    pathlib would quietly drop). ``what``: the tables it could hold."""
+    if isinstance(path, str) and path.endswith(("/", os.sep)):
+        raise ConfigError(f"{path}: ends in '/', the name of a directory, not of a TOML file")
+    path = Path(path)
+    text = read_text(path)
+    try:
+        empty = not tomllib.loads(text)
+    except tomllib.TOMLDecodeError:
+        empty = False                        # its parser's message, from the caller
+    if empty:
+        raise ConfigError(f"{path}: sets nothing (empty, or comments only); give at least one of {what}")
+    return text
+
+
 def load_case(path: str | Path) -> Case:
     """Read and validate a case file."""
-    path = Path(path)
-    return case_from_toml(read_text(path), source=str(path))
+    return case_from_toml(read_settings(path, "[physics], [numerics], [run]"), source=str(Path(path)))
 
 
 #: What a stored case (written out in full by :func:`case_to_toml`) meant by an option it

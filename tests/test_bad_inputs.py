@@ -67,6 +67,11 @@ CASE_FILES = {
     "a key twice": ("[physics]\nshear_rate = 1.0\nshear_rate = 2.0\n", "not valid TOML"),
     "not UTF-8": (b"[physics]\n# B\xe4r\nshear_rate = 1.0\n", "not UTF-8 text (byte 0xe4"),
     "binary": (bytes(range(256)) * 4, "not UTF-8 text"),
+    "empty": ("", "sets nothing (empty, or comments only); give at least one of [physics]"),
+    "comments only": ("# a case\n\n   # to come\n", "sets nothing (empty, or comments only)"),
+    "an absurd shear rate": ("[physics]\nshear_rate = 1e26\n", "physics.shear_rate = 1e+26: beyond 1e+12"),
+    "a shear rate past the model": ("[physics]\nshear_rate = 2e6\n", "physics.shear_rate = 2e+06: at most 1e+06"),
+    "an absurd length": ("[physics]\nlength = 1e300\n", "physics.length = 1e+300: beyond 1e+12"),
 }
 
 STUDY_HEAD = '[campaign]\nname = "bad"\nt_end = 0.02\n' + BASE_RUN
@@ -118,6 +123,16 @@ STUDY_FILES = {
     "analysis a string": ('{head}[analysis]\nmin_cycles = "x"\n', "analysis.min_cycles = 'x'"),
     "not TOML": ("[campaign\n", "not valid TOML"),
     "not UTF-8": (b'[campaign]\nname = "b\xe4d"\n', "not UTF-8 text (byte 0xe4"),
+    "empty": ("", "sets nothing (empty, or comments only); give at least one of [campaign]"),
+    "comments only": ("# the study\n", "sets nothing (empty, or comments only)"),
+    "stop timeout beyond a day": ("[campaign]\nstop_timeout = 1e308\n", "must be > 0 seconds and at most 86400"),
+    "a name with a slash": ('[campaign]\nname = "a/b"\n', "campaign.name = 'a/b': letters, digits"),
+    "a name with a line break": ('[campaign]\nname = "a\\nb"\n', "campaign.name = 'a\\nb'"),
+    "a name with a tab": ('[campaign]\nname = "a\\tb"\n', "campaign.name = 'a\\tb'"),
+    "a name with spaces around": ('[campaign]\nname = " a "\n', "campaign.name = ' a '"),
+    "an output ending in a slash": ('[campaign]\noutput = "out/"\n', "campaign.output = 'out/'"),
+    "a swept shear rate past the model": ("{head}[sweep]\nshear_rate = [1, 1e7]\n",
+                                          "case 0001 (shear_rate = 1e+07): physics.shear_rate"),
 }
 
 
@@ -272,7 +287,7 @@ ALL = ("status", "analyze", "resume")
 CAMPAIGN_DAMAGE = {
     "random bytes": (replace_bytes(lambda d: np.random.default_rng(1).bytes(4096)), "not a readable HDF5", ALL),
     "zeros": (replace_bytes(lambda d: bytes(len(d))), "not a readable HDF5", ALL),
-    "empty": (replace_bytes(lambda d: b""), "not a readable HDF5", ALL),
+    "empty": (replace_bytes(lambda d: b""), "empty (0 bytes), not an HDF5 file", ALL),
     "truncated to a tenth": (replace_bytes(lambda d: d[:len(d) // 10]), "", ALL),
     "truncated to half": (replace_bytes(lambda d: d[:len(d) // 2]), "", ALL),
     "truncated at the end": (replace_bytes(lambda d: d[:len(d) - 1000]), "", ALL),
@@ -304,6 +319,11 @@ CAMPAIGN_DAMAGE = {
     "finished, half the samples": (edit(set_value("cases/0003/timeseries/length", 2)), "finished, but holds", ALL),
     "config not TOML": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", "[numerics\n")),
                         "config attribute cannot be read", ALL),
+    "format version 1.5": (edit(lambda f: f.attrs.__setitem__("format_version", 1.5)), "format version 1.5", ALL),
+    "format version a string": (edit(lambda f: f.attrs.__setitem__("format_version", "1")), "format version '1',",
+                                ALL),
+    "an unknown mode": (edit(lambda f: f.attrs.__setitem__("mode", "bogus")), "mode 'bogus' is not a kind", ALL),
+    "case count 4.5": (edit(lambda f: f.attrs.__setitem__("n_cases", 4.5)), "case count 4.5 is not a count", ALL),
     "config of another case": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", f["cases/0001"].attrs[
         "config"])), "config differs from its study's case", ("resume",)),
     "header of the index flipped": (flip("index/case_id"), "", ALL),
@@ -341,6 +361,7 @@ CASE_DAMAGE = {
     "a campaign file": (None, "not an hpcves case"),                  # (analyze reads it, as it should)
     "no format": (edit(lambda f: f.attrs.__delitem__("format")), "not an hpcves"),
     "version 1": (edit(lambda f: f.attrs.__setitem__("format_version", 1)), "case format version 1"),
+    "version 4.5": (edit(lambda f: f.attrs.__setitem__("format_version", 4.5)), "case format version 4.5"),
     "no timeseries": (edit(lambda f: f.__delitem__("timeseries")), "incomplete case, missing timeseries"),
     "unknown status": (edit(set_value("status", 9)), "status 9 is not a status"),
     "series of the wrong size": (edit(recreate("timeseries/E_bending", data=np.zeros(5))), "shape (5,)"),
@@ -367,3 +388,71 @@ def test_a_damaged_run_file(sound, tmp_path, name):
 
 def test_the_corpus_holds_over_a_hundred_inputs():
     assert len(CASE_FILES) + len(STUDY_FILES) + len(CAMPAIGN_DAMAGE) + len(CASE_DAMAGE) >= 100
+
+
+# ---------------------------------------------------------------------- paths that are not plain files
+def test_devices_pipes_and_empty_files_are_refused_and_left_untouched(sound, tmp_path):
+    """/dev/null opened as HDF5 crashed h5py (exit 139), an empty file was given a superblock by
+    HDF5 1.10's r+ open, and an empty study or /dev/null ran a default campaign: each is now one line."""
+    study_file, campaign, _ = sound
+    case_file = write(tmp_path / "case.toml", BASE_RUN)
+    empty = write(tmp_path / "empty.h5", b"")
+    pipe = tmp_path / "pipe"
+    os.mkfifo(pipe)
+    calls = {
+        ("run", "--resume", os.devnull): "a character device, not a file",
+        ("run", "--resume", empty): "empty (0 bytes), not an HDF5 file",
+        ("run", os.devnull, "--out", tmp_path / "a.h5"): "a character device, not a TOML file",
+        ("run", case_file, "--out", os.devnull): "a character device, not a file",
+        ("run", pipe, "--out", tmp_path / "a.h5"): "a named pipe, not a TOML file",
+        ("run", f"{case_file}/", "--out", tmp_path / "a.h5"): "ends in '/'",
+        ("campaign", os.devnull, "--out", tmp_path / "c.h5"): "a character device, not a TOML file",
+        ("campaign", f"{study_file}/", "--out", tmp_path / "c.h5"): "ends in '/'",
+        ("campaign", study_file, "--out", os.devnull, "--quiet"): "a character device, not a file",
+        ("campaign", study_file, "--resume", "--out", empty, "--quiet"): "empty (0 bytes)",
+        ("status", os.devnull): "a character device, not a file",
+        ("status", "--check", pipe): "a named pipe, not a file",
+        ("status", empty): "empty (0 bytes)",
+        ("analyze", os.devnull, "--out", tmp_path / "x"): "a character device, not a file",
+        ("analyze", empty, "--out", tmp_path / "x"): "empty (0 bytes)",
+    }
+    for args, words in calls.items():
+        line = refused(invoke(*args))
+        assert words in line, (args, line)
+    assert empty.stat().st_size == 0
+    assert sorted(os.listdir(tmp_path)) == ["case.toml", "empty.h5", "pipe"]
+
+
+def test_analyze_of_a_file_it_may_not_replace_writes_the_tables_and_says_why_it_kept_the_file(sound, tmp_path):
+    """An immutable file (chattr +i) refused the rename of the analysed copy over it: exit 2 with
+    '...partial: Operation not permitted', the copy left beside it. Now the documented note, exit 0."""
+    import shutil
+    import subprocess
+
+    _, campaign, _ = sound
+    copy = tmp_path / "immutable.h5"
+    shutil.copyfile(campaign, copy)
+    if shutil.which("chattr") is None or subprocess.run(["chattr", "+i", copy], capture_output=True).returncode:
+        pytest.skip("chattr +i is not permitted here")
+    try:
+        result = invoke("analyze", copy, "--out", tmp_path / "tables", "--no-case-figures")
+        assert result.exit_code == 0, result.stderr
+        assert "results not written into the file: cannot replace it" in result.stderr, result.stderr
+        assert "the file is unchanged" in result.stderr
+        assert (tmp_path / "tables" / "regimes.csv").exists()
+        assert not list(tmp_path.glob("*.partial"))
+        assert copy.read_bytes() == campaign.read_bytes()
+    finally:
+        subprocess.run(["chattr", "-i", copy], check=False)
+
+
+def test_a_plan_for_a_file_larger_than_the_free_disk_times_a_step_and_says_so(tmp_path):
+    """--plan timed a step by running the case into a scratch file as large as the whole case's; a
+    study whose cases would not fit the disk stopped with a StorageError traceback, exit 1."""
+    study = write(tmp_path / "huge.toml", STUDY_HEAD.replace("t_end = 0.02\n", "t_end = 1e5\n", 1)
+                  .replace("t_end = 0.02\nsample_interval", "t_end = 1e5\nsample_interval")
+                  + "[sweep]\nshear_rate = [1, 2]\n")
+    result = invoke("campaign", study, "--plan", "--out", tmp_path / "huge.h5")
+    assert result.exit_code == 0 and "Traceback" not in result.stderr, result.stderr
+    assert "not enough, the campaign would refuse to start" in result.stdout, result.stdout
+    assert sorted(os.listdir(tmp_path)) == ["huge.toml"]

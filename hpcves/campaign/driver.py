@@ -54,7 +54,7 @@ from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_
 from hpcves.campaign.file import CampaignFile
 from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
                          FileFormatError,
-                         attr_text, open_file, reading, storage_bytes)
+                         attr_text, open_file, reading, refuse_unopenable, storage_bytes)
 from hpcves.files.lock import CampaignLock, LockError, real_path
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import AnalysisSettings
@@ -438,6 +438,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     verdict = None
     if rank == 0:
         try:
+            refuse_unopenable(given, "r+" if resume else "a")      # before a lock file is made beside it
             lock.acquire()
             verdict = ("ok", prepare_file(study, path, resume=resume, overwrite=overwrite))
         except ConfigError as exc:

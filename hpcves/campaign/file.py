@@ -33,7 +33,8 @@ from dataclasses import dataclass
 from hpcves import __version__
 from hpcves.files import faults
 from hpcves.files.atomic import partial_path
-from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
+from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_integer, attr_shown,
+                              attr_text, open_file, reading)
 from hpcves.run.verdict import DAMAGED
 from hpcves.files.lock import writer
 from hpcves.campaign.study import Study
@@ -151,14 +152,21 @@ class CampaignFile:
             raise FileFormatError(f"{where}: a single-run file (hpcves run), not a campaign file")
         if fmt != FORMAT:
             raise FileFormatError(f"{where}: not an hpcves campaign file (no format = {FORMAT!r} attribute)")
-        version = int(h5.attrs.get("format_version", -1))
-        if version != FORMAT_VERSION:
-            raise FileFormatError(f"{where}: campaign format version {version}, this hpcves reads {FORMAT_VERSION}")
+        written = h5.attrs.get("format_version", -1)
+        if attr_integer(written) != FORMAT_VERSION:
+            raise FileFormatError(f"{where}: campaign format version {attr_shown(written)}, this hpcves reads "
+                                  f"{FORMAT_VERSION}")
+        mode = attr_text(h5.attrs.get("mode", "grid"))
+        if mode not in ("grid", *STAGED_MODES):
+            raise FileFormatError(f"{where}: mode {mode!r} is not a kind of campaign (grid, "
+                                  + ", ".join(STAGED_MODES) + ")")
         missing = [k for k in ("index", "cases") if k not in h5]
         if missing:
             raise FileFormatError(f"{where}: incomplete campaign file, missing {', '.join(missing)}")
-        n = int(h5.attrs.get("n_cases", -1))
-        staged = attr_text(h5.attrs.get("mode", "grid")) in STAGED_MODES
+        n = attr_integer(h5.attrs.get("n_cases", -1))
+        if n is None or n < 0:
+            raise FileFormatError(f"{where}: its header's case count {h5.attrs.get('n_cases')} is not a count")
+        staged = mode in STAGED_MODES
         if len(h5["cases"]) != n and not (staged and len(h5["cases"]) > n):   # a half-added stage
             raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
                                   "(creation was interrupted?)")

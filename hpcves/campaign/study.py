@@ -90,7 +90,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_text, refuse_unknown, with_prefix
+from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_settings, refuse_unknown, with_prefix
 from hpcves.model.params import SWEEPABLE, Case, ConfigError     # SWEEPABLE: what [sweep] may vary
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.run.resolution import expected_N
@@ -101,6 +101,9 @@ SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the s
 #: what a named start of ``[starts]`` may set: the physics of the initial shape and phase
 START_KEYS = ("initial_shape", "psi_init_coordinate", "initial_phase", "phase_domains", "phase_center",
               "phase_seed", "delta", "stored_file", "stored_case", "stored_time")
+#: the longest wait from a stop request to a checkpointed exit: a day (time.sleep overflows near 1e308,
+#: and a batch system's warning comes minutes, not days, before the kill)
+MAX_STOP_TIMEOUT = 86400.0
 CAMPAIGN_KEYS = ("name", "output", "t_end", "shear_times", "t_end_min", "samples_per_shear_time", "stop_timeout")
 #: more cases than this in one study is surely a mistake (checked before any case is built: building
 #: and validating 10^5 cases takes ~6 s; 10^6 took 60 s and 680 MB)
@@ -349,8 +352,8 @@ def study_from_toml(text: str, source: str = "<string>", default_name: str = "ca
 
 def load_study(path: str | Path) -> Study:
     """Read a campaign file and build (validate) every case."""
-    path = Path(path)
-    return study_from_toml(read_text(path), source=str(path), default_name=path.stem)
+    text = read_settings(path, "[campaign], [sweep] or a case's tables")
+    return study_from_toml(text, source=str(Path(path)), default_name=Path(path).stem)
 
 
 def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
@@ -374,14 +377,22 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     with problems.check():
         if not isinstance(name, str) or not name.strip():
             raise ConfigError(f"campaign.name = {name!r}: must be a non-empty string")
+        if "/" in name or "\\" in name or not name.isprintable() or name != name.strip():
+            # the name becomes the default file name, the batch job's name and a title
+            raise ConfigError(f"campaign.name = {name!r}: letters, digits and punctuation without '/' or '\\', "
+                              "no line breaks or other control characters, no spaces at either end")
     output = campaign.get("output", f"{name}.h5")
     with problems.check():
         if not isinstance(output, str) or not output:
             raise ConfigError(f"campaign.output = {output!r}: must be a file path")
+        if "output" in campaign and (not output.isprintable() or output.endswith("/")):
+            raise ConfigError(f"campaign.output = {output!r}: must be a file path (no control characters, "
+                              "not ending in '/')")
     with problems.check():
         stop_timeout = check_type("campaign.stop_timeout", campaign.get("stop_timeout", 10.0), float)
-        if not stop_timeout > 0:
-            raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds")
+        if not 0 < stop_timeout <= MAX_STOP_TIMEOUT:
+            raise ConfigError(f"campaign.stop_timeout = {stop_timeout}: must be > 0 seconds"
+                              + (f" and at most {MAX_STOP_TIMEOUT:g} (a day)" if stop_timeout > 0 else ""))
     with problems.check():
         times = TimeRules.from_campaign(campaign)
     with problems.check():

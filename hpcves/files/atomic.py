@@ -39,6 +39,7 @@ import shutil
 from pathlib import Path
 
 from hpcves.files import faults
+from hpcves.config import not_a_regular_file
 from hpcves.model.params import ConfigError
 
 #: what a file needs beyond its datasets' raw bytes, per case (object headers, attributes, the config
@@ -180,10 +181,13 @@ def copy_for_change(path, extra_bytes: float, what: str) -> Path:
 
 
 def check_output_path(path) -> None:
-    """Refuse an output path that cannot be a file before any work: a directory, or under a file."""
+    """Refuse an output path that cannot be a file before any work: a directory, a device or other
+    special file (renaming the new file over it would replace it), or a path under a file."""
     path = Path(path)
     if path.is_dir():
         raise StorageError(f"{path}: is a directory, not a file")
+    if path.exists() and not_a_regular_file(path):
+        raise StorageError(f"{path}: {not_a_regular_file(path)}, not a file")
     for parent in path.parents:
         if parent.exists():
             if not parent.is_dir():

@@ -130,6 +130,9 @@ class Physics:
     def __post_init__(self) -> None:
         _finite(self)
         _require(self.shear_rate >= 0, f"physics.shear_rate = {self.shear_rate}: must be >= 0")
+        _require(self.shear_rate <= MAX_SHEAR_RATE,
+                 f"physics.shear_rate = {self.shear_rate:g}: at most {MAX_SHEAR_RATE:g} (bending, the unit of the "
+                 "model, would be below 1e-6 of the shear's stress)")
         _require(0.0 <= self.psi_bar <= 1.0, f"physics.psi_bar = {self.psi_bar}: must lie in [0, 1]")
         _require(self.length > 0, f"physics.length = {self.length}: must be > 0")
         _require(
@@ -515,6 +518,13 @@ def dealias_label(dealias: float) -> str:
     return f", rates on {dealias:g} N" if dealias != 1.0 else ""
 
 
+#: the largest shear rate accepted: in units of bending, S = 1e6 leaves the membrane's forces at 1e-6 of the
+#: shear's stress (the publication's go to 350)
+MAX_SHEAR_RATE = 1e6
+#: no parameter of the model is meaningful beyond this magnitude (1e26 was accepted and failed at t = 0)
+MAX_MAGNITUDE = 1e12
+
+
 def _finite(obj) -> None:
     group = type(obj).__name__.lower()
     group = {"runcontrol": "run"}.get(group, group)
@@ -522,3 +532,5 @@ def _finite(obj) -> None:
         value = getattr(obj, f.name)
         if isinstance(value, float):
             _require(math.isfinite(value), f"{group}.{f.name} = {value}: must be a finite number")
+            _require(abs(value) <= MAX_MAGNITUDE,
+                     f"{group}.{f.name} = {value:g}: beyond {MAX_MAGNITUDE:g}, surely a mistake")

@@ -177,7 +177,11 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, pro
             remove_partial(path)
             return f"cannot write into a copy of it ({str(exc).strip().splitlines()[0]}); the file is unchanged"
         faults.point("analysis-stored")
-        publish(partial, path)
+        try:
+            publish(partial, path)
+        except OSError as exc:          # e.g. an immutable file (chattr +i): the rename over it is refused
+            remove_partial(path)
+            return f"cannot replace it ({exc.strerror or exc}); the file is unchanged"
         return ""
     except StorageError as exc:
         return str(exc)

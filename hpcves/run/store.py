@@ -40,7 +40,7 @@ import numpy as np
 from hpcves import __version__
 from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_CASE, StorageError
-from hpcves.config import case_from_toml, case_to_toml
+from hpcves.config import case_from_toml, case_to_toml, not_a_regular_file
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.model.params import Case, ConfigError
@@ -127,6 +127,21 @@ def safe_flush(h5):
     return flush
 
 
+def refuse_unopenable(path, mode: str = "r") -> None:
+    """Refuse an existing ``path`` that is no file to open as HDF5: a device, a pipe, a socket (h5py
+    writes to them; /dev/null crashed it), or, to read, an empty file (HDF5 1.10 opens one r+ and
+    writes a superblock into it). Nothing is opened, locked or made."""
+    import os
+
+    if not os.path.exists(path):
+        return
+    kind = not_a_regular_file(path)
+    if kind:
+        raise FileFormatError(f"{path}: {kind}, not a file")
+    if mode in ("r", "r+") and os.path.getsize(path) == 0:
+        raise FileFormatError(f"{path}: empty (0 bytes), not an HDF5 file")
+
+
 def open_file(path, mode: str, **kwargs):
     """h5py.File(path, mode, **kwargs) with one clear message for every way that can fail."""
     import errno
@@ -145,6 +160,7 @@ def open_file(path, mode: str, **kwargs):
                 raise FileFormatError(f"{path}: a symbolic link that leads back to itself") from None
     if mode in ("r", "r+") and not os.path.exists(path):
         raise FileFormatError(f"{path}: no such file")
+    refuse_unopenable(path, mode)
     if mode in ("w-", "x") and os.path.exists(path):
         raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
     try:
@@ -191,6 +207,19 @@ def storage_bytes(case: Case) -> int:
 def attr_text(value) -> str:
     """An HDF5 string attribute as str (h5py returns bytes for fixed-length strings)."""
     return value.decode() if isinstance(value, bytes) else str(value)
+
+
+def attr_integer(value):
+    """An integer attribute (a format version, a count) as int; None where it holds anything else
+    (1.5, a string): int() would round 1.5 to a version this hpcves reads."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        return None
+    return int(value)
+
+
+def attr_shown(value) -> str:
+    """An attribute as a message shows it: text quoted (the string '1' is not the version 1)."""
+    return repr(attr_text(value)) if isinstance(value, (str, bytes)) else str(value)
 
 
 def _early():
@@ -298,9 +327,9 @@ class CaseStore:
         where = where or group.name
         if attr_text(group.attrs.get("format", "")) != FORMAT:
             raise FileFormatError(f"{where}: not an hpcves case (no format = {FORMAT!r} attribute)")
-        version = int(group.attrs.get("format_version", -1))
-        if version not in READS_VERSIONS:
-            raise FileFormatError(f"{where}: case format version {version}, this hpcves reads "
+        written = group.attrs.get("format_version", -1)
+        if attr_integer(written) not in READS_VERSIONS:
+            raise FileFormatError(f"{where}: case format version {attr_shown(written)}, this hpcves reads "
                                   + " and ".join(map(str, READS_VERSIONS)))
         missing = [k for k in ("timeseries", "snapshots", "checkpoint", "status", "message", "progress")
                    if k not in group]

@@ -23,13 +23,18 @@ def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
     The runs take fixed steps of the size the case is expected to settle at
     (``Case.settled_step``): an adaptive run's first steps are tiny, so they sample far
     less often than the long stretch at the settled step that makes up a run. A run that
-    stops early is timed over what it ran. Call it once first on a throw-away case if
+    stops early is timed over what it ran; its t_end is cut to just past the timed steps, so its file
+    holds only what they write. Call it once first on a throw-away case if
     nothing ran in this process yet (:class:`StepCost` does): the first run pays for
     loading libraries and planning FFTs."""
     from hpcves.run.casefile import create_case_file, run_file
 
     numerics = dataclasses.replace(case.numerics, dt=case.settled_step, rtol=None)
-    case = dataclasses.replace(case, numerics=numerics, run=dataclasses.replace(case.run, until_decided=False))
+    # the run ends just after the timed steps, so its file holds what they write, not the whole case's
+    # samples and snapshots (which need not fit a scratch directory here: a cluster's study)
+    t_end = min(case.run.t_end, (steps + 2) * numerics.dt)
+    case = dataclasses.replace(case, numerics=numerics, run=dataclasses.replace(case.run, until_decided=False,
+                                                                                t_end=t_end))
     best = float("inf")
     with tempfile.TemporaryDirectory(prefix="hpcves-timing-") as scratch:
         for i in range(repeats):
