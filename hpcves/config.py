@@ -196,7 +196,7 @@ def read_text(path: Path) -> str:
         kind = not_a_regular_file(path)
         if kind:
             raise ConfigError(f"{path}: {kind}, not a TOML file")
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")     # a byte-order mark (some editors write one) dropped
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such file") from None
     except IsADirectoryError:

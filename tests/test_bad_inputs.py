@@ -72,6 +72,16 @@ CASE_FILES = {
     "an absurd shear rate": ("[physics]\nshear_rate = 1e26\n", "physics.shear_rate = 1e+26: beyond 1e+12"),
     "a shear rate past the model": ("[physics]\nshear_rate = 2e6\n", "physics.shear_rate = 2e+06: at most 1e+06"),
     "an absurd length": ("[physics]\nlength = 1e300\n", "physics.length = 1e+300: beyond 1e+12"),
+    "a date for a number": ("[run]\nt_end = 1979-05-27\n", "run.t_end = datetime.date(1979, 5, 27): must be a number"),
+    "a time for a number": ("[run]\nt_end = 07:32:00\n", "must be a number"),
+    "an inline table for a number": ("[physics]\nshear_rate = { a = 1 }\n", "physics.shear_rate = {'a': 1}"),
+    "a 23-digit N": ("[numerics]\nN = 99999999999999999999999\n", "more than 4096 points"),
+    "dt of minus zero": ("[numerics]\ndt = -0.0\n", "numerics.dt = -0.0: must be > 0"),
+    "a NUL byte": ("[physics]\nshear_rate = 1.0\x00\n", "not valid TOML"),
+    "an array of tables": ("[[physics]]\nshear_rate = 1.0\n", "[physics] must be a table"),
+    "a number past a double": ("[physics]\nshear_rate = 1e400\n", "physics.shear_rate = inf: must be a finite"),
+    "dealias 3": ("[numerics]\ndealias = 3\n", "numerics.dealias = 3.0: must be 1"),
+    "N_max below N_min": ("[numerics]\nN = 'auto'\nN_min = 128\nN_max = 64\n", "numerics.N_max = 64: must be above"),
 }
 
 STUDY_HEAD = '[campaign]\nname = "bad"\nt_end = 0.02\n' + BASE_RUN
@@ -131,6 +141,15 @@ STUDY_FILES = {
     "a name with a tab": ('[campaign]\nname = "a\\tb"\n', "campaign.name = 'a\\tb'"),
     "a name with spaces around": ('[campaign]\nname = " a "\n', "campaign.name = ' a '"),
     "an output ending in a slash": ('[campaign]\noutput = "out/"\n', "campaign.output = 'out/'"),
+    "a name of 5000 characters": ("[campaign]\nname = '" + "x" * 5000 + "'\n", "5000 characters, at most 200"),
+    "a sample every 1e-12 shear times": ("[campaign]\nshear_times = 10\nsamples_per_shear_time = 1e12\n"
+                                         "[sweep]\nshear_rate = [1, 2]\n", "must be > 0 and at most 1e4"),
+    "an output of /": ("[campaign]\noutput = '/'\n", "campaign.output = '/'"),
+    "a list in a sweep list": ("{head}[sweep]\nshear_rate = [[1, 2]]\n", "sweep.shear_rate[0] = [1, 2]"),
+    "a start that is a number": ("{head}[sweep]\nshear_rate = [1, 10]\n[starts]\na = 3\n", "starts.a = 3"),
+    "a negative refine tolerance": ("{head}[sweep]\nshear_rate = [1, 10]\npsi_bar = [0.3, 0.5]\n[refine]\n"
+                                    "tolerance = {{ shear_rate = -0.1, psi_bar = 0.05 }}\n",
+                                    "tolerance.shear_rate = -0.1: must be > 0"),
     "a swept shear rate past the model": ("{head}[sweep]\nshear_rate = [1, 1e7]\n",
                                           "case 0001 (shear_rate = 1e+07): physics.shear_rate"),
 }
@@ -456,3 +475,18 @@ def test_a_plan_for_a_file_larger_than_the_free_disk_times_a_step_and_says_so(tm
     assert result.exit_code == 0 and "Traceback" not in result.stderr, result.stderr
     assert "not enough, the campaign would refuse to start" in result.stdout, result.stdout
     assert sorted(os.listdir(tmp_path)) == ["huge.toml"]
+
+
+def test_a_byte_order_mark_is_read_past():
+    """Some editors begin UTF-8 files with a byte-order mark, which TOML's parser took for a statement."""
+    from hpcves.config import load_case
+
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as d:
+        plain, marked = Path(d) / "plain.toml", Path(d) / "marked.toml"
+        plain.write_text("[physics]\nshear_rate = 7.0\n", encoding="utf-8")
+        marked.write_text("\ufeff[physics]\nshear_rate = 7.0\n", encoding="utf-8")
+        assert marked.read_bytes().startswith(b"\xef\xbb\xbf")
+        assert load_case(marked) == load_case(plain) and load_case(marked).physics.shear_rate == 7.0

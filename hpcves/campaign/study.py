@@ -377,6 +377,9 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     with problems.check():
         if not isinstance(name, str) or not name.strip():
             raise ConfigError(f"campaign.name = {name!r}: must be a non-empty string")
+        if len(name) > 200:
+            raise ConfigError(f"campaign.name = {name[:20]!r}...: {len(name)} characters, at most 200 (the name "
+                              "is the default file name, which file systems limit to 255 bytes)")
         if "/" in name or "\\" in name or not name.isprintable() or name != name.strip():
             # the name becomes the default file name, the batch job's name and a title
             raise ConfigError(f"campaign.name = {name!r}: letters, digits and punctuation without '/' or '\\', "
@@ -524,8 +527,9 @@ class TimeRules:
         samples = campaign.get("samples_per_shear_time")
         if samples is not None:
             samples = check_type("campaign.samples_per_shear_time", samples, float)
-            if not samples > 0:
-                raise ConfigError(f"campaign.samples_per_shear_time = {samples}: must be > 0")
+            if not 0 < samples <= 1e4:
+                raise ConfigError(f"campaign.samples_per_shear_time = {samples:g}: must be > 0 and at most 1e4 "
+                                  "(a sample every 1e-4 shear times)")
         return cls(absolute, shear_times, floor, samples)
 
 

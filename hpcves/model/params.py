@@ -262,9 +262,9 @@ class Numerics:
         _require(isinstance(self.N, int) and not isinstance(self.N, bool),
                  f"numerics.N = {self.N!r}: must be an integer")
         _require(self.N >= 16, f"numerics.N = {self.N}: too small, use at least 16 points")
-        _require(self.N % 2 == 0, f"numerics.N = {self.N}: must be even")
         _require(self.N <= 4096, f"numerics.N = {self.N}: more than 4096 points is not supported "
                  "(the Stokeslet matrix is dense)")
+        _require(self.N % 2 == 0, f"numerics.N = {self.N}: must be even")
         _require(isinstance(self.N_max, int) and not isinstance(self.N_max, bool),
                  f"numerics.N_max = {self.N_max!r}: must be an integer")
         if self.N_max:
