@@ -146,8 +146,8 @@ def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):
 
 
 def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
-    """The script with stand-ins for srun and sbatch: a job that ran nothing resubmits; one that
-    finished the campaign does not."""
+    """The script with stand-ins for srun and sbatch: a job that ran nothing resubmits, a second one
+    in a row does not; one that finished the campaign does not."""
     study_file = tmp_path / "w.toml"
     output = tmp_path / "w.h5"
     study_file.write_text(TINY.format(name="w", output=output) + "[sweep]\nshear_rate = [10, 20]\n")
@@ -173,8 +173,18 @@ def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
     assert "work left: submitting the next job" in first.stdout
     assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
 
+    # a second job in a row that advanced nothing ends the chain: a job that can never progress (a
+    # creation longer than the job) would otherwise resubmit forever
+    again = subprocess.run(["bash", str(tmp_path / "idle.sh")], env=env, capture_output=True, text=True,
+                           cwd=tmp_path, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert "submitting" not in again.stdout and "2 jobs in a row advanced nothing" in again.stderr, again.stderr
+    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
+    assert (tmp_path / "w.h5.idle_jobs").read_text().strip() == "2"
+
     second = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True, cwd=tmp_path,
                             timeout=300)
     assert second.returncode == 0, second.stderr
     assert "submitting" not in second.stdout and "status: complete" in second.stdout
     assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]    # not again
+    assert not (tmp_path / "w.h5.idle_jobs").exists()                     # progress resets the count

@@ -3,7 +3,7 @@
 The script runs ``hpcves campaign --resume`` under srun, asks ``hpcves status --json``
 what is left, and submits itself again while work is left (status exit 3) -- a
 study larger than one job's wall time goes on in the next job, from the
-checkpoints. Every path in it is absolute, so it runs from any directory.
+checkpoints -- unless MAX_IDLE_JOBS jobs in a row advanced nothing. Every path in it is absolute, so it runs from any directory.
 """
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ from pathlib import Path
 #: seconds before the wall time at which SLURM sends SIGTERM: the campaign's stop_timeout
 #: (every rank checkpoints) plus this margin for the status call and the resubmission
 SIGNAL_MARGIN = 60
+#: jobs in a row that advance nothing (no case added, no simulated time) before the chain stops
+MAX_IDLE_JOBS = 2
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,16 @@ OUT={q(output)}
 HPCVES={q(hpcves)}
 PYTHON={q(python)}
 
+# progress in a status --json: the cases in the file and their simulated time added up ("none": no file)
+progress() {{
+    "$PYTHON" -c 'import json, sys
+try:
+    rows = json.load(sys.stdin)["rows"]
+    print(len(rows), sum(r["t"] for r in rows if r["t"] == r["t"]))
+except Exception:
+    print("none")'
+}}
+before=$("$HPCVES" status --json "$OUT" 2>/dev/null | progress)
 status=0
 srun --kill-on-bad-exit=0 "$HPCVES" campaign "$STUDY" --out "$OUT" --resume --quiet || status=$?
 # campaign: 0 done or stopped by the signal, 1 some case failed, 2 bad input or a refused write
@@ -72,9 +84,20 @@ left=0
 print("status:", "complete" if s.get("complete") else "work left: " + str(s.get("left")), s.get("totals", ""))' \\
     "$OUT.status.json" || true
 # status: 0 complete, 1 complete with failed cases, 3 work left, 2 unreadable or damaged
-if [ "$left" -eq 3 ] && [ "$status" -le 1 ]; then
+# a job that advanced nothing (creation that does not fit in a job, a site problem) may happen once;
+# {MAX_IDLE_JOBS} in a row end the chain instead of resubmitting it forever
+if [ "$(progress < "$OUT.status.json")" = "$before" ]; then
+    idle=$(( $(cat "$OUT.idle_jobs" 2>/dev/null || echo 0) + 1 ))
+    echo "$idle" > "$OUT.idle_jobs"
+else
+    idle=0
+    rm -f "$OUT.idle_jobs"
+fi
+if [ "$left" -eq 3 ] && [ "$status" -le 1 ] && [ "$idle" -lt {MAX_IDLE_JOBS} ]; then
     echo "work left: submitting the next job"
     sbatch "$0"
+elif [ "$left" -eq 3 ] && [ "$idle" -ge {MAX_IDLE_JOBS} ]; then
+    echo "work left, but $idle jobs in a row advanced nothing: not resubmitting (see the logs; delete $OUT.idle_jobs and sbatch again once the cause is fixed)" >&2
 elif [ "$left" -eq 3 ]; then
     echo "work left, but the campaign ended with status $status: not resubmitting; see the log above" >&2
 fi
