@@ -110,6 +110,11 @@ def _duration(seconds: float) -> str:
     return f"{seconds // 3600} h {(seconds % 3600) // 60:02d} min"
 
 
+def _exit_on_sigterm(signum, frame):
+    """SIGTERM as an exit (status 128 + 15), so that context managers clean up on the way out."""
+    raise SystemExit(128 + signum)
+
+
 class StopFlag:
     """SIGINT / SIGTERM set a flag that the run loop polls (it then checkpoints and stops)."""
 
@@ -457,7 +462,13 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
         check_output_path(slurm_file)
         if not Path(slurm_file).absolute().parent.is_dir():        # say so before the timing, not after
             _fail(f"{slurm_file}: its directory {Path(slurm_file).absolute().parent} does not exist")
-    estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)))
+    # a step is timed in a scratch directory, removed when the timing ends; SIGTERM (a batch system,
+    # `timeout`) would kill the process before that: made an exit, which removes it too
+    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    try:
+        estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)))
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     basis = estimate.likely or estimate              # what the run will likely take: ranks and time from it
     ranks = basis.suggested_ranks()
     wall = basis.wall(ranks)

@@ -4,7 +4,7 @@ import stat
 import subprocess
 
 import pytest
-from jobs import hpcves
+from jobs import hpcves, mpi_env, start_job
 
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.plan import Plan, Stage, makespan, plan
@@ -188,3 +188,25 @@ def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
     assert "submitting" not in second.stdout and "status: complete" in second.stdout
     assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]    # not again
     assert not (tmp_path / "w.h5.idle_jobs").exists()                     # progress resets the count
+
+
+def test_a_plan_stopped_by_sigterm_leaves_no_scratch_file(tmp_path):
+    """--plan times a step in a scratch directory; killed by SIGTERM (`timeout`, a batch system) while
+    timing, it left the directory with its file behind (two of 22 GB each once filled a disk)."""
+    import signal
+    import time
+
+    study_file = tmp_path / "slow.toml"
+    study_file.write_text(TINY.format(name="slow", output=tmp_path / "slow.h5").replace("N = 32", "N = 1024")
+                          + "[sweep]\nshear_rate = [10, 20]\n")
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    process = start_job(None, "campaign", study_file, "--plan", env=dict(mpi_env(), TMPDIR=str(scratch)))
+    deadline = time.monotonic() + 120
+    while not any(scratch.glob("hpcves-timing-*/*.h5")):                # timing has begun
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == 128 + signal.SIGTERM, stderr
+    assert "Traceback" not in stderr and list(scratch.iterdir()) == [], (stderr, list(scratch.iterdir()))
