@@ -448,8 +448,8 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     from hpcves.campaign.plan import plan
     from hpcves.campaign.slurm import JobSize, slurm_script
     from hpcves.campaign.study import load_study
-    from hpcves.files.atomic import METADATA_BYTES_PER_FILE, free_bytes, size_text
-    from hpcves.run.store import storage_bytes
+    from hpcves.campaign.driver import file_bytes
+    from hpcves.files.atomic import free_bytes, size_text
     from hpcves.run.timing import StepCost
 
     try:
@@ -478,7 +478,7 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     click.echo(f"suggested: {ranks} rank{'s' * (ranks != 1)} (srun -n {ranks} / mpirun -n {ranks}), "
                f"a job of {_duration(ask)}" + (" (capped by --max-time; the job resubmits itself)"
                                                 if ask < _job_seconds(wall) else ""))
-    size = METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases)
+    size = file_bytes(study)
     free = free_bytes(path)
     click.echo(f"output: {path} ({size_text(size)} for the {len(study.cases)} cases it starts with, every sample and "
                f"snapshot preallocated; {size_text(free)} free there"

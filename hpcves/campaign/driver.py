@@ -125,7 +125,7 @@ def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> 
         _drop_partial_stage(path)
         check_file(study, path)
         return "continue"
-    needed = METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases)
+    needed = file_bytes(study)
     replaced = " (the old file is replaced only once the new one is complete)" if path.exists() else ""
     require_space(path, needed, f"the campaign file ({len(study.cases)} cases, every sample and snapshot "
                                 f"preallocated){replaced}")
@@ -565,6 +565,11 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
     return results, stopped, refused
 
 
+def file_bytes(study: Study) -> int:
+    """The size of a new campaign file of ``study``'s known cases: every sample and snapshot preallocated."""
+    return METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases)
+
+
 def _create(study: Study, path: Path, comm, access: FileAccess) -> None:
     """Lay out the whole file under ``<path>.partial`` (collectively under mpio), then rename it to ``path``.
 
@@ -572,7 +577,7 @@ def _create(study: Study, path: Path, comm, access: FileAccess) -> None:
     here, before HDF5 writes anything.
     """
     def reserve():
-        new_partial(path, METADATA_BYTES_PER_FILE + sum(storage_bytes(c.case) for c in study.cases),
+        new_partial(path, file_bytes(study),
                     f"the campaign file ({len(study.cases)} cases, every sample and snapshot preallocated)")
 
     failure = _change(path, comm, access, reserve, lambda h5: CampaignFile.create(h5, study),
