@@ -584,8 +584,9 @@ def _print_summary(summary, path) -> None:
     for case_id, message in summary.failed:
         click.echo(f"  case {case_id} failed: {message.splitlines()[0] if message else '?'}", err=True)
     if summary.run_again:
-        click.echo(f"  {summary.run_again} under-resolved case{'s' * (summary.run_again != 1)} ran again at a "
-                   "larger N (refine.max_N); the later run is the point's", err=True)
+        click.echo(f"  {summary.run_again} case{'s' * (summary.run_again != 1)} ran again (under-resolved: at a "
+                   "larger N, refine.max_N; creeping: with a tighter resize_tail, refine.min_resize_tail); the "
+                   "later run is the point's", err=True)
     if summary.counts.get("interrupted", 0) or summary.counts.get("running", 0) or summary.counts.get("pending", 0):
         click.echo("  not finished: continue with --resume", err=True)
     if summary.failed:
@@ -751,7 +752,7 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
     for r in report.refinements:
         where = ", ".join(f"{k} = {r[k]:g}" for k in r if k not in REFINEMENT_FIELDS)
         click.echo(f"refinement{' ' + where if where else ''}: {r['status']}, {r['cases']} cases "
-                   + (f"({r['run_again']} run again at a larger N) " if r.get("run_again") else "")
+                   + (f"({r['run_again']} run again) " if r.get("run_again") else "")
                    + f"({r['crossings']} crossings, {r['blurry']} blurry)  ({r['reason']})")
     if report.wrote_back:
         click.echo(f"results stored in {report.source.path} (group analysis/)")

@@ -5,6 +5,7 @@ import pytest
 from hpcves.config import ConfigError
 from hpcves.analysis.periodicity import analyse, estimate_period, upward_crossings
 from hpcves.analysis.regimes import PT, TT, TU, UNDECIDED, AnalysisSettings, classify
+from hpcves.run.verdict import crept
 
 H = 0.005                     # the default sampling interval of a run
 T = 0.7
@@ -153,6 +154,15 @@ def test_undecided_rather_than_guessing(case, words):
     }
     c = classify(signals[case])
     assert c.regime == UNDECIDED and words in c.reason, (case, c)
+    # only theta steady with the pattern moving is creep, which a refinement may run again more finely
+    row = {"regime": c.regime, "reason": f"interrupted at t = 3 of 20: {c.reason}"}
+    assert crept(row) == (case == "pattern moves but theta steady")
+
+
+def test_a_decided_case_never_creeps():
+    for theta, speed in ((0.56 - 0.3 * np.exp(-t / 1.2), 1e-6), (SIGNALS["noise 10 %"], 0.5)):
+        c = classify(series(theta, pattern_speed=speed))
+        assert c.regime in (TT, PT) and not crept({"regime": c.regime, "reason": c.reason})
 
 
 def test_settings_are_checked():

@@ -69,7 +69,7 @@ def trace(study, max_stages=30):
         for S, psi_bar in outcome.state.next_points:
             for start in study.point_starts:
                 if not any(f[1:3] == (S, psi_bar) and f[5] == start for f in found):
-                    found.append((0, S, psi_bar, truth(S, psi_bar, start), False, start))
+                    found.append((0, S, psi_bar, truth(S, psi_bar, start), None, start))
     raise AssertionError("no end")
 
 

@@ -46,21 +46,28 @@ def truth(S, delta):
     return regime, needed
 
 
-def trace(study, max_stages=60):
-    """Run the refinement against ``truth``, with a point's run at N = 128 * 2**attempt:
-    (found, final outcome)."""
+def trace(study, max_stages=60, truth=truth):
+    """Run the refinement against ``truth``, each point's next run with the numerics its last asked
+    for (Study.retry_numerics): (found, final outcome)."""
     found, runs = [], []
     for _ in range(max_stages):
         (outcome,) = outcomes(study, found)
         if outcome.state.status != refine.RUNNING:
             return found, outcome
         for x, y in outcome.state.next_points:
-            attempt = outcome.retries.get((x, y, None), 0)
+            attempt, changes = outcome.retries.get((x, y, None), (0, None))
             assert attempt == sum(p == (x, y) for p in runs)       # a point is asked for again only to retry
+            numerics = study.refine_case(0, x, y, "0000", changes).case.numerics
             regime, needed = truth(x, y)
-            N = study.base.numerics.N * 2 ** attempt
             runs.append((x, y))
-            found.append((0, x, y, regime, False, None) if N >= needed else (0, x, y, "failed", True, None))
+            if callable(needed):                  # creep: the regime needs resize_tail <= needed(...)
+                crept = not needed(numerics.resize_tail)
+                found.append((0, x, y, "undecided" if crept else regime,
+                              study.retry_numerics(numerics, False, crept), None))
+            elif numerics.N >= needed:
+                found.append((0, x, y, regime, study.retry_numerics(numerics, False, False), None))
+            else:
+                found.append((0, x, y, "failed", study.retry_numerics(numerics, True, False), None))
     raise AssertionError("no end")
 
 
@@ -116,8 +123,71 @@ def test_max_n_is_in_the_fingerprint_and_0_is_that_of_files_from_before_it():
                                                                                         "max_N = 256\n"))
     assert default == zero != retry
     study = study_from_toml(PLANE + "max_N = 512\n")
-    assert [study.refine_case(0, 5.0, 1.6, "0001", attempt).case.numerics.N for attempt in (0, 1, 2)] == \
-        [128, 256, 512]
+    numerics = study.refine_case(0, 5.0, 1.6, "0001").case.numerics
+    Ns = [numerics.N]
+    while (changes := study.retry_numerics(numerics, True, False)) is not None:
+        numerics = study.refine_case(0, 5.0, 1.6, "0001", changes).case.numerics
+        Ns.append(numerics.N)
+    assert Ns == [128, 256, 512]
+    assert study.retry_numerics(numerics, False, True) is None      # with a fixed N a creeping point stays
+
+
+AUTO_PLANE = PLANE.replace("N = 128\n", 'N = "auto"\nN_min = 64\nN_max = 256\n')
+
+
+def creeping(S, delta):
+    """TT everywhere; in Delta 2-2.5 x S 1-3 the pattern creeps unless resize_tail <= 1e-6, and in
+    Delta 2-2.5 x S 1-1.5 unless resize_tail <= 1e-8 (a synthetic map)."""
+    if 2.0 <= delta <= 2.5 and 1 <= S <= 3:
+        limit = 1e-8 if S <= 1.5 else 1e-6
+        return "TT", lambda resize_tail: resize_tail <= limit * (1 + 1e-9)
+    return "TT", 1
+
+
+def test_a_creeping_point_runs_again_with_resize_tail_over_100_down_to_min_resize_tail():
+    without, outcome_0 = trace(study_from_toml(AUTO_PLANE), truth=creeping)
+    study = study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n")
+    found, outcome = trace(study, truth=creeping)
+    stuck_0 = {p for p, r in outcome_0.regimes.items() if r == "undecided"}
+    stuck = {p for p, r in outcome.regimes.items() if r == "undecided"}
+    assert stuck_0 and outcome_0.spent == len(outcome_0.regimes)        # no retries without the key
+    # with min_resize_tail = 1e-6 one retry (1e-4 -> 1e-6) decides the points that need 1e-6; those that
+    # need 1e-8 stay undecided after it
+    assert stuck and len(stuck) < len(stuck_0) and all(p[0] <= 1.5 for p in stuck)
+    runs, first = {}, {}
+    for _, x, y, regime, _, _ in found:
+        runs[(x, y)] = runs.get((x, y), 0) + 1
+        first.setdefault((x, y), regime)
+    crept_once = {p for p, r in first.items() if r == "undecided"}
+    assert stuck < crept_once and all(runs[p] == 2 for p in crept_once) and max(runs.values()) == 2
+    assert all(r == "TT" for p, r in outcome.regimes.items() if p not in stuck)
+    assert outcome.spent == len(found) > len(outcome.regimes)
+    # the retry changes resize_tail only, by 100
+    numerics = study.refine_case(0, 1.0, 2.3, "0000").case.numerics
+    changes = study.retry_numerics(numerics, False, True)
+    assert changes == {"N_max": 256, "resize_tail": pytest.approx(1e-6, rel=1e-12)}
+    again = study.refine_case(0, 1.0, 2.3, "0001", changes).case.numerics
+    assert (again.N, again.N_max, again.dealias) == (numerics.N, numerics.N_max, numerics.dealias)
+    assert study.retry_numerics(again, False, True) is None                 # 1e-8 < min_resize_tail
+    # an under-resolved run again keeps the tighter tail, and doubles N_max (with max_N)
+    retry = study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\nmax_N = 512\n")
+    assert retry.retry_numerics(again, True, False) == {"N_max": 512, "resize_tail": again.resize_tail}
+
+
+@pytest.mark.parametrize("plane, extra, message", [
+    (PLANE, "min_resize_tail = 1e-6\n", 'only a run with numerics.N = "auto"'),
+    (AUTO_PLANE, "min_resize_tail = 1e-5\n", "min_resize_tail = 1e-05: .* give at most 1e-06"),
+    (AUTO_PLANE, "min_resize_tail = -1e-6\n", r"must lie in \[0, 1\)"),
+    (AUTO_PLANE, "min_resize_tail = 'small'\n", "min_resize_tail"),
+])
+def test_bad_min_resize_tail_is_refused(plane, extra, message):
+    with pytest.raises(ConfigError, match=message):
+        study_from_toml(plane + extra)
+
+
+def test_min_resize_tail_is_not_in_the_fingerprint():
+    """Lowered on a finished study, its creeping points run again; the cases run so far stay valid."""
+    assert study_from_toml(AUTO_PLANE).fingerprint == study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n").fingerprint
 
 
 TINY = """
@@ -230,3 +300,47 @@ def test_where_N_adapts_a_point_left_under_resolved_runs_again_with_N_max_double
             assert runs[0][3].startswith("under-resolved: ") and "N = 24 (numerics.N_max: N grew as far" in runs[0][3]
     (outcome,) = summary.searches
     assert "failed" not in outcome.regimes.values()
+
+
+CREEPING_TINY = (TINY.replace("N = 16\ndt = 1e-3", 'N = "auto"\nN_min = 16\nN_max = 48\nresize_tail = 0.01\nrtol = 1e-2')
+                 .replace("max_N = 32", "min_resize_tail = 1e-4"))
+
+
+def resolutions(path):
+    """(S, psi_bar, N_max, resize_tail, status) of every case of a file, in case order."""
+    with h5py.File(path, "r") as f:
+        return [(float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"]), int(g.attrs["numerics.N_max"]),
+                 float(g.attrs["numerics.resize_tail"]), int(g["status"][()]))
+                for g in (f["cases"][f"{i:04d}"] for i in range(int(f.attrs["n_cases"])))]
+
+
+def test_a_campaign_runs_creeping_cases_again_with_a_tighter_resize_tail_and_resumes_them(tmp_path, monkeypatch):
+    """The mechanics on real runs: every two-phase case is taken as creeping (the tiny cases do not creep;
+    the verdict itself is tested in test_periodicity.py), so it runs again with resize_tail 0.01 / 100 =
+    min_resize_tail, and no more; stopped by its budget and continued, the refinement rebuilds those runs
+    from the file and ends with the cases of the uninterrupted one."""
+    import hpcves.campaign.refine_stages as stages
+    monkeypatch.setattr(stages, "crept", lambda row: row["psi_bar"] > 0 and row["regime"] != "failed")
+    reference = tmp_path / "whole.h5"
+    summary = run_campaign(study_from_toml(CREEPING_TINY.format(output=reference, max_cases=30)), reference)
+    assert summary.exit_status == 0
+    cases = resolutions(reference)
+    by_point = {}
+    for S, psi, N_max, tail, status in cases:
+        by_point.setdefault((S, psi), []).append((N_max, tail, status))
+    assert len(by_point) >= 4
+    for (S, psi), runs in by_point.items():
+        expected = [(48, 0.01, FINISHED)] + ([(48, pytest.approx(1e-4, rel=1e-12), FINISHED)] if psi > 0 else [])
+        assert runs == expected, (S, psi, runs)
+    assert summary.run_again == len(cases) - len(by_point) > 0
+    output = tmp_path / "continued.h5"
+    first = run_campaign(study_from_toml(CREEPING_TINY.format(output=output, max_cases=5)), output)
+    assert [o.state.status for o in first.searches] == ["budget spent"]
+    again = run_campaign(study_from_toml(CREEPING_TINY.format(output=output, max_cases=30)), output, resume=True)
+    assert resolutions(output) == cases
+    assert [(o.state.status, o.regimes, o.spent) for o in again.searches] == \
+        [(o.state.status, o.regimes, o.spent) for o in summary.searches]
+    report = analyze(output, tmp_path / "analysis", write_to_file=False, case_figures=False)
+    assert [int(r["run_again"]) for r in report.refinements] == [summary.run_again]
+    assert "runs again with numerics.resize_tail / 100 while that is at least 0.0001" in \
+        (tmp_path / "analysis" / "refinement.md").read_text()

@@ -28,8 +28,11 @@ asks for the same points in every run.
 * A case that stops as under-resolved (its spectrum outgrew N) says nothing of
   the regime there; with ``max_N`` the point runs again at 2 N (N_max doubled where
   N adapts; and again, while 2 N <= max_N), and until then it counts as not yet run: the cells
-  around it wait for it instead of splitting around a failure. Every run of a
-  point counts against ``max_cases``.
+  around it wait for it instead of splitting around a failure. Likewise, where N
+  adapts, with ``min_resize_tail`` a point whose theta settled steady while its
+  pattern kept moving (the creep of a tank-treading pattern on too coarse a grid,
+  regimes.CREEPING) runs again with numerics.resize_tail / 100 (and again, while
+  that is >= min_resize_tail). Every run of a point counts against ``max_cases``.
 * Stop when no mixed cell needs a split (``converged``: every crossing
   bracketed to the tolerances), or when ``max_cases`` points are spent (``budget
   spent``: the widest mixed cells are split first, so the budget goes where
@@ -58,6 +61,9 @@ from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import PT, TT, TU
 
 CONVERGED, RUNNING, BUDGET = "converged", "running", "budget spent"
+#: a creeping point runs again with its numerics.resize_tail divided by this: its creep falls as the
+#: tail to a power 0.6-0.9 (docs/numerics.md), so by 16-60 times
+CREEP_TIGHTENING = 100.0
 DECIDED = (TT, PT, TU)
 #: an outcome of several regimes at one point (a refinement of attractors: its starts reached them all)
 JOINT = "+"
@@ -123,6 +129,7 @@ class RefineSettings:
     max_cases: int = 200
     straight_span: float = 4.0    # widest a cell stays along a boundary that crosses it, in tolerances
     max_N: int = 0                # an under-resolved case runs again at 2 N while that is at most max_N (0: never)
+    min_resize_tail: float = 0.0  # a creeping case runs again at resize_tail / 100 while that is at least this
 
     def __post_init__(self):
         if self.x.key == self.y.key:
@@ -139,6 +146,12 @@ class RefineSettings:
         """The N at which a point runs again after its case stopped as under-resolved at ``N``: 2 N,
         while that is at most ``max_N`` (None: it stays failed)."""
         return 2 * N if 0 < 2 * N <= self.max_N else None
+
+    def retry_tail(self, resize_tail: float) -> float | None:
+        """The numerics.resize_tail with which a point runs again after its case crept at ``resize_tail``:
+        resize_tail / CREEP_TIGHTENING, while that is at least ``min_resize_tail`` (None: it stays undecided)."""
+        tighter = resize_tail / CREEP_TIGHTENING
+        return tighter if self.min_resize_tail > 0 and tighter >= self.min_resize_tail * (1 - 1e-9) else None
 
     def log_keys(self) -> tuple:
         """The parameters of the plane on a log scale."""
@@ -206,6 +219,8 @@ class RefinePlan:
         max_cases = 150                                # per refinement (coarse grid included)
         straight_span = 4       # a boundary crossing a cell is taken as straight over at most 4 tolerances
         max_N = 256             # an under-resolved case runs again at 2 N, up to N = 256 (default: never)
+        min_resize_tail = 1e-6  # N = "auto": a creeping case runs again with resize_tail / 100, down to
+                                # 1e-6 (default: never)
         attractors = true       # with [starts]: every point runs from every start, and a cell is mixed
                                 # where the sets of regimes they reach differ (coexistence is traced)
 
@@ -219,6 +234,7 @@ class RefinePlan:
     straight_span: float = 4.0
     max_N: int = 0            # 0: an under-resolved case is not run again
     attractors: bool = False  # with [starts]: a point's outcome is the set of regimes its starts reach
+    min_resize_tail: float = 0.0   # 0: a creeping case is not run again
 
     def settings(self, sweep: dict) -> RefineSettings:
         """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
@@ -229,12 +245,13 @@ class RefinePlan:
             return Axis(key, tuple(sorted(sweep[key])), math.log1p(tolerance[key]) if log else tolerance[key], log)
 
         return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases, self.straight_span,
-                              self.max_N)
+                              self.max_N, self.min_resize_tail)
 
     @classmethod
     def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
         """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
-        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span", "max_N", "attractors"), where)
+        refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span", "max_N", "attractors",
+                                "min_resize_tail"), where)
         swept = [k for k, v in sweep.items() if len(v) > 1]
         axes = values.get("axes", swept[:2])
         if (not isinstance(axes, list | tuple) or len(axes) != 2
@@ -269,7 +286,11 @@ class RefinePlan:
         if max_N < 0:
             raise ConfigError(f"{where}: max_N = {max_N}: must be >= 0 (0: an under-resolved case is not run again)")
         attractors = check_type("refine.attractors", values.get("attractors", False), bool)
-        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N, attractors)
+        min_resize_tail = check_type("refine.min_resize_tail", values.get("min_resize_tail", 0.0), float)
+        if not 0 <= min_resize_tail < 1:
+            raise ConfigError(f"{where}: min_resize_tail = {min_resize_tail:g}: must lie in [0, 1) (0: a creeping "
+                              "case is not run again)")
+        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N, attractors, min_resize_tail)
         try:
             plan.settings(sweep)
         except ConfigError as exc:
@@ -300,7 +321,8 @@ def step(settings: RefineSettings, results: dict, spent: int | None = None) -> R
     the cases run so far, when more than the points (a point run again at a larger N counts each time).
 
     A point left out of ``results`` is one still to run: a point whose case is to run again at a
-    larger N (:meth:`RefineSettings.retry_N`) is left out, and asked for again when a cell needs it."""
+    larger N or a tighter resize_tail (:meth:`RefineSettings.retry_N`, :meth:`RefineSettings.retry_tail`)
+    is left out, and asked for again when a cell needs it."""
     spent = len(results) if spent is None else spent
     missing = tuple(p for p in coarse_points(settings) if p not in results)
     if missing:

@@ -31,6 +31,7 @@ uncertainty, theta's mean, minimum and amplitude, the pattern's speed).
 """
 from __future__ import annotations
 
+import re
 from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
@@ -56,6 +57,10 @@ UNDEFINED = 0.1
 #: ... or when its spread exceeds this many tank-treading speeds (a moment of round-off size: Delta = 2.3,
 #: psi_bar = 0.48, S = 28 had a spread of 31 of them, theta steady to 1e-6 and E_b to 2e-5)
 NOISY = 3.0
+#: the reason of an undecided case whose theta is steady while its pattern moves: where it is not
+#: physics, the creep of a tank-treading pattern on too coarse a grid (docs/numerics.md), which a
+#: refinement runs again with a tighter numerics.resize_tail (``[refine] min_resize_tail``)
+CREEPING = re.compile(r"theta steady at -?[0-9.]+ but the pattern moves")
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,9 @@ same MPI scheduler; then rank 0 classifies the finished cases
 every refinement take its next step (:func:`hpcves.analysis.refine.step`) and adds the
 points they ask for as new cases. Nothing about a refinement is stored but its
 cases: a resumed campaign replays their regimes and asks for the same points. A
-point's cases after its first are its runs at a larger N after under-resolved
-ones (``[refine] max_N``): N doubles with each.
+point's cases after its first are its runs again: at a larger N after under-resolved
+ones (``[refine] max_N``: N doubles with each), with a tighter resize_tail after
+creeping ones (``[refine] min_resize_tail``); each takes the numerics its file holds.
 
 This module reads the file; the logic is in analysis/refine.py, the tables of the
 boundaries in reports/refinement.py.
@@ -23,7 +24,7 @@ from hpcves.model.params import LABELS
 from hpcves.analysis.refine import RUNNING, RefineSettings, RefineState, boundary, joint, step
 from hpcves.campaign.search_stages import StageDriver
 from hpcves.campaign.study import Study
-from hpcves.run.verdict import under_resolved
+from hpcves.run.verdict import crept, resolution, under_resolved
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,7 @@ class RefineOutcome:
     state: RefineState
     regimes: dict              # {(x, y): regime} of its classified cases (a point's last run)
     settings: RefineSettings
-    retries: dict = field(default_factory=dict)   # {(x, y, start): attempt} of runs to run again at a larger N
+    retries: dict = field(default_factory=dict)   # {(x, y, start): (attempt, numerics)} of runs to run again
     spent: int = 0             # its cases (a point run again counts each time)
     runs: int = 0              # its distinct runs: points (and starts, in a refinement of attractors)
     starts: int = 1            # runs a point: the starts of a refinement of attractors
@@ -59,27 +60,27 @@ class RefineOutcome:
 
 
 def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
-    """The state of every refinement from ``found`` = (refinement, x, y, regime, under-resolved, start) of
-    its ended cases, in case order (start: None, or which of [starts] in a refinement of attractors).
+    """The state of every refinement from ``found`` = (refinement, x, y, regime, retry, start) of its
+    ended cases, in case order (retry: what the point's next run changes, :meth:`Study.retry_numerics`,
+    None when it runs no more; start: None, or which of [starts] in a refinement of attractors).
 
-    A point's last run gives its regime. A point whose last run stopped as under-resolved runs again
-    at twice that run's N while ``max_N`` allows (:meth:`RefineSettings.retry_N`); until then the
+    A point's last run gives its regime. A point whose last run stopped as under-resolved, or crept,
+    runs again while ``max_N`` or ``min_resize_tail`` allow; until then the
     refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`). In a refinement of
     attractors each point runs from every start; its outcome is the set of regimes they reached
     (refine.joint), known once every start's last run is, and the budget is counted in points (each
     costs one case a start)."""
     settings = study.refine_settings
     starts = study.point_starts
-    runs = [{} for _ in study.refinements]           # {(x, y, start): [under-resolved of each run]}
+    runs = [{} for _ in study.refinements]           # {(x, y, start): [retry of each run]}
     last = [{} for _ in study.refinements]           # {(x, y, start): regime of its last run}
-    for refinement, x, y, regime, unresolved, start in found:
-        runs[refinement].setdefault((x, y, start), []).append(unresolved)
+    for refinement, x, y, regime, retry, start in found:
+        runs[refinement].setdefault((x, y, start), []).append(retry)
         last[refinement][(x, y, start)] = regime
     states = []
     per_point = dataclasses.replace(settings, max_cases=settings.max_cases // len(starts))
     for i, (point, point_runs, regimes) in enumerate(zip(study.refinements, runs, last)):
-        retries = {p: len(r) for p, r in point_runs.items()
-                   if r[-1] and settings.retry_N(study.refine_N(len(r) - 1)) is not None}
+        retries = {p: (len(r), r[-1]) for p, r in point_runs.items() if r[-1]}
         spent = sum(len(r) for r in point_runs.values())
         known = {}
         for x, y in {(x, y) for x, y, _ in regimes}:
@@ -111,8 +112,8 @@ def run_key(study: Study, c) -> tuple:
 
 
 def run_again(study: Study) -> frozenset:
-    """The ids of the cases whose point a later case runs again (at a larger N): their failures are
-    taken care of (none outside a refine study)."""
+    """The ids of the cases whose point a later case runs again (at a larger N, or a tighter resize_tail):
+    their failures are taken care of (none outside a refine study)."""
     if not study.refine:
         return frozenset()
     last = {run_key(study, c): c.case_id for c in study.cases}
@@ -125,14 +126,15 @@ class RefineDriver(StageDriver):
     @staticmethod
     def cases_from_file(study: Study, campaign) -> Study:
         """``study`` with the cases its file holds already (the fingerprint guarantees they are this study's;
-        a point's later cases are its runs at a larger N)."""
+        a point's later cases are its runs again, with the resolution their file holds)."""
         x_key, y_key = study.refine.axes
         index = campaign.h5["index"]
         n = len(campaign.case_ids)
         starts = ([float(s) for s in index["start"][:n]] if study.refine.attractors else [None] * n)
         points = list(zip(campaign.searches_of_cases(), (float(x) for x in index[x_key][:n]),
                           (float(y) for y in index[y_key][:n]), starts))
-        cases = [study.refine_case(r, x, y, case_id, attempt, start)
+        cases = [study.refine_case(r, x, y, case_id, resolution(campaign.store(case_id).group.attrs) if attempt
+                                   else None, start)
                  for case_id, (r, x, y, start), attempt in zip(campaign.case_ids, points, attempts(points))]
         return study.with_cases(cases)
 
@@ -143,18 +145,19 @@ class RefineDriver(StageDriver):
             row = self.row(campaign, c.case_id)
             if row is not None:
                 r, x, y, start = run_key(study, c)
-                found.append((r, x, y, row["regime"], under_resolved(row), start))
+                found.append((r, x, y, row["regime"], study.retry_numerics(c.case.numerics, under_resolved(row),
+                                                                           crept(row)), start))
         states = outcomes(study, found)
         taken = {run_key(study, c) for c in study.cases}
         new = []
         for outcome in states:
             for x, y in outcome.state.next_points:
                 for start in study.point_starts:
-                    attempt = outcome.retries.get((x, y, start), 0)
+                    attempt, numerics = outcome.retries.get((x, y, start), (0, None))
                     if not attempt and (outcome.index, x, y, start) in taken:
                         if len(study.point_starts) > 1:       # this start's run is known: the point waits for others
                             continue
                         raise RuntimeError(f"refinement {outcome.index}: ({x:g}, {y:g}) was run but has not ended")
                     case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
-                    new.append(study.refine_case(outcome.index, x, y, case_id, attempt, start))
+                    new.append(study.refine_case(outcome.index, x, y, case_id, numerics, start))
         return states, new

@@ -91,10 +91,10 @@ from pathlib import Path
 import numpy as np
 
 from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_settings, refuse_unknown, with_prefix
-from hpcves.model.params import SWEEPABLE, Case, ConfigError     # SWEEPABLE: what [sweep] may vary
+from hpcves.model.params import SWEEPABLE, Case, ConfigError, Numerics   # SWEEPABLE: what [sweep] varies
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.run.resolution import expected_N
-from hpcves.analysis.refine import RefinePlan, RefineSettings
+from hpcves.analysis.refine import CREEP_TIGHTENING, RefinePlan, RefineSettings
 from hpcves.analysis.search import SearchSettings
 
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
@@ -179,10 +179,12 @@ class Study:
         what decides them -- base case, time rules, sweep, search range and
         the classification thresholds (which decide where the search goes next).
         A grid study's covers the thresholds when its cases run until decided. A refine study's leaves
-        out its budget (max_cases): raised, it continues the refinement where it stopped.
+        out its budget (max_cases): raised, it continues the refinement where it stopped; and
+        min_resize_tail: lowered, its creeping points run again (the cases run so far stay what they are).
         """
-        if self.refine is not None:          # not max_cases: a refinement continues with a larger budget
-            plan = {k: v for k, v in dataclasses.asdict(self.refine).items() if k != "max_cases"}
+        if self.refine is not None:
+            plan = {k: v for k, v in dataclasses.asdict(self.refine).items()
+                    if k not in ("max_cases", "min_resize_tail")}
             if plan["straight_span"] == 1:   # the quadtree: as files made before the key existed
                 del plan["straight_span"]
             if not plan["max_N"]:            # no retries: as files made before the key existed
@@ -235,11 +237,11 @@ class Study:
         """Digits of a case id: enough for every case the study can have."""
         return max(4, len(str(self.most_cases - 1)))
 
-    def make_case(self, case_id: str, swept: dict, search: int = -1, N: int | None = None,
+    def make_case(self, case_id: str, swept: dict, search: int = -1, numerics: dict | None = None,
                   after: str = "") -> StudyCase:
         """The base case with ``swept`` values and the time rules (t_end, sampling) applied (validated);
-        ``N``: another resolution than the base case's (a refinement's retry: its N, or its N_max where N
-        adapts); ``after``: the case whose end state it starts from (a chain)."""
+        ``numerics``: values that replace the base case's (a refinement's run again: a larger N or N_max,
+        a tighter resize_tail); ``after``: the case whose end state it starts from (a chain)."""
         where = f"case {case_id}" + (f" ({', '.join(f'{k} = {v:g}' for k, v in swept.items())})" if swept else "")
         try:
             values = {k: v for k, v in swept.items() if k != "start"}
@@ -250,10 +252,8 @@ class Study:
             run = dataclasses.replace(run, t_end=self.times.end_time(S, run.t_end),
                                       sample_interval=self.times.sample_interval(S, run.sample_interval,
                                                                                  self.base.numerics.fixed_dt))
-            numerics = (self.base.numerics if N is None
-                        else dataclasses.replace(self.base.numerics, **{"N_max" if self.base.numerics.adaptive_N
-                                                                        else "N": N}))
-            case = Case(physics=physics, numerics=numerics, run=run)
+            case = Case(physics=physics, numerics=dataclasses.replace(self.base.numerics, **(numerics or {})),
+                        run=run)
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
         return StudyCase(case_id, case, swept, search, after)
@@ -262,21 +262,29 @@ class Study:
         """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
         return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
 
-    def refine_case(self, refinement: int, x: float, y: float, case_id: str, attempt: int = 0,
+    def refine_case(self, refinement: int, x: float, y: float, case_id: str, numerics: dict | None = None,
                     start: float | None = None) -> StudyCase:
         """Case ``case_id`` of refinement number ``refinement``, at the point (x, y) of its plane;
-        ``attempt`` > 0: the point's run again after under-resolved ones, at N doubled each time;
-        ``start``: which of [starts] (a refinement of attractors runs every point from each)."""
+        ``numerics``: the point's run again (:meth:`retry_numerics`); ``start``: which of [starts] (a
+        refinement of attractors runs every point from each)."""
         x_key, y_key = self.refine.axes
         fixed = self.refinements[refinement] if start is None else {**self.refinements[refinement], "start": start}
         swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
-        return self.make_case(case_id, swept, refinement, self.refine_N(attempt) if attempt else None)
+        return self.make_case(case_id, swept, refinement, numerics)
 
-    def refine_N(self, attempt: int) -> int:
-        """N of a refinement point's run number ``attempt`` (0: its first): the base N, doubled with each
-        run again after an under-resolved one; where N adapts, its N_max so doubled."""
-        num = self.base.numerics
-        return (num.N_max if num.adaptive_N else num.N) * 2 ** attempt
+    def retry_numerics(self, numerics: Numerics, unresolved: bool, crept: bool) -> dict | None:
+        """What a refinement point's next run changes after a run with ``numerics`` that stopped as
+        under-resolved (N, or N_max where N adapts, doubled: RefineSettings.retry_N) or crept where N adapts
+        (resize_tail tightened: RefineSettings.retry_tail); None: it runs no more."""
+        settings = self.refine_settings
+        key = "N_max" if numerics.adaptive_N else "N"
+        if unresolved:
+            N = settings.retry_N(getattr(numerics, key))
+            return None if N is None else {key: N, "resize_tail": numerics.resize_tail}
+        if crept and numerics.adaptive_N:
+            tail = settings.retry_tail(numerics.resize_tail)
+            return None if tail is None else {key: getattr(numerics, key), "resize_tail": tail}
+        return None
 
     def with_cases(self, new) -> "Study":
         """This study with ``new`` cases appended (their ids must continue the numbering)."""
@@ -438,6 +446,16 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     elif refine is not None and refine.max_N and refine.max_N < 2 * base.numerics.N:
         raise ConfigError(f"[refine]: max_N = {refine.max_N}: an under-resolved case runs again at twice its "
                           f"N = {base.numerics.N}, so max_N must be at least {2 * base.numerics.N} (0: never)")
+    if refine is not None and refine.min_resize_tail:
+        if not base.numerics.adaptive_N:
+            raise ConfigError(f"[refine]: min_resize_tail = {refine.min_resize_tail:g} runs a creeping case again "
+                              "with a tighter numerics.resize_tail, which only a run with numerics.N = \"auto\" has "
+                              "(with a fixed N, max_N runs an under-resolved case again at 2 N)")
+        first = base.numerics.resize_tail / CREEP_TIGHTENING
+        if refine.min_resize_tail > first * (1 + 1e-9):
+            raise ConfigError(f"[refine]: min_resize_tail = {refine.min_resize_tail:g}: a creeping case runs again "
+                              f"with numerics.resize_tail / {CREEP_TIGHTENING:g} = {first:g}, below it, so none "
+                              f"would; give at most {first:g} (0: never)")
     if refine is not None and refine.attractors:
         if not starts or len(starts) < 2:
             raise ConfigError("[refine]: attractors = true runs every point from every start: name at least two "

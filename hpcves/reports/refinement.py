@@ -2,16 +2,17 @@
 boundaries as polylines, from a refine file's cases."""
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections import Counter
 
-from hpcves.analysis.refine import boundary, polylines
+from hpcves.analysis.refine import CREEP_TIGHTENING, boundary, polylines
 from hpcves.campaign.refine_stages import RefineOutcome, outcomes
 from hpcves.campaign.study import Study, study_from_toml
 from hpcves.model.params import LABELS
 from hpcves.reports.tables import markdown_table
 from hpcves.run.store import ENDED_NAMES
-from hpcves.run.verdict import DAMAGED, under_resolved
+from hpcves.run.verdict import DAMAGED, crept, under_resolved
 
 
 def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome]]:
@@ -23,7 +24,9 @@ def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome
     names = [name for name, _ in study.starts]
     starts = [float(names.index(s)) if study.refine.attractors else None
               for s in (source.starts or [None] * len(source.cases))]
-    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"], under_resolved(row), start)
+    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"],
+              study.retry_numerics(dataclasses.replace(study.base.numerics, **case.resolution), under_resolved(row),
+                                   crept(row)), start)
              for case, row, start in zip(source.cases, rows, starts)
              if row["status"] in ENDED_NAMES or row["status"] == DAMAGED]   # damaged: ended for the campaign
     return study, outcomes(study, found)
@@ -93,6 +96,7 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
     """refinement.md: every refinement's verdict, then its blurry stretches with the reasons of the
     cases that blur them (``rows``: regimes.csv rows of ``cases``)."""
     settings = study.refine_settings
+    retrying = bool(settings.max_N or settings.min_resize_tail)
     x, y = settings.x, settings.y
     tolerance = dict(study.refine.tolerance)
 
@@ -109,9 +113,11 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
                f"; a boundary that crosses a cell from side to side is taken as straight over at most "
                f"{settings.straight_span:g} tolerances along it (refine.straight_span). ")
             + (f"An under-resolved case runs again at 2 N (where N adapts: N_max doubled) while that is at most "
-               f"N = {settings.max_N} "
-               "(refine.max_N); 'cases' counts every run, 'run again' the runs after a point's first. "
-               if settings.max_N else "")
+               f"N = {settings.max_N} (refine.max_N). " if settings.max_N else "")
+            + (f"A creeping case (theta steady, the pattern moving: regimes.CREEPING) runs again with "
+               f"numerics.resize_tail / {CREEP_TIGHTENING:g} while that is at least {settings.min_resize_tail:g} "
+               "(refine.min_resize_tail). " if settings.min_resize_tail else "")
+            + ("'cases' counts every run, 'run again' the runs after a point's first. " if retrying else "")
             + "A crossing lies between two cases of "
             "different outcomes, on the edge of a finest cell; it is blurry when one of them is undecided, "
             "failed or at the model's limit. The full grid is the regular grid that brackets every boundary "
@@ -119,11 +125,11 @@ def refinement_markdown(name: str, study: Study, states: list[RefineOutcome], ro
     body = []
     for o in states:
         r = o.row()
-        again = [str(r["run_again"])] if settings.max_N else []
+        again = [str(r["run_again"])] if retrying else []
         body.append([f"{r[k]:g}" for k in keys] + [r["status"], str(r["cases"])] + again
                     + [str(r["full_grid_cases"]), f"{100 * r['cases'] / r['full_grid_cases']:.0f} %",
                        str(r["crossings"]), str(r["blurry"]), r["reason"]])
-    header = (["status", "cases"] + (["run again"] if settings.max_N else [])
+    header = (["status", "cases"] + (["run again"] if retrying else [])
               + ["full grid", "share", "crossings", "blurry", "reason"])
     text.append(markdown_table([LABELS.get(k, k) for k in keys] + header,
                                body, left=(len(keys), len(keys) + len(header) - 1)) + "\n")

@@ -16,7 +16,7 @@ from hpcves.analysis import accuracy
 from hpcves.analysis.pattern import common_topology
 from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
 from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
-from hpcves.analysis.regimes import UNDECIDED, AnalysisSettings, Classification, classify
+from hpcves.analysis.regimes import CREEPING, UNDECIDED, AnalysisSettings, Classification, classify
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.runner import MODEL_LIMIT_PREFIX, UNDER_RESOLVED
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
@@ -42,6 +42,7 @@ class CaseData:
     N: float = math.nan        # numerics.N (a refinement may run a point again at a larger N); where N
                                # adapts (numerics.N_max > 0), the largest N the run took
     patterns: dict = field(default_factory=dict)   # t, psi, curvature of the last PATTERN_SNAPSHOTS snapshots
+    resolution: dict = field(default_factory=dict)  # the numerics a refinement's run again may change (resolution)
 
 
 #: how many of a case's last snapshots its pattern's topology is read from (those after t_settle)
@@ -62,7 +63,14 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, series,
                     search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
                     float(attrs.get("numerics.rtol", math.nan)), N,
-                    store.last_snapshots(("t", "psi", "curvature"), PATTERN_SNAPSHOTS))
+                    store.last_snapshots(("t", "psi", "curvature"), PATTERN_SNAPSHOTS), resolution(attrs))
+
+
+def resolution(attrs) -> dict:
+    """The numerics a refinement's run again may change (campaign.study.Study.retry_numerics: N, N_max,
+    resize_tail), as a case's attributes hold them."""
+    kinds = {"N": int, "N_max": int, "resize_tail": float}
+    return {k: kind(attrs[f"numerics.{k}"]) for k, kind in kinds.items() if f"numerics.{k}" in attrs}
 
 
 def mark(store: CaseStore) -> tuple:
@@ -77,6 +85,12 @@ FAILED_PREFIX = "case failed: "
 def under_resolved(row: dict) -> bool:
     """Whether a regimes.csv row is a case that failed because its N did not resolve it."""
     return row["regime"] == FAILED_OUTCOME and row["reason"].startswith(f"{FAILED_PREFIX}{UNDER_RESOLVED}")
+
+
+def crept(row: dict) -> bool:
+    """Whether a regimes.csv row is an undecided case whose theta settled steady while its pattern kept
+    moving (regimes.CREEPING): the creep of a tank-treading pattern where the grid is too coarse."""
+    return row["regime"] == UNDECIDED and CREEPING.search(row["reason"]) is not None
 
 
 def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
