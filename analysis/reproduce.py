@@ -39,7 +39,9 @@ from hpcves.analysis import accuracy
 from hpcves.analysis import grids
 from hpcves.reports import case_pages
 from hpcves.reports import attractor_map
-from hpcves.reports.analyze import analyze, grid_use_of, pattern_cell, period_cell, read_source, run_labels
+from hpcves.reports.analyze import (analyze, grid_use_of, pattern_cell, period_cell, read_source, regime_counts,
+                                    run_labels)
+from hpcves.reports.refinement import superseded
 from hpcves.reports.tables import markdown_table
 from hpcves.campaign.file import read_table
 from hpcves.campaign.progress import WORK_LEFT
@@ -268,10 +270,14 @@ def refinement_text(out: Path, name: str) -> list[str]:
 
 
 def doubts(reports: dict) -> list[tuple[str | None, str]]:
-    """Everything that looks unconverged or unresolved: (the case id or None, one line) each."""
+    """Everything that looks unconverged or unresolved: (the case id or None, one line) each; a
+    refinement's run that a later run of its point repeats is left out (the later one is the point's)."""
     lines = []
     for name, report in reports.items():
+        repeated = superseded(report.source)
         for r in report.rows:
+            if r["case"] in repeated:
+                continue
             label = (f"{name} case {r['case']} (S = {r['shear_rate']:g}, psi_bar = {r['psi_bar']:g}, "
                      f"Delta = {r['excess_length']:g}, B2 = {r['B2']:g})")
             line = None
@@ -482,8 +488,12 @@ def chain_section(c: Context) -> list[str]:
 
 
 def _phase_section(c: Context) -> list[str]:
-    counts = ", ".join(f"{n} {r}" for r, n in c.report.counts().items())
-    lines = [f"{len(c.report.rows)} cases: {counts}.", ""]
+    repeated = superseded(c.report.source)
+    latest = [r for r in c.report.rows if r["case"] not in repeated]
+    counts = ", ".join(f"{n} {r}" for r, n in regime_counts(latest).items())
+    lines = [f"{len(c.report.rows)} cases: {counts}." if not repeated else
+             f"{len(c.report.rows)} cases, {len(latest)} points: {counts} (the point's last run where a refinement "
+             f"ran {len(repeated)} again).", ""]
     lines += _images([p for p in c.figures if "phase_diagram" in p.name])
     return lines + refinement_text(c.out, c.name) + [""]
 

@@ -43,7 +43,7 @@ HEADING = "The run loop around the step"
 
 
 def the_case():
-    return load_study(STUDY).refine_case(0, SHEAR_RATE, EXCESS_LENGTH, "bench", 0).case
+    return load_study(STUDY).refine_case(0, SHEAR_RATE, EXCESS_LENGTH, "bench").case
 
 
 def with_recording(case, folder: Path) -> tuple[float, float]:

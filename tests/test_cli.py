@@ -8,7 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
-from jobs import resume_in_process, run_in_process, same_case_files, wait_until
+from jobs import SHORT, resume_in_process, run_in_process, same_case_files, wait_until
 
 from hpcves.run import runner
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore
@@ -16,20 +16,6 @@ from hpcves.config import case_from_toml
 
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
 
-SHORT = """
-[physics]
-shear_rate = 80.0
-psi_bar = 0.3
-[numerics]
-N = 32
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
-t_end = {t_end}
-sample_interval = 0.005
-snapshot_interval = 0.05
-checkpoint_interval = {checkpoint}
-"""
 
 
 def hpcves(*args, **kwargs):
@@ -247,9 +233,10 @@ def downgrade_to_format_2(path):
     width = sum(n for _, n in _SCALAR_LAYOUTS[2])
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = 2
+        del f["timeseries/digest"], f["snapshots/digest"]
         for slot in ("slot0", "slot1"):
             g = f[f"checkpoint/{slot}"]
-            for name in ("prev2_theta", "prev2_psi"):
+            for name in ("prev2_theta", "prev2_psi", "digest"):
                 del g[name]
             scalars = g["scalars"][:width]
             del g["scalars"]

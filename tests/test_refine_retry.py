@@ -17,6 +17,7 @@ from hpcves.campaign.refine_stages import attempts, outcomes
 from hpcves.campaign.study import study_from_toml
 from hpcves.model.params import ConfigError
 from hpcves.reports.analyze import analyze
+from hpcves.reports.refinement import superseded
 from hpcves.run.store import FAILED, FINISHED
 
 PLANE = """
@@ -46,10 +47,10 @@ def truth(S, delta):
     return regime, needed
 
 
-def trace(study, max_stages=60, truth=truth):
+def trace(study, max_stages=60, truth=truth, found=()):
     """Run the refinement against ``truth``, each point's next run with the numerics its last asked
-    for (Study.retry_numerics): (found, final outcome)."""
-    found, runs = [], []
+    for (Study.retry_numerics), from the runs ``found`` before: (found, final outcome)."""
+    found, runs = list(found), [(x, y) for _, x, y, *_ in found]
     for _ in range(max_stages):
         (outcome,) = outcomes(study, found)
         if outcome.state.status != refine.RUNNING:
@@ -174,6 +175,23 @@ def test_a_creeping_point_runs_again_with_resize_tail_over_100_down_to_min_resiz
     assert retry.retry_numerics(again, True, False) == {"N_max": 512, "resize_tail": again.resize_tail}
 
 
+def test_a_finished_refinement_continued_with_min_resize_tail_runs_every_creeping_point_again():
+    """Continued with the key, the points that crept run again even where, their neighbours decided, no
+    cell needs them any more: the map keeps no point at a run a retry can decide."""
+    found_0, outcome_0 = trace(study_from_toml(AUTO_PLANE), truth=creeping)
+    study = study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n")
+    base = study.base.numerics
+    found = [(r, x, y, regime, study.retry_numerics(base, False, regime == "undecided"), start)
+             for r, x, y, regime, _, start in found_0]
+    crept = {(x, y) for _, x, y, regime, _, _ in found_0 if regime == "undecided"}
+    (first,) = outcomes(study, found)
+    assert first.state.status == refine.RUNNING and crept <= set(first.state.next_points)
+    _, outcome = trace(study, truth=creeping, found=found)
+    assert outcome.state.status == refine.CONVERGED
+    assert {p for p, r in outcome.regimes.items() if r == "undecided"} == {p for p in crept if p[0] <= 1.5}
+    assert all(r == "TT" for p, r in outcome.regimes.items() if p in crept and p[0] > 1.5)
+
+
 @pytest.mark.parametrize("plane, extra, message", [
     (PLANE, "min_resize_tail = 1e-6\n", 'only a run with numerics.N = "auto"'),
     (AUTO_PLANE, "min_resize_tail = 1e-5\n", "min_resize_tail = 1e-05: .* give at most 1e-06"),
@@ -247,6 +265,9 @@ def test_a_campaign_runs_under_resolved_cases_again_at_twice_n(retried, tmp_path
     report = analyze(output, tmp_path / "analysis", write_to_file=False, case_figures=False)
     again = n - len(by_point)             # the runs after a point's first
     assert again > 0
+    repeated = superseded(report.source)   # the runs a later one repeats: the first, under-resolved one
+    assert len(repeated) == again
+    assert all(rows[int(case)][3].startswith("under-resolved: ") for case in repeated)
     assert [(r["status"], int(r["cases"]), r["run_again"]) for r in report.refinements] == \
         [(outcome.state.status, n, again)]
     text = (tmp_path / "analysis" / "refinement.md").read_text()

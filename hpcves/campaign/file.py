@@ -244,7 +244,8 @@ class CampaignFile:
 
     def damaged(self, study: Study) -> list[tuple[str, list[str]]]:
         """(case id, problems) of every case whose data are missing, misshapen or inconsistent
-        (CaseStore.problems), checked against the study's own case; empty for a sound file."""
+        (CaseStore.problems, as a resumed run sees them: a checkpoint that fails its checksums is passed
+        over where the other one passes), checked against the study's own case; empty for a sound file."""
         found = []
         index = self.h5["index"]
         n = int(self.h5.attrs["n_cases"])
@@ -258,7 +259,7 @@ class CampaignFile:
             except (FileFormatError, *HDF5_ERRORS) as exc:
                 found.append((case_id, [str(exc).split(": ", 1)[-1]]))
                 continue
-            problems = store.problems(expected.get(case_id))
+            problems = store.problems(expected.get(case_id), resuming=True)
             if problems:
                 found.append((case_id, problems))
         return found

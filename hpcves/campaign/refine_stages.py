@@ -21,7 +21,7 @@ import dataclasses
 from dataclasses import dataclass, field
 
 from hpcves.model.params import LABELS
-from hpcves.analysis.refine import RUNNING, RefineSettings, RefineState, boundary, joint, step
+from hpcves.analysis.refine import BUDGET, RUNNING, RefineSettings, RefineState, boundary, joint, step
 from hpcves.campaign.search_stages import StageDriver
 from hpcves.campaign.study import Study
 from hpcves.run.verdict import crept, resolution, under_resolved
@@ -66,7 +66,8 @@ def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
 
     A point's last run gives its regime. A point whose last run stopped as under-resolved, or crept,
     runs again while ``max_N`` or ``min_resize_tail`` allow; until then the
-    refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`). In a refinement of
+    refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`), and it runs again even
+    where no cell needs it any more (:func:`again`). In a refinement of
     attractors each point runs from every start; its outcome is the set of regimes they reached
     (refine.joint), known once every start's last run is, and the budget is counted in points (each
     costs one case a start)."""
@@ -87,11 +88,24 @@ def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
             keys = [(x, y, s) for s in starts]
             if all(k in regimes and k not in retries for k in keys):
                 known[(x, y)] = joint(regimes[k] for k in keys) if len(starts) > 1 else regimes[keys[0]]
-        state = step(per_point, known, -(-spent // len(starts)))
+        state = again(per_point, step(per_point, known, -(-spent // len(starts))), retries, -(-spent // len(starts)))
         shown = {(x, y): v for (x, y, _), v in regimes.items()} if len(starts) == 1 else known
         states.append(RefineOutcome(i, dict(point), state, shown, settings, retries, spent, len(point_runs),
                                     len(starts)))
     return states
+
+
+def again(settings, state: RefineState, retries: dict, spent: int) -> RefineState:
+    """``state`` with the points still to run again added to its next points, within the budget: once a
+    cell's retried corners are decided it may need its finer points no more, but a point the map shows
+    is not left at a run a retry can decide (a refinement continued with a lower min_resize_tail)."""
+    extra = sorted({(x, y) for x, y, _ in retries} - set(state.next_points))
+    left = settings.max_cases - spent - len(state.next_points)
+    if not extra or state.status == BUDGET or left <= 0:
+        return state
+    extra = extra[:left]
+    reason = state.reason if state.status == RUNNING else f"{len(extra)} points to run again ({state.reason})"
+    return RefineState(RUNNING, tuple(sorted((*state.next_points, *extra))), state.cells, reason)
 
 
 def attempts(points: list) -> list[int]:

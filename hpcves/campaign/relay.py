@@ -25,7 +25,8 @@ from hpcves.campaign.file import CampaignFile
 #: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
 WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshots", "truncate",
                     "write_checkpoint", "set_decision"})
-READS = frozenset({"case", "status", "progress", "read_checkpoint", "newest_checkpoint_slot", "timeseries"})
+READS = frozenset({"case", "status", "progress", "read_checkpoint", "passed_over", "newest_checkpoint_slot",
+                   "timeseries"})
 
 
 class Relay:
@@ -97,6 +98,9 @@ class RemoteCaseStore:
 
     def read_checkpoint(self):
         return self._read("read_checkpoint")
+
+    def passed_over(self):
+        return self._read("passed_over")
 
     def newest_checkpoint_slot(self):
         return self._read("newest_checkpoint_slot")

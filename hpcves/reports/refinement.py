@@ -15,19 +15,35 @@ from hpcves.run.store import ENDED_NAMES
 from hpcves.run.verdict import DAMAGED, crept, under_resolved
 
 
+def _run_keys(source, study: Study) -> list[tuple]:
+    """(refinement, x, y, start) of every case of a refine file, in case order (refine_stages.run_key)."""
+    x_key, y_key = study.refine.axes
+    names = [name for name, _ in study.starts]
+    starts = [float(names.index(s)) if study.refine.attractors else None
+              for s in (source.starts or [None] * len(source.cases))]
+    return [(case.search, case.parameters[x_key], case.parameters[y_key], start)
+            for case, start in zip(source.cases, starts)]
+
+
+def superseded(source) -> frozenset:
+    """The ids of a refine file's cases whose point a later case runs again (a larger N, a tighter
+    resize_tail): the later run is the point's (none outside a refine file)."""
+    if source.mode != "refine":
+        return frozenset()
+    keys = _run_keys(source, study_from_toml(source.toml, source=f"{source.path}: campaign_toml"))
+    last = {key: case.case_id for key, case in zip(keys, source.cases)}
+    return frozenset(case.case_id for key, case in zip(keys, source.cases) if last[key] != case.case_id)
+
+
 def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome]]:
     """The refinements of a refine file (analysis.Source) replayed with its cases' regimes ``rows``
     (with thresholds other than the campaign's a refinement may want points the file lacks:
     its status is then "running")."""
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
-    x_key, y_key = study.refine.axes
-    names = [name for name, _ in study.starts]
-    starts = [float(names.index(s)) if study.refine.attractors else None
-              for s in (source.starts or [None] * len(source.cases))]
-    found = [(case.search, case.parameters[x_key], case.parameters[y_key], row["regime"],
+    found = [(r, x, y, row["regime"],
               study.retry_numerics(dataclasses.replace(study.base.numerics, **case.resolution), under_resolved(row),
                                    crept(row)), start)
-             for case, row, start in zip(source.cases, rows, starts)
+             for (r, x, y, start), case, row in zip(_run_keys(source, study), source.cases, rows)
              if row["status"] in ENDED_NAMES or row["status"] == DAMAGED]   # damaged: ended for the campaign
     return study, outcomes(study, found)
 

@@ -54,7 +54,7 @@ def open_for_resume(path):
     h5 = open_file(path, "r+")
     try:
         store = CaseStore.open(h5, where=str(path))
-        problems = store.problems()
+        problems = store.problems(resuming=True)
         if problems:
             raise FileFormatError(f"{path}: damaged, not resumed ({'; '.join(problems[:3])}"
                                   + (f"; {len(problems) - 3} more" if len(problems) > 3 else "") + ")")

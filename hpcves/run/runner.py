@@ -17,6 +17,7 @@ the uninterrupted one bit for bit.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -34,6 +35,8 @@ from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING
 from hpcves.model.flow import TensionSolveError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.run.timestepping import Solver, State
+
+log = logging.getLogger(__name__)
 
 #: psi beyond [-OVERSHOOT, 1 + OVERSHOOT] when a run under the linear bending law gives out: the
 #: model's limit, not a failure (healthy steps stay within 0.005 of [0, 1]; beyond_model)
@@ -173,10 +176,13 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     solver = resolution.starting_solver(case, start) if case.numerics.adaptive_N else Solver(case, start=start)
     state = None
     wall_before = 0.0                  # wall time of earlier calls on this case
+    note = ""                          # a checkpoint passed over because it fails its checksums
     if resume:
         wall_before = float(np.nan_to_num(store.progress[2]))
         found = store.read_checkpoint()
         if found is not None:
+            if note := store.passed_over():
+                log.warning(note)
             state, n_samples, n_snapshots = found
             store.truncate(n_samples, n_snapshots)
             solver = solver.at(state.N)
@@ -196,7 +202,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     cadences += [End(record), SampleFlush(record)]
     if progress is not None:
         cadences.append(Ticks(record, clock, progress, state, samples))
-    store.set_status(RUNNING, "", "")
+    store.set_status(RUNNING, note, "")
     flush()
     last_correction = 0.0          # relative area correction made by the last step
     try:

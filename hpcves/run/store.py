@@ -19,7 +19,11 @@ A case lives in an HDF5 group -- the file's root for ``hpcves run``, one
                    counts the valid rows; centroid has shape (n, 2)
     snapshots/     t, shift and one (n, N) dataset per field; ``length`` counts
     checkpoint/    slot0/, slot1/: the solver State; each has ``meta`` =
-                   [valid, step, n_samples, n_snapshots]
+                   [valid, step, n_samples, n_snapshots] and ``digest``, the checksum of
+                   each array, the scalars and meta[1:] (format 5)
+    timeseries/digest, snapshots/digest
+                   the checksums of the valid part of every series and snapshot
+                   field, written when the case ends (format 5)
 
 Everything that changes during a run is a dataset written in place (never an
 attribute, never a resize): that keeps the writes independent in parallel
@@ -27,12 +31,15 @@ HDF5, and writes of raw data to preallocated space are the safest thing to be
 doing when a process dies. A checkpoint goes to the slot *not* holding the
 newest valid one: its ``meta`` is marked invalid first, the state written,
 flushed, then marked valid -- so a crash in the middle leaves the previous
-checkpoint intact and recognisably the newest valid one.
+checkpoint intact and recognisably the newest valid one. Its checksums are
+written before it is marked valid; a slot that fails them is passed over for
+the other one when a run resumes (:meth:`CaseStore.read_checkpoint`).
 """
 from __future__ import annotations
 
 import contextlib
 import functools
+import hashlib
 import math
 
 import numpy as np
@@ -49,9 +56,12 @@ from hpcves.numerics.spectral import Spectral, resample
 from hpcves.run.timestepping import State
 
 FORMAT = "hpcves-case"
-FORMAT_VERSION = 4                  # 4: checkpoints hold their N (N adapting) and the resize memory
-READS_VERSIONS = (2, 3, 4)          # 3: t, the step controller and level n-2; 2: fixed-step checkpoints
+FORMAT_VERSION = 5                  # 5: checksums of the checkpoints and of an ended case's data
+READS_VERSIONS = (2, 3, 4, 5)       # 4: checkpoints hold their N (N adapting) and the resize memory; 3: t,
+                                    # the step controller and level n-2; 2: fixed-step checkpoints
                                     # (t = step dt); 1 held psi at material labels
+#: the first format whose cases carry checksums
+DIGESTS_SINCE = 5
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
@@ -73,9 +83,12 @@ _SCALAR_LAYOUTS = {
 }
 _SCALAR_LAYOUTS[3] = _SCALAR_LAYOUTS[2] + (("t", 1), ("dt_prev", 1), ("dt_prev2", 1), ("error", 1), ("dt_next", 1))
 _SCALAR_LAYOUTS[4] = _SCALAR_LAYOUTS[3] + (("quiet_since", 1), ("N", 1))
-_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS}
+_SCALAR_LAYOUTS[5] = _SCALAR_LAYOUTS[4]
+_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS, 5: State.ARRAYS}
 assert _ARRAYS[2] == ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
 _SCALAR_LAYOUT = _SCALAR_LAYOUTS[FORMAT_VERSION]
+#: the per-snapshot records, in the order of snapshots/digest
+SNAPSHOT_RECORDS = ("t", "shift") + SNAPSHOT_FIELDS
 _N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
 
 
@@ -301,11 +314,13 @@ class CaseStore:
         group.create_dataset("progress", data=np.array([0.0, case.run.t_end, 0.0, 0.0]))
         ts = group.create_group("timeseries")
         ts.create_dataset("length", data=np.int64(0))
+        ts.create_dataset("digest", data=np.zeros(len(SERIES), dtype=np.uint64))
         for name in SERIES:
             shape = (n_samples, 2) if name == "centroid" else (n_samples,)
             ts.create_dataset(name, shape=shape, dtype="f8", fillvalue=np.nan, dcpl=_early())
         snap = group.create_group("snapshots")
         snap.create_dataset("length", data=np.int64(0))
+        snap.create_dataset("digest", data=np.zeros(len(SNAPSHOT_RECORDS), dtype=np.uint64))
         snap.create_dataset("t", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
         snap.create_dataset("shift", shape=(n_snapshots,), dtype="f8", fillvalue=np.nan, dcpl=_early())
         for name in SNAPSHOT_FIELDS:
@@ -316,6 +331,7 @@ class CaseStore:
         for slot in ("slot0", "slot1"):
             g = ckpt.create_group(slot)
             g.create_dataset("meta", data=np.zeros(4, dtype=np.int64))
+            g.create_dataset("digest", data=np.zeros(len(State.ARRAYS) + 2, dtype=np.uint64))
             for name in State.ARRAYS:
                 g.create_dataset(name, shape=(N,), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("scalars", shape=(_N_SCALARS,), dtype="f8", fillvalue=np.nan, dcpl=_early())
@@ -353,18 +369,26 @@ class CaseStore:
             out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f")
         for name in SNAPSHOT_FIELDS:
             out[f"snapshots/{name}"] = ((n_snapshots, N), "f")
+        if self.version >= DIGESTS_SINCE:
+            out["timeseries/digest"] = ((len(self.series_names),), "u")
+            out["snapshots/digest"] = ((len(SNAPSHOT_RECORDS),), "u")
         for slot in ("slot0", "slot1"):
             out[f"checkpoint/{slot}/meta"] = ((4,), "i")
+            if self.version >= DIGESTS_SINCE:
+                out[f"checkpoint/{slot}/digest"] = ((len(self._arrays) + 2,), "u")
             out[f"checkpoint/{slot}/scalars"] = ((sum(n for _, n in self._scalars),), "f")
             for name in self._arrays:
                 out[f"checkpoint/{slot}/{name}"] = ((N,), "f")
         return out
 
-    def problems(self, expected: Case | None = None) -> list[str]:
+    def problems(self, expected: Case | None = None, resuming: bool = False) -> list[str]:
         """What is wrong with this case's data (empty if nothing): missing or misshapen datasets, a
-        status or counters out of range, checkpoints that contradict the series. Never raises.
+        status or counters out of range, checkpoints that contradict the series, data that fail their
+        checksums (format 5). Never raises.
 
         ``expected``: the case the file should hold (its study's); a different config is a problem.
+        ``resuming``: a checkpoint slot that fails its checksums is one only when no other valid slot
+        passes them (a resumed run passes over it: :meth:`read_checkpoint`).
         """
         try:
             case = self.case
@@ -396,11 +420,15 @@ class CaseStore:
             for what, n, cap in (("timeseries", lengths[0], n_samples), ("snapshots", lengths[1], n_snapshots)):
                 if not 0 <= n <= cap:
                     found.append(f"{what}/length = {n} lies outside [0, {cap}] (the capacity)")
+            sound, failing = [], []
             for slot, meta in self._slot_meta().items():
                 valid, step = int(meta[0]), int(meta[1])
                 t = self._checkpoint_time(slot, step, case) if valid == 1 else math.nan
+                damage = self.slot_damage(slot) if valid == 1 else []
                 if valid == 1 and not np.array_equal(self._ckpt[slot]["meta"][:], meta):
                     continue          # a live run is rewriting this slot (it is the older one): not damage
+                if valid == 1:
+                    (failing if damage else sound).append(damage)
                 fixed = not schedule.adaptive
                 if valid not in (0, 1):
                     found.append(f"checkpoint/{slot}: validity marker {valid} is neither 0 nor 1")
@@ -428,6 +456,10 @@ class CaseStore:
                 if lengths not in (expected, before):        # before: written before the coincidence fix
                     found.append(f"finished, but holds {lengths[0]} samples and {lengths[1]} snapshots of "
                                  f"{expected}" + (f" (decided at t = {t_decided:.6g})" if code else ""))
+            if failing and not (resuming and sound):
+                found += [f"{name} fails its checksum" for damage in failing for name in damage]
+            if status in ENDED:
+                found += [f"{name} fails its checksum" for name in self.data_damage()]
         except HDF5_ERRORS as exc:
             found.append(f"unreadable ({_first_line(exc)})")
         return found
@@ -457,7 +489,14 @@ class CaseStore:
 
     @_writes
     def set_status(self, status: int, message: str | None = None, traceback: str | None = None) -> None:
-        """Status, and optionally the message and traceback (written before the status)."""
+        """Status, and optionally the message and traceback (written before the status); an ended
+        case's data get their checksums first (:meth:`data_damage`)."""
+        if status in ENDED and self.version >= DIGESTS_SINCE:
+            records = self._records()
+            self._ts["digest"][:] = np.array([digest(v) for name, v in records if name.startswith("timeseries/")],
+                                             dtype=np.uint64)
+            self._snap["digest"][:] = np.array([digest(v) for name, v in records if name.startswith("snapshots/")],
+                                               dtype=np.uint64)
         if message is not None:
             self.group["message"][()] = np.bytes_(_clip(message, MESSAGE_BYTES))
         if traceback is not None and "traceback" in self.group:
@@ -532,7 +571,7 @@ class CaseStore:
 
     def snapshots(self) -> dict:
         n = self.n_snapshots
-        return {name: self._snap[name][:n] for name in ("t", "shift") + SNAPSHOT_FIELDS}
+        return {name: self._snap[name][:n] for name in SNAPSHOT_RECORDS}
 
     def last_snapshots(self, names, count: int) -> dict:
         """The last ``count`` valid snapshots of the fields ``names`` (fewer if there are fewer)."""
@@ -545,6 +584,20 @@ class CaseStore:
         self._ts["length"][()] = n_samples
         self._snap["length"][()] = n_snapshots
 
+    def _records(self) -> list[tuple[str, np.ndarray]]:
+        """(name, valid part) of every series, then of every snapshot record, in the order of their digests."""
+        n, m = self.n_samples, self.n_snapshots
+        return ([(f"timeseries/{name}", self._ts[name][:n]) for name in self.series_names]
+                + [(f"snapshots/{name}", self._snap[name][:m]) for name in SNAPSHOT_RECORDS])
+
+    def data_damage(self) -> list[str]:
+        """The series and snapshot records of an ended case whose valid part fails the checksum written
+        when it ended (none in a file of a format without checksums)."""
+        if self.version < DIGESTS_SINCE:
+            return []
+        stored = np.concatenate([self._ts["digest"][:], self._snap["digest"][:]])
+        return [name for (name, values), d in zip(self._records(), stored) if digest(values) != int(d)]
+
     # ------------------------------------------------------------------ checkpoints
     def _slot_meta(self):
         return {slot: self._ckpt[slot]["meta"][:] for slot in ("slot0", "slot1")}
@@ -552,6 +605,39 @@ class CaseStore:
     def newest_checkpoint_slot(self) -> str | None:
         valid = [(meta[1], slot) for slot, meta in self._slot_meta().items() if meta[0] == 1]
         return max(valid)[1] if valid else None
+
+    def slot_damage(self, slot: str) -> list[str]:
+        """The datasets of a checkpoint slot that fail their checksums (none in a format without them)."""
+        g = self._ckpt[slot]
+        if "digest" not in g:
+            return []
+        values = [g[name][:] for name in self._arrays] + [g["scalars"][:], g["meta"][1:]]
+        names = [*self._arrays, "scalars", "meta"]
+        return [f"checkpoint/{slot}/{name}" for name, v, d in zip(names, values, g["digest"][:]) if digest(v) != int(d)]
+
+    def _resumable_slot(self) -> tuple[str | None, str]:
+        """(the newest valid slot that passes its checksums, a note when a newer one failed them and was
+        passed over); raises when every valid slot fails them."""
+        valid = sorted(((int(meta[1]), slot) for slot, meta in self._slot_meta().items() if meta[0] == 1),
+                       reverse=True)
+        failed = []
+        for step, slot in valid:
+            damage = self.slot_damage(slot)
+            if not damage:
+                note = "; ".join(f"checkpoint {s} (step {k}) fails its checksum ({', '.join(d)}): passed over"
+                                 for s, k, d in failed)
+                where = self.group.name if self.group.name != "/" else self.group.file.filename
+                return slot, (f"{where}: {note}; resumed from {slot} (step {step})" if failed else "")
+            failed.append((slot, step, [name.rsplit("/", 1)[-1] for name in damage]))
+        if failed:
+            raise FileFormatError(f"{self.group.name}: every checkpoint fails its checksum ("
+                                  + "; ".join(f"{s}: {', '.join(d)}" for s, _, d in failed) + "): cannot resume")
+        return None, ""
+
+    def passed_over(self) -> str:
+        """What :meth:`read_checkpoint` passes over: a note naming a newer slot that fails its checksums
+        ("" where none does)."""
+        return self._resumable_slot()[1]
 
     def _checkpoint_time(self, slot: str, step: int, case: Case) -> float:
         """The time of a slot's state (version 2 files did not store it: step * dt)."""
@@ -572,16 +658,21 @@ class CaseStore:
         g["meta"][0] = 0
         flush()
         faults.point("checkpoint")
+        written = []
         for name in self._arrays:
-            value = getattr(state, name)
+            value, size = getattr(state, name), g[name].size
             if value is None:
-                g[name][:] = np.nan
-            elif value.size == g[name].size:
-                g[name][:] = value
-            else:                                  # N adapting: its N values first, then NaN
-                g[name][:] = np.concatenate([value, np.full(g[name].size - value.size, np.nan)])
-        g["scalars"][:] = _pack_scalars(state, self._scalars)
-        g["meta"][1:] = (state.step, self.n_samples, self.n_snapshots)
+                value = np.full(size, np.nan)
+            elif value.size != size:               # N adapting: its N values first, then NaN
+                value = np.concatenate([value, np.full(size - value.size, np.nan)])
+            g[name][:] = value
+            written.append(value)
+        written.append(_pack_scalars(state, self._scalars))
+        g["scalars"][:] = written[-1]
+        written.append(np.array((state.step, self.n_samples, self.n_snapshots), dtype=np.int64))
+        g["meta"][1:] = written[-1]
+        if "digest" in g:
+            g["digest"][:] = np.array([digest(v) for v in written], dtype=np.uint64)
         flush()
         faults.point("checkpoint")
         g["meta"][0] = 1
@@ -623,8 +714,9 @@ class CaseStore:
         return theta_tilde, self._snap["psi"][i].copy(), float(times[i])
 
     def read_checkpoint(self) -> tuple[State, int, int] | None:
-        """(state, n_samples, n_snapshots) from the newest valid slot, or None."""
-        slot = self.newest_checkpoint_slot()
+        """(state, n_samples, n_snapshots) from the newest valid slot that passes its checksums (a newer
+        one that fails them is passed over: :meth:`passed_over` says so), or None."""
+        slot, _ = self._resumable_slot()
         if slot is None:
             return None
         g = self._ckpt[slot]
@@ -644,6 +736,13 @@ class CaseStore:
             if not np.all(np.isfinite(getattr(state, name))):
                 raise FileFormatError(f"{self.group.name}: checkpoint {slot} holds non-finite {name}")
         return state, int(meta[2]), int(meta[3])
+
+
+def digest(values) -> int:
+    """The 64-bit BLAKE2b checksum of an array's bytes (as stored: float64 or int64, little-endian)."""
+    data = np.ascontiguousarray(values)
+    return int.from_bytes(hashlib.blake2b(data.astype(data.dtype.newbyteorder("<")).tobytes(), digest_size=8)
+                          .digest(), "little")
 
 
 def _clip(text: str, size: int) -> bytes:

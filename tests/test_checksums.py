@@ -1,0 +1,155 @@
+"""Checksums (case format 5): a flipped bit in any dataset a case records is caught and named.
+
+Every checkpoint slot carries the checksum of each array, its scalars and its counters; an ended
+case carries those of the valid part of every series and snapshot record. A bit flipped in any of
+them is named by CaseStore.problems (and so by ``status --check``, ``analyze`` and the resume
+checks); a resumed run passes over a checkpoint that fails its checksums and resumes from the other
+one, bitwise identical to an uninterrupted run; with both damaged it refuses, exit 2.
+"""
+import logging
+import shutil
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from jobs import SHORT, resume_in_process, run_in_process, same_case_files
+
+from hpcves.campaign.driver import run_campaign
+from hpcves.campaign.study import study_from_toml
+from hpcves.config import case_from_toml
+from hpcves.run.diagnostics import SERIES
+from hpcves.run.store import FINISHED, INTERRUPTED, SNAPSHOT_RECORDS, CaseStore, FileFormatError
+from hpcves.run.timestepping import State
+
+HPCVES = [sys.executable, "-m", "hpcves.cli"]
+
+CASE = SHORT.format(t_end=0.3, checkpoint=0.04)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A finished case file, and one interrupted at step 97 with both checkpoint slots valid."""
+    d = tmp_path_factory.mktemp("checksums")
+    case = case_from_toml(CASE)
+    assert run_in_process(case, d / "whole.h5").status == FINISHED
+    assert run_in_process(case, d / "cut.h5", max_steps=97).status == INTERRUPTED
+    with h5py.File(d / "cut.h5", "r") as f:
+        assert all(f[f"checkpoint/{s}/meta"][0] == 1 for s in ("slot0", "slot1"))
+    return d
+
+
+def newest_slot(path) -> str:
+    with h5py.File(path, "r") as f:
+        return max(("slot0", "slot1"), key=lambda s: f[f"checkpoint/{s}/meta"][1])
+
+
+def flip(path, name, bit=3):
+    """Flip one bit of the first element of dataset ``name`` (a valid entry: row 0, node 0; the step
+    of a checkpoint's counters)."""
+    with h5py.File(path, "r+") as f:
+        d = f[name]
+        values = d[()]
+        flat = values.reshape(-1).view(np.uint64 if values.dtype.itemsize == 8 else np.uint8)
+        flat[1 if name.endswith("/meta") else 0] ^= np.array(1 << bit, dtype=flat.dtype)
+        d[()] = values
+
+
+def problems(path, resuming=False):
+    with h5py.File(path, "r") as f:
+        return CaseStore.open(f).problems(resuming=resuming)
+
+
+DATA = [f"timeseries/{n}" for n in SERIES] + [f"snapshots/{n}" for n in SNAPSHOT_RECORDS]
+SLOT = [*State.ARRAYS, "scalars", "meta"]
+
+
+@pytest.mark.parametrize("name", DATA + [f"checkpoint/newest/{n}" for n in SLOT] + [f"checkpoint/older/{n}" for n in SLOT])
+def test_a_flipped_bit_in_any_dataset_of_a_finished_case_is_named(files, tmp_path, name):
+    path = tmp_path / "copy.h5"
+    shutil.copy(files / "whole.h5", path)
+    assert problems(path) == []
+    newest = newest_slot(path)
+    name = name.replace("newest", newest).replace("older", "slot0" if newest == "slot1" else "slot1")
+    flip(path, name)
+    found = problems(path)
+    assert f"{name} fails its checksum" in found, found
+    assert [p for p in found if "checksum" in p] == [f"{name} fails its checksum"]
+
+
+@pytest.mark.parametrize("name", ["timeseries/digest", "snapshots/digest", "checkpoint/slot0/digest"])
+def test_a_flipped_bit_in_a_checksum_is_caught_too(files, tmp_path, name):
+    path = tmp_path / "copy.h5"
+    shutil.copy(files / "whole.h5", path)
+    flip(path, name)
+    assert any("fails its checksum" in p for p in problems(path))
+
+
+def test_a_resumed_run_passes_over_a_damaged_checkpoint_and_ends_bitwise_identical(files, tmp_path, caplog):
+    path = tmp_path / "cut.h5"
+    shutil.copy(files / "cut.h5", path)
+    newest = newest_slot(path)
+    flip(path, f"checkpoint/{newest}/psi")
+    assert f"checkpoint/{newest}/psi fails its checksum" in problems(path)
+    assert problems(path, resuming=True) == []               # the other slot passes: resumable
+    with caplog.at_level(logging.WARNING, logger="hpcves"):
+        assert resume_in_process(path).status == FINISHED
+    assert any(f"checkpoint {newest}" in r.message and "passed over" in r.message for r in caplog.records)
+    same_case_files(files / "whole.h5", path, checkpoints=True)
+    assert problems(path) == []        # the damaged slot was the older one and has been written again
+
+
+def test_with_both_checkpoints_damaged_a_resume_is_refused_in_one_line(files, tmp_path):
+    path = tmp_path / "cut.h5"
+    shutil.copy(files / "cut.h5", path)
+    flip(path, "checkpoint/slot0/theta")
+    flip(path, "checkpoint/slot1/scalars")
+    assert any("fails its checksum" in p for p in problems(path, resuming=True))
+    before = path.read_bytes()
+    result = subprocess.run(HPCVES + ["run", "--resume", str(path)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "damaged, not resumed" in lines[0] and "checkpoint/slot0/theta fails its checksum" \
+        in lines[0] and "Traceback" not in result.stderr, result.stderr
+    assert path.read_bytes() == before
+
+
+STUDY = """
+[campaign]
+name = "sums"
+output = "{output}"
+t_end = 0.1
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+max_spectral_tail = 1.0
+sample_interval = 0.005
+snapshot_interval = 0.05
+checkpoint_interval = 0.05
+checkpoint_wall = 0
+[sweep]
+shear_rate = [40, 80]
+"""
+
+
+def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(tmp_path):
+    output = tmp_path / "sums.h5"
+    assert run_campaign(study_from_toml(STUDY.format(output=output)), output).exit_status == 0
+    with h5py.File(output, "r+") as f:
+        values = f["cases/0001/timeseries/theta"][()]
+        values.view(np.uint64)[5] ^= np.uint64(1)                 # one bit of the last mantissa place
+        f["cases/0001/timeseries/theta"][()] = values
+    plain = subprocess.run(HPCVES + ["status", str(output)], capture_output=True, text=True, timeout=300)
+    check = subprocess.run(HPCVES + ["status", "--check", str(output)], capture_output=True, text=True, timeout=300)
+    assert check.returncode == 2, (check.stdout, check.stderr)
+    assert "0001" in check.stdout + check.stderr and "timeseries/theta fails its checksum" in check.stdout + check.stderr
+    assert "checksum" not in plain.stdout + plain.stderr             # plain status reads no data
+    analyzed = subprocess.run(HPCVES + ["analyze", str(output), "--out", str(tmp_path / "a")], capture_output=True,
+                              text=True, timeout=300)
+    assert analyzed.returncode == 2, (analyzed.stdout, analyzed.stderr)
+    assert "timeseries/theta fails its checksum" in analyzed.stdout + analyzed.stderr
+    with pytest.raises(FileFormatError, match="case 0001: timeseries/theta fails its checksum"):
+        run_campaign(study_from_toml(STUDY.format(output=output)), output, resume=True)
