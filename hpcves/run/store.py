@@ -741,8 +741,9 @@ class CaseStore:
 def digest(values) -> int:
     """The 64-bit BLAKE2b checksum of an array's bytes (as stored: float64 or int64, little-endian)."""
     data = np.ascontiguousarray(values)
-    return int.from_bytes(hashlib.blake2b(data.astype(data.dtype.newbyteorder("<")).tobytes(), digest_size=8)
-                          .digest(), "little")
+    if data.dtype.byteorder == ">" or (data.dtype.byteorder == "=" and np.little_endian is False):
+        data = data.astype(data.dtype.newbyteorder("<"))
+    return int.from_bytes(hashlib.blake2b(data.reshape(-1).view(np.uint8), digest_size=8).digest(), "little")
 
 
 def _clip(text: str, size: int) -> bytes:
