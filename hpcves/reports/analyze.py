@@ -567,14 +567,16 @@ def period_table(f: Findings, out: Path) -> list[Path]:
 
 
 def phase_diagrams(f: Findings, out: Path) -> list[Path]:
-    """The regimes over the plane, one per facet, with the critical shear rates of a search or the
-    boundaries of a refinement drawn over them; for a grid also the periods against its rows."""
+    """The regimes over the plane, one per facet (a point drawn by its last run), with the critical shear
+    rates of a search or the boundaries of a refinement drawn over them; for a grid also the periods
+    against its rows."""
     from hpcves.reports import plots
 
     if not f.diagrams:
         return []
     written = []
-    for fixed, subset in facets(f.rows, f.others):
+    repeated = rc.superseded(f.source)          # a refinement's runs that a later run of their point repeats
+    for fixed, subset in facets([r for r in f.rows if r["case"] not in repeated], f.others):
         suffix = facet_suffix(fixed)
         title = plots.parameter_text(shared_parameters(subset, (f.x_key, f.y_key)))
         fig = plots.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
