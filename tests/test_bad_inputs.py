@@ -82,6 +82,34 @@ CASE_FILES = {
     "a number past a double": ("[physics]\nshear_rate = 1e400\n", "physics.shear_rate = inf: must be a finite"),
     "dealias 3": ("[numerics]\ndealias = 3\n", "numerics.dealias = 3.0: must be 1"),
     "N_max below N_min": ("[numerics]\nN = 'auto'\nN_min = 128\nN_max = 64\n", "numerics.N_max = 64: must be above"),
+    # session 33: TOML edge cases, other encodings and other tools' files, options past their ranges
+    "UTF-16 text": ("[physics]\nshear_rate = 3.0\n".encode("utf-16"), "not UTF-8 text (byte 0xff at offset 0)"),
+    "a table declared twice": ("[physics]\nshear_rate = 1.0\n[physics]\npsi_bar = 0.3\n", "not valid TOML"),
+    "an integer past 64 bits": ("[numerics]\nN = 99999999999999999999999\n", "numerics.N = 99999999999999999999999"),
+    "dt negative zero": ("[numerics]\ndt = -0.0\n", "numerics.dt = -0.0: must be > 0"),
+    "dt underflowing to 0": ("[numerics]\ndt = 1e-400\n", "numerics.dt = 0.0: must be > 0"),
+    "t_end overflowing to inf": ("[run]\nt_end = 1e400\n", "run.t_end = inf: must be a finite number"),
+    "an unterminated string": ('[physics]\nbending_law = "linear\n', "not valid TOML"),
+    "a key without a value": ("[physics]\nshear_rate =\n", "not valid TOML"),
+    "an unknown bending law": ('[physics]\nbending_law = "cubic"\n', "physics.bending_law = 'cubic': must be one of"),
+    "a bending law by number": ("[physics]\nbending_law = 3\n", "physics.bending_law = 3: must be one of"),
+    "an unknown initial shape": ('[physics]\ninitial_shape = "star"\n', "physics.initial_shape = 'star'"),
+    "an unknown psi coordinate": ('[physics]\npsi_init_coordinate = "angle"\n', "physics.psi_init_coordinate"),
+    "no phase domain": ("[physics]\nphase_domains = 0\n", "physics.phase_domains = 0: must be an integer from 1"),
+    "a stored start without its file": ('[physics]\ninitial_shape = "stored"\n', "needs physics.stored_file"),
+    "filter order 4": ("[numerics]\nfilter_order = 4\n", "numerics.filter_order = 4: must be 0"),
+    "rtol 0.5": ("[numerics]\nrtol = 0.5\n", "numerics.rtol = 0.5: must lie in [1e-10, 0.1]"),
+    "N_max below a fixed N": ("[numerics]\nN = 64\nN_max = 32\n", "numerics.N_max = 32: must be above N = 64"),
+    "resize_tail 1": ('[numerics]\nN = "auto"\nresize_tail = 1.0\n', "numerics.resize_tail = 1.0: must lie in (0, 1)"),
+    "shrink_after 0": ('[numerics]\nN = "auto"\nshrink_after = 0.0\n', "numerics.shrink_after = 0.0: must be > 0"),
+    "N a word": ('[numerics]\nN = "many"\n', "numerics.N = 'many': must be an integer, or \"auto\""),
+    "until_decided a string": ('[run]\nuntil_decided = "yes"\n', "run.until_decided = 'yes': must be true or false"),
+    "area_correction a number": ("[numerics]\narea_correction = 1\n", "numerics.area_correction = 1: must be true"),
+    "a JSON file": ('{"physics": {"shear_rate": 3}}\n', "not valid TOML"),
+    "a YAML file": ("physics:\n  shear_rate: 3\n", "not valid TOML"),
+    "a zip archive": (b"PK\x03\x04\x14\x00\x00\x00\x08\x00" + bytes(range(40)), "not valid TOML"),
+    "a PNG image": (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(30), "not UTF-8 text (byte 0x89 at offset 0)"),
+    "an HDF5 file": (b"\x89HDF\r\n\x1a\n" + bytes(100), "not UTF-8 text (byte 0x89 at offset 0)"),
 }
 
 STUDY_HEAD = '[campaign]\nname = "bad"\nt_end = 0.02\n' + BASE_RUN
@@ -152,6 +180,24 @@ STUDY_FILES = {
                                     "tolerance.shear_rate = -0.1: must be > 0"),
     "a swept shear rate past the model": ("{head}[sweep]\nshear_rate = [1, 1e7]\n",
                                           "case 0001 (shear_rate = 1e+07): physics.shear_rate"),
+    # session 33
+    "a sweep given as a table of values": ("{head}[sweep]\nshear_rate = {{ values = [1.0, 2.0] }}\n",
+                                           "sweep.shear_rate = {'values': [1.0, 2.0]}: use a list"),
+    "a refinement over one axis": ("{head}[sweep]\nshear_rate = [1.0, 2.0]\npsi_bar = [0.3, 0.5]\n[refine]\n"
+                                   'axes = ["shear_rate"]\n', "give the two swept parameters of the plane"),
+    "a search and a refinement": ("{head}[sweep]\npsi_bar = [0.3, 0.5]\n[search]\n[refine]\n",
+                                  "[search] and [refine] are two kinds of campaign: give one"),
+    "a chain along an unswept key": ('{head}[sweep]\nshear_rate = [1.0, 2.0]\n[chain]\nalong = "B2"\n',
+                                     "chain.along = 'B2': must name a swept key"),
+    "an empty [starts]": ("{head}[sweep]\nshear_rate = [1.0, 2.0]\n[starts]\n", "[starts] names no start"),
+    "a negative pattern_tol": ("{head}[sweep]\nshear_rate = [1.0, 2.0]\n[analysis]\npattern_tol = -1.0\n",
+                               "analysis.pattern_tol = -1.0: must be > 0"),
+    "min_resize_tail with a fixed N": ("{head}[sweep]\nshear_rate = [1.0, 2.0]\npsi_bar = [0.3, 0.5]\n[refine]\n"
+                                       "min_resize_tail = 1e-6\n", 'only a run with numerics.N = "auto"'),
+    "a refine budget of 0": ("{head}[sweep]\nshear_rate = [1.0, 2.0]\npsi_bar = [0.3, 0.5]\n[refine]\n"
+                             "max_cases = 0\n", "refine.max_cases = 0: fewer than the 4 points"),
+    "a swept psi_bar past 1": ("{head}[sweep]\npsi_bar = [0.3, 1.5]\n", "case 0001 (psi_bar = 1.5)"),
+    "a NaN in a sweep": ("{head}[sweep]\nshear_rate = [1.0, nan]\n", "physics.shear_rate = nan: must be a finite"),
 }
 
 
@@ -494,3 +540,19 @@ def test_a_byte_order_mark_is_read_past():
         marked.write_text("\ufeff[physics]\nshear_rate = 7.0\n", encoding="utf-8")
         assert marked.read_bytes().startswith(b"\xef\xbb\xbf")
         assert load_case(marked) == load_case(plain) and load_case(marked).physics.shear_rate == 7.0
+
+
+def test_links_and_missing_folders_are_refused_in_one_line(tmp_path):
+    """Session 33: a dangling symlink as the case file, --out in a folder that does not exist, --out a link
+    to a device: one line, exit 2, nothing written."""
+    case = tmp_path / "ok.toml"
+    case.write_text("[physics]\nshear_rate = 3.0\n")
+    (tmp_path / "dangling.toml").symlink_to(tmp_path / "nowhere.toml")
+    (tmp_path / "null.h5").symlink_to("/dev/null")
+    before = sorted(os.listdir(tmp_path))
+    for args, words in ((("run", tmp_path / "dangling.toml", "--out", tmp_path / "o.h5"), "dangling.toml: no such file"),
+                        (("run", case, "--out", tmp_path / "no" / "where" / "o.h5"), "cannot create it"),
+                        (("run", case, "--out", tmp_path / "null.h5"), "a character device, not a file")):
+        line = refused(invoke(*args))
+        assert words in line, (args, line)
+    assert sorted(os.listdir(tmp_path)) == before

@@ -370,6 +370,7 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     if is_search and is_refine:
         raise ConfigError("[search] and [refine] are two kinds of campaign: give one")
     is_chain = "chain" in data
+    has_starts = "starts" in data
     tables = {t: data.pop(t, {}) for t in ("campaign", "sweep", "analysis", "search", "refine", "chain", "starts")}
     for table, value in tables.items():
         if not isinstance(value, dict):
@@ -427,6 +428,9 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
                 sweep[key] = sweep_values(key, spec)
     starts = ()
     with problems.check():
+        if has_starts and not tables["starts"]:
+            raise ConfigError("[starts] names no start: give each one as name = { initial_shape = ..., ... } "
+                              "(or leave the table out: one start, the base case's)")
         starts = start_table(tables["starts"], base) if base is not None else ()
         if starts:
             sweep["start"] = tuple(float(i) for i in range(len(starts)))
