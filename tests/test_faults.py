@@ -101,11 +101,11 @@ def test_a_kill_while_the_file_is_created_leaves_nothing_that_blocks_a_resume(tm
 
 @needs_mpi
 def test_a_kill_at_an_exact_moment_of_creation_then_resume(tmp_path):
-    """The 40th case laid out, on rank 1 (collective creation under mpio): deterministic."""
+    """The 40th case laid out (by rank 0, which lays the file out alone in every mode): deterministic."""
     path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
     from jobs import mpi_env
 
-    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="case-laid-out:40@1"))
+    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="case-laid-out:40@0"))
     assert killed.returncode != 0
     assert not output.exists() and output.with_name(output.name + ".partial").exists()
     status = hpcves("status", output)

@@ -159,9 +159,9 @@ def test_a_half_added_stage_of_an_older_version_is_dropped_and_made_again(search
 
     real_add = campaign_module._add_stage
 
-    def old_add(path, comm, access, cases, stage, source):             # what the old in-place adding could leave
+    def old_add(path, comm, cases, stage, source):             # what the old in-place adding could leave
         if stage == 1:
-            return real_add(path, comm, access, cases, stage, source)
+            return real_add(path, comm, cases, stage, source)
         with h5py.File(path, "r+") as h5:
             for c in cases:
                 h5["cases"].create_group(c.case_id)

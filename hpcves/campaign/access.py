@@ -18,7 +18,6 @@ sync before rank 0 reads, and what rank 0 needs to relay the others' writes.
 """
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 from hpcves.campaign.file import CampaignFile
@@ -27,7 +26,6 @@ from hpcves.campaign.relay import Relay, RemoteCampaign
 from hpcves.model.params import ConfigError
 from hpcves.run.store import FileFormatError, open_file, safe_flush
 
-log = logging.getLogger(__name__)
 
 #: the choices of ``--io``: "auto" is mpio where h5py has MPI, else relay (one rank: serial)
 IO_MODES = ("auto", "mpio", "relay")
@@ -41,10 +39,6 @@ class FileAccess:
     def __init__(self, comm=None):
         self.comm = comm
         self.rank = 0 if comm is None else comm.Get_rank()
-
-    def takes_part(self) -> bool:
-        """Whether this rank opens the file itself (for a change of its structure, or to run cases)."""
-        return True
 
     def open_h5(self, path: Path, mode: str):
         return open_file(path, mode)
@@ -73,10 +67,6 @@ class FileAccess:
     def sync(self, h5) -> None:
         """Before rank 0 reads the cases the other ranks wrote."""
 
-    def collective_failure(self, what: str, exc: BaseException, partial: Path | None) -> None:
-        """A rank failed inside a change of the structure: where the others may wait for it in
-        HDF5 for ever, say why and end the job."""
-
     def relay(self, campaign, flush) -> Relay | None:
         """Rank 0's handler of the other ranks' file writes, where they send them."""
         return None
@@ -102,16 +92,6 @@ class MpioAccess(FileAccess):
         h5.flush()
         self.comm.Barrier()
 
-    def collective_failure(self, what: str, exc: BaseException, partial: Path | None) -> None:
-        if partial is not None and self.rank == 0:
-            try:
-                partial.unlink()
-            except OSError:
-                pass
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        log.error("Error: %s: %s; the file at its path is unchanged", what, reason)
-        self.comm.Abort(2)
-
 
 class RelayAccess(FileAccess):
     """Rank 0 opens the file and applies the other ranks' writes."""
@@ -121,9 +101,6 @@ class RelayAccess(FileAccess):
     def __init__(self, comm, request_tag: int, reply_tag: int):
         super().__init__(comm)
         self.request_tag, self.reply_tag = request_tag, reply_tag
-
-    def takes_part(self) -> bool:
-        return self.rank == 0
 
     def open(self, path: Path):
         if self.rank > 0:
