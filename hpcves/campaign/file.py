@@ -15,9 +15,9 @@
                timeseries/ (preallocated, with a length counter), snapshots/,
                checkpoint/slot0|slot1 with a validity marker written last
 
-The whole structure is created up front -- collectively when the file is
-opened with the ``mpio`` driver, every rank making the same calls -- under a
-temporary name that becomes the file's only once it is complete (atomic.py).
+The whole structure is created up front -- by rank 0 alone with serial HDF5,
+in every I/O mode (campaign/driver.py, ``_change``) -- under a temporary name
+that becomes the file's only once it is complete (atomic.py).
 Afterwards only raw data are written in place, each case by the one rank
 running it (independent I/O; attributes are never written again); a search
 stage's cases are added to a copy that replaces the file.
@@ -62,7 +62,7 @@ class CampaignFile:
     # ------------------------------------------------------------------ creation / opening
     @classmethod
     def create(cls, h5, study: Study) -> "CampaignFile":
-        """Lay out the file and every case known yet (collective under mpio: every rank calls this identically)."""
+        """Lay out the file and every case known yet (one process: rank 0, serial HDF5)."""
         a = h5.attrs
         a["format"] = FORMAT
         a["format_version"] = FORMAT_VERSION
@@ -96,7 +96,7 @@ class CampaignFile:
         return campaign
 
     def add_cases(self, cases, source: str | None = None) -> None:
-        """Lay out new cases and append them to the index (collective under mpio); with ``source``,
+        """Lay out new cases and append them to the index (one process: rank 0); with ``source``,
         the campaign file's text replaces the stored one where it differs (a refinement continued
         with a larger ``max_cases``: the fingerprint leaves the budget out).
 

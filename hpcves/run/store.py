@@ -254,7 +254,7 @@ def describe(ts, snap) -> None:
     ``timeseries/t`` along the rows of every series (``timeseries/xy`` = 0, 1 along ``centroid``'s columns),
     ``snapshots/t`` and ``snapshots/alpha`` along the rows and columns of every field -- what
     netCDF readers (xarray's h5netcdf engine, ncdump) take as dimensions. Static metadata, written
-    with the layout (collectively under parallel HDF5); files from before it lack them and read the same.
+    with the layout; files from before it lack them and read the same.
     """
     for group, table in ((ts, SERIES_ATTRS), (snap, SNAPSHOT_ATTRS)):
         for name, (long_name, units) in table.items():
@@ -294,7 +294,7 @@ class CaseStore:
     # ------------------------------------------------------------------ creation
     @classmethod
     def create(cls, group, case: Case) -> "CaseStore":
-        """Lay out a new case in an empty group (collective in parallel HDF5)."""
+        """Lay out a new case in an empty group."""
         n_samples, n_snapshots = capacities(case)
         N = stored_N(case)
         a = group.attrs
