@@ -450,7 +450,7 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     from hpcves.campaign.study import load_study
     from hpcves.campaign.driver import file_bytes
     from hpcves.files.atomic import free_bytes, size_text
-    from hpcves.run.timing import StepCost
+    from hpcves.run.timing import StepCost, classify_seconds, layout_seconds
 
     try:
         study = load_study(study_file)
@@ -466,7 +466,8 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     # `timeout`) would kill the process before that: made an exit, which removes it too
     previous = signal.signal(signal.SIGTERM, _exit_on_sigterm)
     try:
-        estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)))
+        estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)), layout_seconds,
+                        classify_seconds)
     finally:
         signal.signal(signal.SIGTERM, previous)
     basis = estimate.likely or estimate              # what the run will likely take: ranks and time from it
@@ -478,6 +479,7 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     click.echo(f"suggested: {ranks} rank{'s' * (ranks != 1)} (srun -n {ranks} / mpirun -n {ranks}), "
                f"a job of {_duration(ask)}" + (" (capped by --max-time; the job resubmits itself)"
                                                 if ask < _job_seconds(wall) else ""))
+    click.echo(_overhead_text(basis, ranks))
     size = file_bytes(study)
     free = free_bytes(path)
     click.echo(f"output: {path} ({size_text(size)} for the {len(study.cases)} cases it starts with, every sample and "
@@ -498,6 +500,31 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
     except OSError as exc:
         _fail(f"cannot write the batch script: {os_error_text(exc)}")
     click.echo(f"batch script: {slurm_file} (set --account and --partition in it, then sbatch {slurm_file})")
+
+
+#: the cases a rank should get at least, where that costs little wall time: each rank pays its start-up,
+#: and rank 0 serves every other one
+CASES_PER_RANK = 3
+
+
+def _overhead_text(basis, ranks: int) -> str:
+    """What rank 0 does alone (in the wall times), what analyze takes afterwards, and the cases per rank
+    at the suggestion -- with why, where they are fewer than CASES_PER_RANK."""
+    def about(seconds):
+        return "under 1 s" if seconds < 1 else f"~{_duration(seconds)}"
+
+    text = (f"rank 0 alone: laying out the {basis.cases} cases {about(basis.creation)}"
+            + (f", classifying them between stages {about(basis.bookkeeping)}" if basis.bookkeeping else "")
+            + f" (in the wall times above); hpcves analyze afterwards {about(basis.analysis)} (the "
+            "classification; reading the file, figures and case pages come on top)")
+    per = basis.cases / ranks
+    shown = f"{per:,.0f}" if per >= 100 else f"{per:.3g}"
+    if per >= CASES_PER_RANK or ranks == 1:
+        return text + f"\n{shown} cases a rank at the suggestion"
+    fewer = max(1, basis.cases // CASES_PER_RANK)
+    return (text + f"\n{shown} cases a rank at the suggestion, fewer than {CASES_PER_RANK}: the cases are few "
+            f"for their length -- {fewer} rank{'s' * (fewer != 1)} ({CASES_PER_RANK} cases each) would take "
+            f"{_duration(basis.wall(fewer))} instead of {_duration(basis.wall(ranks))}")
 
 
 def _job_seconds(wall: float) -> float:

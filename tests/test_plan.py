@@ -59,6 +59,25 @@ def test_the_suggested_ranks_are_the_fewest_near_the_fastest():
     assert staged.suggested_ranks() == 4 and staged.widest == 4
 
 
+def test_laying_out_and_classifying_on_rank_0_keep_many_short_cases_from_one_rank_each(tmp_path):
+    """2000 cases of 0.1 core-seconds: without the layout the plan asked for a rank a case, whose job
+    the creation alone outlasts; with 10 ms a case on rank 0 first, ~100 ranks, ~20 cases each."""
+    study = study_from_toml(TINY.format(name="g", output=tmp_path / "g.h5")
+                            + "[sweep]\nshear_rate = { linspace = [10, 20, 40] }\npsi_bar = { linspace = [0.1, 0.5, 50] }\n")
+    per_case = lambda case: 0.1 / case.estimated_steps                              # noqa: E731
+    bare = plan(study, per_case)
+    counted = plan(study, per_case, lambda case: 0.01, lambda case: 0.002)
+    assert counted.creation == pytest.approx(0.01 * 2000) and counted.analysis == pytest.approx(0.002 * 2000)
+    assert counted.bookkeeping == 0.0                                  # a grid classifies nothing between stages
+    assert counted.wall(4) == pytest.approx(bare.wall(4) + 20.0)
+    assert bare.suggested_ranks() == 2000 and counted.suggested_ranks() <= 100      # wall 20 s + 200 s / ranks
+    assert 2000 / counted.suggested_ranks() >= 20
+    refine = study_from_toml(TINY.format(name="r", output=tmp_path / "r.h5")
+                             + "[sweep]\nshear_rate = [10, 40]\npsi_bar = [0.3, 0.5]\n[refine]\nmax_cases = 20\n")
+    staged = plan(refine, per_case, lambda case: 0.01, lambda case: 0.002)
+    assert staged.bookkeeping > 0 and staged.bookkeeping == pytest.approx(0.002 * staged.cases)
+
+
 def test_a_grid_plan_prices_every_case(tmp_path):
     study = study_from_toml(TINY.format(name="g", output=tmp_path / "g.h5")
                             + "[sweep]\nshear_rate = [10, 20, 40]\npsi_bar = [0.3, 0.5]\n")
@@ -132,6 +151,8 @@ def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):
     assert result.returncode == 0, result.stderr
     assert "timing a step at N = 32" in result.stderr
     assert "| in all | 4 |" in result.stdout and "(suggested)" in result.stdout
+    assert "rank 0 alone: laying out the 4 cases" in result.stdout and "hpcves analyze afterwards" in result.stdout
+    assert "cases a rank at the suggestion" in result.stdout
     ranks = int(result.stdout.split("suggested: ")[1].split()[0])
     assert not (tmp_path / "p.h5").exists()                     # a plan runs nothing
     text = script.read_text()

@@ -12,9 +12,13 @@ the known ones (a search's at the shear rates it may visit). For ``until_decided
 the plan also gives the likely cost, each case ended when cases typically are
 decided (DECIDED_AFTER, measured).
 
-The wall time on P ranks replays the scheduler (driver.py): every rank computes,
-cases go out most expensive first to whichever rank is free, and a stage starts
-when the one before has ended. The suggested P is the fewest ranks that finish
+The wall time on P ranks replays the scheduler (driver.py): rank 0 lays out the
+cases alone first (and a staged study's later ones before their stage, after
+classifying the ended ones), then every rank computes, cases go out most
+expensive first to whichever rank is free, and a stage starts when the one
+before has ended. Laying out and classifying are measured here on the first
+stage's median case (timing.py), so a study of many short cases is not planned
+as one rank per case whose job the creation alone outlasts. The suggested P is the fewest ranks that finish
 within 10 % of the wall time with a rank for every case of the widest stage whose
 width is known (a refinement's later stages are as wide as the boundaries it
 finds make them: only its coarse grid counts).
@@ -68,6 +72,9 @@ class Plan:
     step_seconds: dict          # N -> (fewest, most) seconds per step over the study's cases, measured here
     units: int                  # searches or refinements (1 for a grid)
     likely: "Plan | None" = None   # until_decided: the same with each case ended when typically decided
+    creation: float = 0.0       # seconds rank 0 takes to lay out the cases (the file, then each stage's)
+    bookkeeping: float = 0.0    # seconds rank 0 takes between stages to classify the ended cases (staged)
+    analysis: float = 0.0       # seconds `hpcves analyze` takes afterwards to classify every case (not in the job)
 
     @property
     def ceiling(self) -> bool:
@@ -95,8 +102,9 @@ class Plan:
         return max(len(s.seconds) for s in self.stages if s.sized)
 
     def wall(self, ranks: int) -> float:
-        """Wall seconds on ``ranks`` ranks: each stage as the scheduler runs it, one after the other."""
-        return sum(makespan(s.seconds, ranks) * s.rounds for s in self.stages)
+        """Wall seconds on ``ranks`` ranks: each stage as the scheduler runs it, one after the other,
+        after rank 0 has laid out its cases (and, between stages, classified the ended ones) alone."""
+        return self.creation + self.bookkeeping + sum(makespan(s.seconds, ranks) * s.rounds for s in self.stages)
 
     def fastest(self) -> float:
         """The wall time with a rank for every case of the widest stage: no more ranks help."""
@@ -127,8 +135,11 @@ def makespan(seconds, ranks: int) -> float:
     return max(free)
 
 
-def plan(study: Study, step_seconds: Callable) -> Plan:
-    """The :class:`Plan` of ``study``; ``step_seconds(case)`` is a step's wall seconds (timing.py).
+def plan(study: Study, step_seconds: Callable, layout_seconds: Callable | None = None,
+         classify_seconds: Callable | None = None) -> Plan:
+    """The :class:`Plan` of ``study``; ``step_seconds(case)`` is a step's wall seconds (timing.py),
+    ``layout_seconds(case)`` and ``classify_seconds(case)`` those of laying a case out and of classifying
+    it once ended (timing.py; None: not counted), each measured on the first stage's median case.
 
     Every case priced to its t_end; with ``until_decided``, ``likely`` prices it to
     DECIDED_AFTER x decided_shear_times shear times (at most t_end)."""
@@ -142,6 +153,12 @@ def plan(study: Study, step_seconds: Callable) -> Plan:
     units = {"grid": 1, "search": len(study.searches), "refine": len(study.refinements)}[study.mode]
     ceiling = Plan(study.name, study.mode, _stages(study, first, lambda case: case.estimated_steps
                                                    * step_seconds(case)), used, units)
+    typical = sorted(first, key=lambda case: case.run.t_end / case.run.sample_interval)[len(first) // 2]
+    cases = ceiling.cases
+    layout = layout_seconds(typical) * cases if layout_seconds else 0.0
+    classify = classify_seconds(typical) * cases if classify_seconds else 0.0
+    ceiling = dataclasses.replace(ceiling, creation=layout, analysis=classify,
+                                  bookkeeping=classify if study.mode != "grid" else 0.0)
     if not study.base.run.until_decided:
         return ceiling
     likely = dataclasses.replace(ceiling, stages=_stages(study, first, lambda case: case.estimated_steps

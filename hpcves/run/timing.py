@@ -77,3 +77,47 @@ class StepCost:
                 seconds_per_step(case, steps=20, repeats=1)
             self.measured[kind] = seconds_per_step(case, self.steps)
         return self.measured[kind]
+
+
+def layout_seconds(case: Case, count: int = 8) -> float:
+    """Wall seconds rank 0 takes to lay out one case like ``case`` in a campaign file
+    (``CaseStore.create``: its datasets, attributes and dimension scales), measured here in memory,
+    the fewest over ``count`` cases; writing the preallocated bytes to disk comes on top."""
+    import time
+
+    import h5py
+
+    from hpcves.run.store import CaseStore
+
+    best = float("inf")
+    for i in range(count):
+        with h5py.File(f"layout-{i}.h5", "w", driver="core", backing_store=False) as h5:
+            start = time.perf_counter()
+            CaseStore.create(h5.create_group("cases").create_group("0000"), case)
+            best = min(best, time.perf_counter() - start)
+    return best
+
+
+def classify_seconds(case: Case, repeats: int = 3) -> float:
+    """Wall seconds the classification of one ended case like ``case`` takes here (regimes.classify on
+    a synthetic record as long as the case's sample capacity; reading it from the file comes on top)."""
+    import time
+
+    import numpy as np
+
+    from hpcves.analysis.regimes import AnalysisSettings, classify
+    from hpcves.run.store import capacities
+
+    n = max(capacities(case)[0], 2)
+    t = np.linspace(0.0, case.run.t_end, n)
+    rng = np.random.default_rng(0)
+    series = {"t": t, "theta": 0.3 + 0.05 * np.sin(2 * np.pi * t * max(case.physics.shear_rate, 1.0) / 20)
+              + 1e-6 * rng.standard_normal(n),
+              "V_psi": np.full(n, 0.1), "V_L": np.full(n, -0.1), "tank_treading_velocity": np.full(n, -1.0),
+              "psi_min": np.zeros(n), "psi_max": np.ones(n), "E_bending": 10.0 + 0.01 * np.sin(t)}
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        classify(series, AnalysisSettings())
+        best = min(best, time.perf_counter() - start)
+    return best
