@@ -45,7 +45,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.signal
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 #: an autocorrelation peak counts as the period if it is this high relative to the highest one
@@ -119,6 +118,8 @@ def noise_level(x: np.ndarray) -> float:
 def detrend(x: np.ndarray) -> np.ndarray:
     """x minus its least-squares straight line (scipy.signal.detrend: the hand-written polyfit
     one agreed to 2e-16 and took 1.8x as long; BENCHMARKS.md)."""
+    import scipy.signal          # here, not at the top: it takes ~0.5 s to import, which `hpcves status` need not pay
+
     return scipy.signal.detrend(np.asarray(x, dtype=float), type="linear")
 
 
@@ -183,6 +184,8 @@ def acf_period(x: np.ndarray) -> tuple[float, float, float]:
     lo = negative[0] + 1
     # local maxima at lags lo .. k_max - 2 (scipy.signal.find_peaks never returns the ends of the
     # segment, which holds their neighbours), above zero
+    import scipy.signal
+
     peaks = scipy.signal.find_peaks(r[lo - 1:k_max])[0] + lo - 1
     peaks = peaks[r[peaks] > 0]
     if peaks.size == 0:

@@ -282,15 +282,18 @@ class CampaignFile:
             if starts and 0 <= values["start"] < len(starts):
                 values["start"] = starts[int(values["start"])]
             try:
-                g = self._cases[case_id]
-                t, t_end, wall, rate = (float(v) for v in g["progress"][:])
-                status = int(g["status"][()])
-                message = bytes(g["message"][()]).decode(errors="replace")
+                found = _summary(self._cases, case_id)
+                if found is None:            # the usual way, which says what is wrong
+                    g = self._cases[case_id]
+                    found = g["progress"][:], int(g["status"][()]), bytes(g["message"][()])
+                progress, status, message = found
+                t, t_end, wall, rate = (float(v) for v in progress)
+                message = message.decode(errors="replace")
                 name = STATUS_NAMES[status] if status in STATUS_NAMES else DAMAGED
                 if name == DAMAGED:
                     message = f"status {status} is not a status"
                 elif check:
-                    problems = CaseStore.open(g, where=case_id).problems()
+                    problems = CaseStore.open(self._cases[case_id], where=case_id).problems()
                     if problems:
                         name, message = DAMAGED, "; ".join(problems[:2])
             except (FileFormatError, *HDF5_ERRORS) as exc:
@@ -302,6 +305,27 @@ class CampaignFile:
                 row["after"] = links.get(case_id, "")
             rows.append(row)
         return rows
+
+
+def _summary(cases, case_id: str) -> tuple | None:
+    """(progress, status, message bytes) of a case through h5py's low-level API -- a high-level lookup
+    costs ~50 us, and ``status`` of 20 000 cases spent 6 of its 7 s on them -- or None where a dataset is
+    not as laid out (missing, misshapen: the caller reads again the usual way, which says what is wrong)."""
+    import h5py
+
+    try:
+        group = h5py.h5g.open(cases.id, case_id.encode())
+        out = []
+        for name, shape, kind in (("progress", (4,), "f"), ("status", (), "i"), ("message", (), "S")):
+            dataset = h5py.h5d.open(group, name.encode())
+            if dataset.shape != shape or dataset.dtype.kind != kind:
+                return None
+            buffer = np.empty(shape, dtype=dataset.dtype)
+            dataset.read(h5py.h5s.ALL, h5py.h5s.ALL, buffer)
+            out.append(buffer)
+    except HDF5_ERRORS:
+        return None
+    return out[0], int(out[1]), bytes(out[2][()])
 
 
 @dataclass(frozen=True)
