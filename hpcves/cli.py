@@ -728,9 +728,11 @@ def _case_selection(which: str):
               help="Override a threshold of the classification, e.g. --set min_cycles=5 (see [analysis]).")
 @click.option("--axes", help="The two parameters of the phase diagrams, e.g. shear_rate,psi_bar.")
 @click.option("--no-write-back", is_flag=True, help="Do not store the results in the file's analysis/ group.")
-@click.option("--case-figures", "which", default="all", show_default=True, metavar="all|flagged|none|ID,...",
-              help="Whose one-page figures to draw: every case's, the flagged ones' (undecided, failed, "
-                   "unfinished), none, or these case ids' (about 3 s a page, 1 s without streamlines).")
+@click.option("--case-figures", "which", default="auto", show_default=True,
+              metavar="auto|all|flagged|none|ID,...",
+              help="Whose one-page figures to draw: auto (every case's up to 100 cases, else the first 100 "
+                   "flagged ones'), every case's, the flagged ones' (undecided, failed, unfinished), none, or "
+                   "these case ids' (about 3 s a page, 1 s without streamlines).")
 @click.option("--no-case-figures", is_flag=True, help="Same as --case-figures none.")
 @click.option("--no-streamlines", is_flag=True,
               help="Case figures without the streamlines around the shapes (about 2 s a case less).")

@@ -230,7 +230,11 @@ def test_case_pages_are_drawn_for_the_cases_asked_for_and_alike_in_parallel(camp
     assert [r["case"] for r in case_pages.chosen(rows, "flagged")] == ["0001", "0002", "0003"]
     assert [r["case"] for r in case_pages.chosen(rows, ["0003", "0000"])] == ["0000", "0003"]
     assert case_pages.chosen(rows, "none") == [] and len(case_pages.chosen(rows, "all")) == 4
-    for which, words in (("flaged", "none of all, flagged, none"), (["0007"], "no case 0007")):
+    assert case_pages.chosen(rows, "auto") == case_pages.chosen(rows, "all")          # a few cases: every page
+    many = [dict(rows[i % len(rows)], case=f"{i:04d}") for i in range(case_pages.AUTO_PAGES + 1)]
+    auto = case_pages.chosen(many, "auto")                   # many: the flagged ones', at most AUTO_PAGES
+    assert auto == [r for r in many if case_pages.flagged(r)][:case_pages.AUTO_PAGES] and len(auto) < len(many)
+    for which, words in (("flaged", "none of auto, all, flagged, none"), (["0007"], "no case 0007")):
         with pytest.raises(ConfigError, match=words):
             case_pages.chosen(rows, which)
     with pytest.raises(ConfigError, match="no case 0009"):         # refused before any work

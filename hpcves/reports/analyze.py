@@ -443,18 +443,19 @@ def parse_overrides(items) -> dict:
 
 
 def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file: bool = True,
-            case_figures=True, axes=None, progress=None, streamlines: bool = True, jobs: int = 1) -> Report:
+            case_figures="auto", axes=None, progress=None, streamlines: bool = True, jobs: int = 1) -> Report:
     """Classify every case of ``path``; write the tables and figures to ``out_dir`` (default:
     ``<file>_analysis`` next to it) and the results back into the file.
 
-    ``case_figures``: whose one-page figures to draw -- True or "all", False or "none", "flagged"
-    (the cases without a regime), or a collection of case ids; ``jobs`` processes draw them
-    (:mod:`hpcves.reports.case_pages`)."""
+    ``case_figures``: whose one-page figures to draw -- "auto" (every case's up to 100 cases, else the first
+    100 flagged ones'), True or "all", False or "none", "flagged" (the cases without a regime), or a
+    collection of case ids; ``jobs`` processes draw them (:mod:`hpcves.reports.case_pages`)."""
 
     source = read_source(path)
     if isinstance(case_figures, bool):
         case_figures = "all" if case_figures else "none"
-    case_pages.chosen([{"case": c.case_id} for c in source.cases], case_figures)   # refused before the work
+    case_pages.chosen([{"case": c.case_id, "status": "finished", "regime": "TT"} for c in source.cases],
+                      case_figures)                                     # a bad selection refused before the work
     settings = source.settings
     if overrides:
         settings = AnalysisSettings.from_dict({**settings.__dict__, **overrides}, where="--set")
@@ -590,9 +591,15 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
                                                                           if k in r)],      # a start: every one's
                                   f.x_key, f.y_key)
         written += _save(fig, out / f"phase_diagram{suffix}")
-        if f.source.mode == "grid":
+        cells = len({r[f.x_key] for r in subset}) * len({r[f.y_key] for r in subset})
+        if f.source.mode == "grid" and cells <= MAX_PERIOD_CELLS:
             written += _save(plots.period_figure(subset, f.y_key, f.x_key, title=title), out / f"periods{suffix}")
     return written
+
+
+#: the period figure (a table drawn cell by cell, 1.6 x 0.8 inches a cell) is drawn up to this many cells;
+#: a grid of 200 x 10 made a 322-inch figure that took 3 GB to render (periods.md holds every value)
+MAX_PERIOD_CELLS = 400
 
 
 #: how a chain's legs are named, by the key it runs along

@@ -18,7 +18,10 @@ from hpcves.model.params import ConfigError
 from hpcves.run.store import CaseStore, open_file
 
 #: ``which`` of the named selections
-SELECTIONS = ("all", "flagged", "none")
+SELECTIONS = ("auto", "all", "flagged", "none")
+#: "auto": every case's page up to this many cases; beyond, the flagged ones', at most this many (at ~1-3 s
+#: a page, "all" of a 2000-case grid would draw for an hour and more)
+AUTO_PAGES = 100
 #: regimes that say the case is decided; any other outcome (undecided, failed, ...) is flagged
 DECIDED = ("TT", "PT", "TU")
 #: the fields of a regimes.csv row a page shows
@@ -31,11 +34,14 @@ def flagged(row: dict) -> bool:
 
 
 def chosen(rows: list[dict], which: str | Collection[str]) -> list[dict]:
-    """The rows whose pages ``which`` asks for: "all", "flagged", "none", or a collection of case ids
-    (an id that is no case of the file is an error: a page asked for by name should not silently vanish)."""
+    """The rows whose pages ``which`` asks for: "auto" (every case's up to AUTO_PAGES cases, else the first
+    AUTO_PAGES flagged ones'), "all", "flagged", "none", or a collection of case ids (an id that is no case
+    of the file is an error: a page asked for by name should not silently vanish)."""
     if isinstance(which, str):
         if which not in SELECTIONS:
             raise ConfigError(f"case figures: {which!r} is none of {', '.join(SELECTIONS)} (nor a list of case ids)")
+        if which == "auto":
+            return list(rows) if len(rows) <= AUTO_PAGES else [r for r in rows if flagged(r)][:AUTO_PAGES]
         return list(rows) if which == "all" else [r for r in rows if flagged(r)] if which == "flagged" else []
     wanted = set(which)
     missing = wanted - {r["case"] for r in rows}
