@@ -88,7 +88,8 @@ def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
             keys = [(x, y, s) for s in starts]
             if all(k in regimes and k not in retries for k in keys):
                 known[(x, y)] = joint(regimes[k] for k in keys) if len(starts) > 1 else regimes[keys[0]]
-        state = again(per_point, step(per_point, known, -(-spent // len(starts))), retries, -(-spent // len(starts)))
+        points_spent = -(-spent // len(starts))
+        state = again(per_point, step(per_point, known, points_spent), retries, points_spent)
         shown = {(x, y): v for (x, y, _), v in regimes.items()} if len(starts) == 1 else known
         states.append(RefineOutcome(i, dict(point), state, shown, settings, retries, spent, len(point_runs),
                                     len(starts)))

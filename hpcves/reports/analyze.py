@@ -454,8 +454,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     source = read_source(path)
     if isinstance(case_figures, bool):
         case_figures = "all" if case_figures else "none"
-    case_pages.chosen([{"case": c.case_id, "status": "finished", "regime": "TT"} for c in source.cases],
-                      case_figures)                                     # a bad selection refused before the work
+    case_pages.check(case_figures, [c.case_id for c in source.cases])     # a bad selection refused before the work
     settings = source.settings
     if overrides:
         settings = AnalysisSettings.from_dict({**settings.__dict__, **overrides}, where="--set")

@@ -37,18 +37,25 @@ def chosen(rows: list[dict], which: str | Collection[str]) -> list[dict]:
     """The rows whose pages ``which`` asks for: "auto" (every case's up to AUTO_PAGES cases, else the first
     AUTO_PAGES flagged ones'), "all", "flagged", "none", or a collection of case ids (an id that is no case
     of the file is an error: a page asked for by name should not silently vanish)."""
+    check(which, [r["case"] for r in rows])
     if isinstance(which, str):
-        if which not in SELECTIONS:
-            raise ConfigError(f"case figures: {which!r} is none of {', '.join(SELECTIONS)} (nor a list of case ids)")
         if which == "auto":
             return list(rows) if len(rows) <= AUTO_PAGES else [r for r in rows if flagged(r)][:AUTO_PAGES]
         return list(rows) if which == "all" else [r for r in rows if flagged(r)] if which == "flagged" else []
     wanted = set(which)
-    missing = wanted - {r["case"] for r in rows}
+    return [r for r in rows if r["case"] in wanted]
+
+
+def check(which: str | Collection[str], case_ids: list[str]) -> None:
+    """Refuse a selection that is none of SELECTIONS, or names a case that is not among ``case_ids``."""
+    if isinstance(which, str):
+        if which not in SELECTIONS:
+            raise ConfigError(f"case figures: {which!r} is none of {', '.join(SELECTIONS)} (nor a list of case ids)")
+        return
+    missing = set(which) - set(case_ids)
     if missing:
         raise ConfigError(f"case figures: no case {', '.join(sorted(missing))} in the file "
-                          f"(ask for {', '.join(SELECTIONS)} or case ids such as {rows[0]['case'] if rows else '0001'})")
-    return [r for r in rows if r["case"] in wanted]
+                          f"(ask for {', '.join(SELECTIONS)} or case ids such as {case_ids[0] if case_ids else '0001'})")
 
 
 def draw_page(path: str, case_id: str | None, row: dict, streamlines: bool, target: str) -> str:
