@@ -180,14 +180,16 @@ def results(path):
     """Every dataset and attribute of a campaign file that the computation determines.
 
     Left out: the wall-clock part of ``progress``, which checkpoint slot holds what (a stop writes an
-    extra checkpoint; the newest valid checkpoint is compared instead), and the campaign file's text
-    (it names the output path).
+    extra checkpoint; the newest valid checkpoint is compared instead), the campaign file's text
+    (it names the output path) and where the data lie in the file (index/addresses: the root's
+    attributes come first, and that text's length shifts everything after them).
     """
     out = {}
     with h5py.File(path, "r", locking=False) as f:
         out["/attrs"] = {k: v for k, v in f.attrs.items() if k not in ("hpcves_version", "campaign_toml")}
         for name, d in f["index"].items():
-            out[f"/index/{name}"] = d[()]
+            if name != "addresses":
+                out[f"/index/{name}"] = d[()]
         for case_id, g in f["cases"].items():
             data = {"attrs": dict(g.attrs)}
 

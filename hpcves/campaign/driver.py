@@ -488,10 +488,11 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
             driver = (SearchDriver if study.search else RefineDriver)(study)
             if mode_seen == "continue":
                 study = driver.cases_from_file(study, campaign)
-        stage = 0
+        stage, ended = 0, None
         while True:
             ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, access, mode_seen, stage,
-                                               retry_failed and stage == 0, stop_flag, display, announce)
+                                               retry_failed and stage == 0, stop_flag, display, announce, ended)
+            ended = time.perf_counter()
             results += ran
             not_written = not_written or refused
             if not study.staged:
@@ -541,9 +542,10 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
 
 
 def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, stage, retry_failed, stop_flag,
-               display, announce) -> tuple[list[CaseResult], bool, str]:
+               display, announce, ended=None) -> tuple[list[CaseResult], bool, str]:
     """Run every unfinished case of the file on every rank: (results, whether it was stopped, why the
-    file system refused a write or "") on rank 0."""
+    file system refused a write or "") on rank 0; ``ended``: when the stage before ended (perf_counter),
+    to say how long rank 0 took between the two."""
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
     results, stopped, refused = [], False, ""
@@ -554,7 +556,10 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
         if stage == 0:
             announce(_announcement(study, path, statuses, size, mode, access), None, finished)
         if todo or not study.staged:
-            announce(_stage_line(study, statuses, todo, stage), len(statuses), finished)
+            line = _stage_line(study, statuses, todo, stage)
+            if ended is not None:
+                line += f"; {time.perf_counter() - ended:.1f} s between stages"
+            announce(line, len(statuses), finished)
         master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display,
                         access.relay(campaign, flush))
         results = master.run()

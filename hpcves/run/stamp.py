@@ -1,0 +1,138 @@
+"""Laying out many cases of one shape by copying one: a campaign's cases, ~2.5 ms each instead of ~13.
+
+:meth:`CaseStore.create` makes ~65 datasets and ~120 attributes one HDF5 call at a time; HDF5's
+object copy (``H5Ocopy``) duplicates a whole laid-out case in ~1 ms. What a copy gets wrong is put
+right afterwards, so that a stamped case is the one ``CaseStore.create`` would have made:
+
+* the dimension scales: a copy's ``DIMENSION_LIST`` and ``REFERENCE_LIST`` attributes still refer
+  to the original's datasets (HDF5 copies object references verbatim within a file), so each is
+  written again with references to the copy's own (the HDF5 dimension-scale convention, H5DS);
+* the attributes whose values differ from the original's (its parameters, its configuration);
+* ``progress``, which holds the case's t_end.
+
+Cases share a stamp when their datasets have the same shapes (:func:`layout_key`). The original
+must be pristine, laid out and never written to since: a campaign stamps the cases it adds from the
+first one of each shape it lays out in the same change (campaign/file.py).
+"""
+from __future__ import annotations
+
+import math
+
+import h5py
+import numpy as np
+
+from hpcves.config import case_to_toml
+from hpcves.model.params import Case
+from hpcves.run.store import CaseStore, capacities, stored_N
+
+_DIMENSION_LIST = b"DIMENSION_LIST"
+_REFERENCE_LIST = b"REFERENCE_LIST"
+
+
+def layout_key(case: Case) -> tuple[int, int, int]:
+    """What fixes the shapes of a case's datasets: (sample rows, snapshot rows, stored width)."""
+    return (*capacities(case), stored_N(case))
+
+
+def _same(a, b) -> bool:
+    """Two attribute values that HDF5 would store alike (NaN equals NaN here)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, float) and math.isnan(a) and math.isnan(b):
+        return True
+    return a == b
+
+
+def case_attributes(case: Case) -> dict:
+    """The attributes :meth:`CaseStore.create` gives a case that depend on the case."""
+    n_samples, n_snapshots = capacities(case)
+    return {"config": case_to_toml(case), "N": case.numerics.N, "sample_capacity": n_samples,
+            "snapshot_capacity": n_snapshots, **case.flat()}
+
+
+class CaseStamp:
+    """A pristine laid-out case, and what must be rewritten in a copy of it."""
+
+    def __init__(self, original, case: Case, attrs: dict | None = None):
+        self.original = original
+        self.case = case
+        self.key = layout_key(case)
+        #: every attribute a copy may need to change: those of the case and the caller's ``attrs``
+        self.attributes = {**case_attributes(case), **(attrs or {})}
+        base = original.name.rstrip("/") + "/"
+        file = original.file
+        #: (dataset, [[scale, ...] per dimension]) and (scale, [(dataset, dimension), ...]), relative names
+        self.dimension_lists, self.reference_lists = [], []
+
+        def visit(name, obj):
+            if not isinstance(obj, h5py.Dataset):
+                return
+            if "DIMENSION_LIST" in obj.attrs:
+                self.dimension_lists.append(
+                    (name, [[file[r].name[len(base):] for r in refs] for refs in obj.attrs["DIMENSION_LIST"]]))
+            if "REFERENCE_LIST" in obj.attrs:
+                entries = obj.attrs["REFERENCE_LIST"]
+                self.reference_lists.append(
+                    (name, [(file[r].name[len(base):], int(i)) for r, i in entries], entries.dtype))
+
+        original.visititems(visit)
+
+    def copy(self, parent, name: str, case: Case, attrs: dict | None = None):
+        """``parent[name]``, laid out for ``case`` (same :func:`layout_key`) as a copy of the original,
+        with ``attrs`` (the same keys as the original was given) set on it."""
+        if layout_key(case) != self.key:
+            raise ValueError(f"case of shape {layout_key(case)} stamped from one of shape {self.key}")
+        h5py.h5o.copy(self.original.id, b".", parent.id, name.encode())
+        group = parent[name]
+        self._repoint(group)
+        for key, value in {**case_attributes(case), **(attrs or {})}.items():
+            if key not in self.attributes or not _same(value, self.attributes[key]):
+                group.attrs[key] = value
+        if case.run.t_end != self.case.run.t_end:
+            group["progress"][1] = case.run.t_end
+        return group
+
+    def _repoint(self, group) -> None:
+        """Point the copy's dimension scales at its own datasets."""
+        refs = {}
+
+        def ref(path):
+            if path not in refs:
+                refs[path] = h5py.h5r.create(group.id, path.encode(), h5py.h5r.OBJECT)
+            return refs[path]
+
+        vlen = h5py.vlen_dtype(h5py.ref_dtype)
+        for name, dims in self.dimension_lists:
+            value = np.empty(len(dims), dtype=vlen)
+            for i, scales in enumerate(dims):
+                value[i] = np.array([ref(p) for p in scales], dtype=h5py.ref_dtype)
+            _write_attribute(group, name, _DIMENSION_LIST, value)
+        for name, entries, dtype in self.reference_lists:
+            _write_attribute(group, name, _REFERENCE_LIST, np.array([(ref(p), i) for p, i in entries], dtype=dtype))
+
+
+def _write_attribute(group, name: str, attribute: bytes, value) -> None:
+    """Overwrite an existing attribute of ``group[name]`` in place (same type and shape)."""
+    obj = h5py.h5o.open(group.id, name.encode())
+    h5py.h5a.open(obj, attribute).write(value)
+
+
+class Stamper:
+    """Lays out cases in ``parent``: the first of each shape with :meth:`CaseStore.create`, the rest
+    stamped from it."""
+
+    def __init__(self, parent):
+        self.parent = parent
+        self.stamps: dict[tuple, CaseStamp] = {}
+
+    def lay_out(self, name: str, case: Case, attrs: dict | None = None):
+        """``parent[name]`` laid out for ``case``, with ``attrs`` set on it; returns the group."""
+        stamp = self.stamps.get(layout_key(case))
+        if stamp is not None:
+            return stamp.copy(self.parent, name, case, attrs)
+        group = self.parent.create_group(name)
+        CaseStore.create(group, case)
+        for key, value in (attrs or {}).items():
+            group.attrs[key] = value
+        self.stamps[layout_key(case)] = CaseStamp(group, case, attrs)
+        return group
