@@ -58,7 +58,7 @@ snapshot_interval = 0.005
 checkpoint_interval = 0.005
 [sweep]
 shear_rate = [1.0, 100.0]
-psi_bar = [0.0, 1.0]
+psi_bar = [0.0, 0.8]
 B2 = [0.1, 0.2, 0.3]
 [refine]
 tolerance = {{ shear_rate = 0.02, psi_bar = 0.02 }}
@@ -134,7 +134,7 @@ def run(cases: int, ranks: int, io: str, refine: bool, directory: Path) -> dict:
     status_check, _, _ = timed(HPCVES + ["status", "--check", str(output)], env)
     analyze, memory, _ = timed(HPCVES + ["analyze", str(output), "--out", str(directory / "analysis"),
                                          "--no-case-figures", "--no-write-back"], env)
-    stages = [float(s) for s in re.findall(r"between stages: ([0-9.]+) s", log)]
+    stages = [float(s) for s in re.findall(r"; ([0-9.]+) s between stages", log)]
     workers = [cpu[r] for r in cpu if r != 0]
     return {"cases": n, "ranks": ranks, "io": io, "refine": refine, "creation": created or float("nan"),
             "campaign": wall, "rate": n / max(wall - (created or 0.0), 1e-9),

@@ -188,7 +188,9 @@ def results(path):
     with h5py.File(path, "r", locking=False) as f:
         out["/attrs"] = {k: v for k, v in f.attrs.items() if k not in ("hpcves_version", "campaign_toml")}
         for name, d in f["index"].items():
-            if name != "addresses":
+            if name == "verdict":                 # the codes; the wall seconds they were stored with vary
+                out[f"/index/{name}"] = d[:, 0]
+            elif name != "addresses":
                 out[f"/index/{name}"] = d[()]
         for case_id, g in f["cases"].items():
             data = {"attrs": dict(g.attrs)}

@@ -116,6 +116,57 @@ def test_a_finished_refinement_resumed_runs_nothing_and_replays_the_same_verdict
         [(o.state.status, o.regimes) for o in summary.searches]
 
 
+def test_every_verdict_is_kept_in_the_file_and_a_replay_classifies_nothing(refined, tmp_path, monkeypatch):
+    """A case is classified once: its verdict is in index/verdict with the wall seconds it had then, and
+    ``status`` (a replay of the refinement) and a resume take it from there. A case whose wall seconds
+    differ (run again) is classified again; verdicts another classifier stored are not taken."""
+    import shutil
+
+    import hpcves.campaign.search_stages as stages
+    from hpcves.campaign.progress import progress
+    from hpcves.campaign.file import read_table
+    from hpcves.run.verdict import Verdict
+
+    study, output, summary, _ = refined
+    copy = tmp_path / "copy.h5"
+    shutil.copy(output, copy)
+    with h5py.File(copy, "r") as f:
+        verdicts, walls = f["index/verdict"][:, 0], f["index/verdict"][:, 1]
+        assert (verdicts >= 0).all() and len(verdicts) == f.attrs["n_cases"]
+        assert list(walls) == [f[f"cases/{i:04d}/progress"][2] for i in range(len(walls))]
+    regimes = [Verdict.from_code(c).regime for c in verdicts]
+    assert sorted(set(regimes)) == ["PT", "TT"]
+    classified = []
+
+    def classify(data, settings):
+        classified.append(data.case_id)
+        return {"regime": "TU", "reason": ""}
+
+    monkeypatch.setattr(stages, "analyse_case", classify)
+    rows = read_table(copy).rows
+    assert progress(copy, rows, None).complete and classified == []
+    again = run_campaign(study, copy, resume=True)
+    assert classified == [] and [o.regimes for o in again.searches] == [o.regimes for o in summary.searches]
+    with h5py.File(copy, "r+") as f:
+        f["cases/0002/progress"][2] += 1.0                          # as if it had run again
+    assert progress(copy, read_table(copy).rows, None) is not None and classified == ["0002"]
+    with h5py.File(copy, "r+") as f:
+        f["index/verdict"].attrs["classifier"] = "another"
+    progress(copy, read_table(copy).rows, None)
+    assert len(classified) == 1 + len(regimes)
+
+
+def test_verdict_codes_name_every_regime_and_reason_to_run_again():
+    from hpcves.run.verdict import VERDICT_REGIMES, Verdict
+
+    for regime in VERDICT_REGIMES:
+        for under, crept in ((False, False), (True, False), (False, True)):
+            verdict = Verdict(regime, under, crept)
+            assert Verdict.from_code(verdict.code) == verdict
+    assert Verdict("PT+TT").code == -1
+    assert [Verdict.from_code(c) for c in (-1.0, float("nan"), 1.5, 4 * len(VERDICT_REGIMES))] == [None] * 4
+
+
 def test_analyze_writes_the_boundaries_as_polylines_on_the_phase_diagram(refined, tmp_path):
     study, output, summary, _ = refined
     report = analyze(output, tmp_path, write_to_file=False, case_figures=False)
@@ -218,3 +269,34 @@ def test_a_refinement_out_of_budget_continues_when_the_budget_is_raised(refined,
         assert "max_cases = 30" in f.attrs["campaign_toml"]
     report = analyze(output, tmp_path / "analysis", write_to_file=False, case_figures=False)
     assert [r["status"] for r in report.refinements] == ["converged"]
+
+
+@needs_mpi
+def test_a_point_the_model_refuses_ends_an_mpi_refinement_in_one_line_not_a_hang(tmp_path):
+    """psi_bar = 0.925 (asked for in the second stage, between 0.85 and 1) starts psi outside its allowed
+    range: a ConfigError on rank 0 while it made the next stage. The other ranks waited for the plan
+    for ever (the job hung in its final collective close); now every rank ends with it, exit 2."""
+    path = tmp_path / "refuse.toml"
+    path.write_text(f"""[campaign]
+name = "refuse"
+output = "{tmp_path / 'refuse.h5'}"
+t_end = 0.01
+[numerics]
+N = 16
+dt = 1e-3
+[run]
+max_spectral_tail = 1.0
+sample_interval = 0.001
+snapshot_interval = 0.005
+checkpoint_interval = 0.005
+[sweep]
+shear_rate = [1.0, 100.0]
+psi_bar = [0.85, 1.0]
+[refine]
+tolerance = {{ shear_rate = 0.5, psi_bar = 0.02 }}
+max_cases = 20
+""")
+    result = hpcves("campaign", path, "--quiet", n=2)
+    errors = [line for line in result.stderr.splitlines() if line.startswith("Error:")]
+    assert result.returncode == 2 and len(errors) == 1, result.stderr
+    assert "psi_bar = 0.925" in errors[0] and "outside the allowed range" in errors[0]

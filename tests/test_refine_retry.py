@@ -340,8 +340,8 @@ def test_a_campaign_runs_creeping_cases_again_with_a_tighter_resize_tail_and_res
     the verdict itself is tested in test_periodicity.py), so it runs again with resize_tail 0.01 / 100 =
     min_resize_tail, and no more; stopped by its budget and continued, the refinement rebuilds those runs
     from the file and ends with the cases of the uninterrupted one."""
-    import hpcves.campaign.refine_stages as stages
-    monkeypatch.setattr(stages, "crept", lambda row: row["psi_bar"] > 0 and row["regime"] != "failed")
+    import hpcves.run.verdict as verdict
+    monkeypatch.setattr(verdict, "crept", lambda row: row["psi_bar"] > 0 and row["regime"] != "failed")
     reference = tmp_path / "whole.h5"
     summary = run_campaign(study_from_toml(CREEPING_TINY.format(output=reference, max_cases=30)), reference)
     assert summary.exit_status == 0

@@ -3,13 +3,12 @@ through HDF5, never from addresses a rewritten file no longer honours, and damag
 from __future__ import annotations
 
 import h5py
-import numpy as np
 import pytest
 
 from hpcves.campaign import file as campaign_file
 from hpcves.campaign.file import CampaignFile, StateReader
 from hpcves.campaign.study import study_from_toml
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, RUNNING, CaseStore
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, RUNNING
 
 STUDY = """
 [campaign]

@@ -50,6 +50,7 @@ from pathlib import Path
 from typing import Callable
 
 from hpcves.run import runner
+from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
     remove_partial, require_space, size_text
 from hpcves.campaign.file import CampaignFile
@@ -498,13 +499,25 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
             if not study.staged:
                 break
             access.sync(h5)                  # rank 0 is about to read the cases the others wrote
-            plan = ("stop",)
+            plan, failure = ("stop",), None
             if rank == 0 and not stopped:
-                outcomes, new = driver.next_stage(study, campaign)
-                on_stage(outcomes)
-                plan = ("add", new) if new else ("done",)
+                try:
+                    outcomes, new = driver.next_stage(study, campaign)
+                    campaign.store_verdicts(driver.fresh)     # classified once: a resume or status reads them
+                    driver.fresh.clear()
+                    faults.point("verdicts-stored")
+                    on_stage(outcomes)
+                    plan = ("add", new) if new else ("done",)
+                except Exception as exc:      # told to every rank, which would wait for the plan for ever
+                    failure = exc
+                    plan = ("error", isinstance(exc, ConfigError), f"{type(exc).__name__}: {exc}"
+                            if not isinstance(exc, ConfigError) else str(exc))
             if size > 1:
                 plan = bcast(comm, plan)
+            if failure is not None:
+                raise failure
+            if plan[0] == "error":
+                raise (ConfigError if plan[1] else RuntimeError)(plan[2])
             if plan[0] != "add":
                 break
             study = study.with_cases(plan[1]) if rank == 0 else study

@@ -37,7 +37,7 @@ from hpcves.files.atomic import partial_path
 from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_integer, attr_shown,
                               attr_text, open_file, reading)
 from hpcves.run.stamp import Stamper
-from hpcves.run.verdict import DAMAGED
+from hpcves.run.verdict import DAMAGED, classifier
 from hpcves.files.lock import writer
 from hpcves.campaign.study import Study
 
@@ -84,6 +84,9 @@ class CampaignFile:
         index.create_dataset("search", dtype="i4", **growing)
         index.create_dataset("addresses", shape=(0, len(STATE)), maxshape=(None, len(STATE)),
                              chunks=(1024, len(STATE)), dtype="u8")
+        if study.staged:
+            verdicts = index.create_dataset("verdict", shape=(0, 2), maxshape=(None, 2), chunks=(1024, 2), dtype="f8")
+            verdicts.attrs["classifier"] = classifier()
         if study.chain:
             index.create_dataset("after", dtype=f"S{study.id_width}", **growing)
         if study.search:
@@ -124,6 +127,9 @@ class CampaignFile:
         if "addresses" in index:
             index["addresses"].resize((stop, len(STATE)))
             index["addresses"][start:stop] = np.array(addresses, dtype=np.uint64)
+        if "verdict" in index:
+            index["verdict"].resize((stop, 2))
+            index["verdict"][start:stop] = np.array([[-1.0, np.nan]] * len(cases))
         columns = {"case_id": [c.case_id.encode() for c in cases], "cost": [c.cost for c in cases],
                    "search": [c.search for c in cases]}
         columns.update({k: [c.swept[k] for c in cases] for k in self.sweep_keys})
@@ -243,6 +249,38 @@ class CampaignFile:
         except tomllib.TOMLDecodeError:
             return []
         return list(table) if isinstance(table, dict) else []
+
+    def state(self, case_id: str) -> tuple[int, float]:
+        """(status, wall seconds) of one case."""
+        found = _summary(self._cases, case_id)
+        if found is None:                    # the usual way, which says what is wrong
+            group = self._cases[case_id]
+            return int(group["status"][()]), float(group["progress"][2])
+        return found[1], float(found[0][2])
+
+    def stored_verdicts(self) -> dict[str, tuple[float, float]]:
+        """{case id: (verdict code, the case's wall seconds when classified)} of the cases whose verdict
+        a staged campaign stored (index/verdict), computed by this hpcves's classifier; {} else."""
+        index = self.h5["index"]
+        if "verdict" not in index or attr_text(index["verdict"].attrs.get("classifier", "")) != classifier():
+            return {}
+        ids = self.case_ids
+        values = index["verdict"][:len(ids)]
+        return {case_id: (float(code), float(wall)) for case_id, (code, wall) in zip(ids, values) if code >= 0}
+
+    def store_verdicts(self, found: dict[str, tuple[int, float]]) -> None:
+        """Write {case id: (verdict code, wall seconds)} into index/verdict, in place (rank 0, between
+        stages: raw data of a dataset only rank 0 writes; nothing where the file keeps no verdicts or
+        another classifier's)."""
+        index = self.h5["index"]
+        if not found or "verdict" not in index or \
+                attr_text(index["verdict"].attrs.get("classifier", "")) != classifier():
+            return
+        rows = {case_id: i for i, case_id in enumerate(self.case_ids)}
+        dataset = index["verdict"]
+        for case_id, (code, wall) in sorted(found.items()):
+            if case_id in rows:
+                dataset[rows[case_id]] = (float(code), float(wall))
 
     def store(self, case_id: str) -> CaseStore:
         return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")

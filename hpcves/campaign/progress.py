@@ -43,7 +43,7 @@ def progress(path, rows: list[dict], writer: str | None) -> Progress:
     if open_cases:
         what = ", ".join(f"{n} {s}" for s, n in Counter(r["status"] for r in open_cases).items())
         return Progress(False, f"{what} case{'s' * (len(open_cases) != 1)} to run", failed, WORK_LEFT)
-    stage, again = _next_stage(path)
+    stage, again = _next_stage(path, rows)
     failed = sum(r["status"] == STATUS_NAMES[FAILED] and r["case"] not in again for r in rows)
     if stage:
         return Progress(False, f"the next stage: {stage} new case{'s' * (stage != 1)}", failed, WORK_LEFT)
@@ -52,16 +52,19 @@ def progress(path, rows: list[dict], writer: str | None) -> Progress:
     return Progress(True, "", 0, COMPLETE)
 
 
-def _next_stage(path) -> tuple[int, frozenset]:
+def _next_stage(path, rows: list[dict]) -> tuple[int, frozenset]:
     """(how many cases the next stage of a staged campaign whose cases have all ended would add (0:
     none, or not a staged campaign), the failed cases that a refinement ran again at a larger N):
-    its searches or refinements replayed from the file."""
+    its searches or refinements replayed from the file, from the verdicts it keeps where it does
+    and the status and wall seconds of the ``rows`` read already."""
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
         if campaign.mode not in ("search", "refine"):
             return 0, frozenset()
         study = study_from_toml(attr_text(h5.attrs["campaign_toml"]), source=f"{path}: campaign_toml")
-        driver = (SearchDriver if study.search else RefineDriver)(study)
+        codes = {name: code for code, name in STATUS_NAMES.items()}
+        states = {r["case"]: (codes[r["status"]], r["wall"]) for r in rows if r["status"] in codes}
+        driver = (SearchDriver if study.search else RefineDriver)(study, states)
         study = driver.cases_from_file(study, campaign)
         _, new = driver.next_stage(study, campaign)
         return len(new), run_again(study)

@@ -24,7 +24,7 @@ from hpcves.model.params import LABELS
 from hpcves.analysis.refine import BUDGET, RUNNING, RefineSettings, RefineState, boundary, joint, step
 from hpcves.campaign.search_stages import StageDriver
 from hpcves.campaign.study import Study
-from hpcves.run.verdict import crept, resolution, under_resolved
+from hpcves.run.verdict import resolution
 
 
 @dataclass(frozen=True)
@@ -157,11 +157,11 @@ class RefineDriver(StageDriver):
         """(outcome of every refinement, the new StudyCases to run: none once every one has ended)."""
         found = []
         for c in study.cases:
-            row = self.row(campaign, c.case_id)
-            if row is not None:
+            verdict = self.verdict(campaign, c.case_id)
+            if verdict is not None:
                 r, x, y, start = run_key(study, c)
-                found.append((r, x, y, row["regime"], study.retry_numerics(c.case.numerics, under_resolved(row),
-                                                                           crept(row)), start))
+                found.append((r, x, y, verdict.regime, study.retry_numerics(c.case.numerics, verdict.under_resolved,
+                                                                            verdict.crept), start))
         states = outcomes(study, found)
         taken = {run_key(study, c) for c in study.cases}
         new = []

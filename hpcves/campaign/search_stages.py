@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.run.verdict import analyse_case, case_data
+from hpcves.run.verdict import Verdict, analyse_case, case_data
 from hpcves.run.store import ENDED
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
 from hpcves.campaign.study import SEARCHABLE, Study
@@ -72,32 +72,52 @@ def cases_from_file(study: Study, campaign) -> Study:
 
 
 class StageDriver:
-    """Rank 0's side of a staged campaign (search or refine): the regimes of the cases that ended."""
+    """Rank 0's side of a staged campaign (search or refine): the verdicts of the cases that ended.
 
-    def __init__(self, study: Study):
+    A case is classified once: its verdict is kept in the file (index/verdict, with the case's wall
+    seconds then), and taken from there while the case's wall seconds are the same -- a case run
+    again (--retry-failed) has more -- and the file's verdicts come from this classifier.
+    """
+
+    def __init__(self, study: Study, states: dict | None = None):
         self.settings = study.analysis
-        self._rows: dict[str, dict] = {}      # case id -> regimes.csv row (ended cases only)
+        #: {case id: (status, wall seconds)} known already (``hpcves status`` read them); else read here
+        self.states = states or {}
+        self._verdicts: dict[str, Verdict] = {}      # ended cases only
+        self._stored: dict | None = None
+        #: {case id: (code, wall)} classified here and not yet stored (driver.py stores them)
+        self.fresh: dict[str, tuple[int, float]] = {}
 
-    def row(self, campaign, case_id: str) -> dict | None:
-        """The regimes.csv row of one case (analyse_case), or None while it has not ended."""
-        if case_id not in self._rows:
+    def verdict(self, campaign, case_id: str) -> Verdict | None:
+        """The verdict on one case, or None while it has not ended."""
+        if case_id in self._verdicts:
+            return self._verdicts[case_id]
+        if self._stored is None:
+            self._stored = campaign.stored_verdicts()
+        state = self.states.get(case_id) or campaign.state(case_id)
+        if state[0] not in ENDED:
+            return None
+        stored = self._stored.get(case_id)
+        verdict = Verdict.from_code(stored[0]) if stored is not None and stored[1] == state[1] else None
+        if verdict is None:
             store = campaign.store(case_id)
-            if store.status not in ENDED:
-                return None
-            self._rows[case_id] = analyse_case(case_data(store, case_id), self.settings)
-        return self._rows[case_id]
+            verdict = Verdict.of(analyse_case(case_data(store, case_id), self.settings))
+            if verdict.code >= 0:
+                self.fresh[case_id] = (verdict.code, float(store.progress[2]))
+        self._verdicts[case_id] = verdict
+        return verdict
 
     def regime(self, campaign, case_id: str) -> str | None:
         """The regime of one case, or None while it has not ended."""
-        row = self.row(campaign, case_id)
-        return None if row is None else row["regime"]
+        verdict = self.verdict(campaign, case_id)
+        return None if verdict is None else verdict.regime
 
 
 class SearchDriver(StageDriver):
     """Rank 0's side of a search campaign: classify what finished, ask for the next stage."""
 
-    def __init__(self, study: Study):
-        super().__init__(study)
+    def __init__(self, study: Study, states: dict | None = None):
+        super().__init__(study, states)
         self.points = search_points(study)
 
     cases_from_file = staticmethod(cases_from_file)

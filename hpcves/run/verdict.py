@@ -7,6 +7,7 @@ Used by ``hpcves analyze`` and by the stage drivers of searches and refinements.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, fields, replace
 
@@ -80,6 +81,59 @@ def mark(store: CaseStore) -> tuple:
 
 #: how a failed case's reason begins in regimes.csv
 FAILED_PREFIX = "case failed: "
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What a staged campaign decides on for one ended case: its regime (regimes.csv's) and whether it
+    failed as under-resolved or crept (the two reasons a refinement runs a point again)."""
+
+    regime: str
+    under_resolved: bool = False
+    crept: bool = False
+
+    @classmethod
+    def of(cls, row: dict) -> "Verdict":
+        return cls(row["regime"], under_resolved(row), crept(row))
+
+    @property
+    def code(self) -> int:
+        """4 x its regime's place in VERDICT_REGIMES + 2 under_resolved + crept; -1 for a regime not
+        there (never stored)."""
+        if self.regime not in VERDICT_REGIMES:
+            return -1
+        return 4 * VERDICT_REGIMES.index(self.regime) + 2 * self.under_resolved + self.crept
+
+    @classmethod
+    def from_code(cls, code) -> "Verdict | None":
+        """The verdict of a stored code; None for -1 (none stored) or a code that is none."""
+        if not np.isfinite(code) or code != int(code) or not 0 <= code < 4 * len(VERDICT_REGIMES):
+            return None
+        regime, flags = divmod(int(code), 4)
+        return cls(VERDICT_REGIMES[regime], bool(flags & 2), bool(flags & 1))
+
+
+#: the regimes a stored verdict may hold, in the order of their codes
+VERDICT_REGIMES = ("TT", "PT", "TU", UNDECIDED, FAILED_OUTCOME, MODEL_LIMIT_OUTCOME)
+
+#: the modules a case's verdict is computed by (its data read, classified, the reasons to run again)
+_CLASSIFIER_MODULES = ("hpcves.analysis.regimes", "hpcves.analysis.periodicity", "hpcves.analysis.pattern",
+                       "hpcves.analysis.accuracy", "hpcves.run.verdict", "hpcves.run.decision")
+
+
+@functools.cache
+def classifier() -> str:
+    """What the stored verdicts of a file were computed by: SHA-256 (first 16 hex digits) of the source
+    of every module that computes them. Verdicts stored by other code are not taken (its version
+    number does not change with every change of the classification)."""
+    import hashlib
+    import importlib
+    import inspect
+
+    digest = hashlib.sha256()
+    for name in _CLASSIFIER_MODULES:
+        digest.update(inspect.getsource(importlib.import_module(name)).encode())
+    return digest.hexdigest()[:16]
 
 
 def under_resolved(row: dict) -> bool:
