@@ -365,6 +365,8 @@ class Master:
                 break               # every other rank has asked for work: none of its messages is left unread
             else:
                 backoff.sleep()
+        if self.relay is not None:
+            self.relay.drain()
         for rank in range(1, self.size):
             self.comm.send(None, dest=rank, tag=TAG_TASK)
         return self.results

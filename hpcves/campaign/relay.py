@@ -37,6 +37,10 @@ class Relay:
     def __init__(self, campaign: CampaignFile, flush: Callable[[], None], reply_tag: int):
         self.campaign, self.flush, self.reply_tag = campaign, flush, reply_tag
         self._stores = {}
+        #: replies on their way: sent without waiting (a blocking send of a reply past MPI's eager limit
+        #: -- a case, a checkpoint -- spun rank 0 until the worker's next poll took it: at -n 8 under
+        #: relay, rank 0 used 12 times a worker's CPU)
+        self._replies = []
 
     def _store(self, case_id: str):
         if case_id not in self._stores:
@@ -65,9 +69,18 @@ class Relay:
                 reply = ("ok", value() if callable(value) else value)
             except Exception as exc:            # noqa: BLE001 -- raised again on the asking rank
                 reply = ("error", exc)
-            comm.send(reply, dest=source, tag=self.reply_tag)
+            self._replies = [r for r in self._replies if not r.Test()]
+            self._replies.append(comm.isend(reply, dest=source, tag=self.reply_tag))
         else:
             raise ValueError(f"rank {source} sent an unknown file request {kind!r}")
+
+
+    def drain(self) -> None:
+        """Wait until every reply is taken (each asking rank waits for its own before it goes on)."""
+        from mpi4py import MPI
+
+        MPI.Request.Waitall(self._replies)
+        self._replies = []
 
 
 class RemoteCaseStore:
