@@ -26,11 +26,10 @@ import tempfile
 import time
 from pathlib import Path
 
-GRID = """
-[campaign]
-name = "scale"
-output = "{output}"
-t_end = 0.01
+from bench_creation import MPI_ENV
+
+#: ten steps of N = 16: the cases are many and each is short
+TEN_STEPS = """t_end = 0.01
 [numerics]
 N = 16
 dt = 1e-3
@@ -39,7 +38,12 @@ max_spectral_tail = 1.0
 sample_interval = 0.001
 snapshot_interval = 0.005
 checkpoint_interval = 0.005
-[sweep]
+"""
+GRID = """
+[campaign]
+name = "scale"
+output = "{output}"
+""" + TEN_STEPS + """[sweep]
 shear_rate = {{ linspace = [1, 100, {n}] }}
 """
 # every point undecided after 10 steps: each refinement splits every cell to its tolerance
@@ -47,16 +51,7 @@ REFINE = """
 [campaign]
 name = "scale-refine"
 output = "{output}"
-t_end = 0.01
-[numerics]
-N = 16
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0
-sample_interval = 0.001
-snapshot_interval = 0.005
-checkpoint_interval = 0.005
-[sweep]
+""" + TEN_STEPS + """[sweep]
 shear_rate = [1.0, 100.0]
 psi_bar = [0.0, 0.8]
 B2 = [0.1, 0.2, 0.3]
@@ -64,9 +59,6 @@ B2 = [0.1, 0.2, 0.3]
 tolerance = {{ shear_rate = 0.02, psi_bar = 0.02 }}
 max_cases = {per_refinement}
 """
-MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
-           "OMPI_MCA_rmaps_base_oversubscribe": "1", "OMPI_MCA_pml": "ob1", "OMPI_MCA_btl": "self,vader",
-           "OMPI_MCA_btl_vader_single_copy_mechanism": "none"}
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
 
 

@@ -248,6 +248,18 @@ def assert_same_results(a, b, attrs=True):
     assert not found, found[:10]
 
 
+#: ten steps of N = 16, the rest of a study file after its [campaign] header: many short cases
+TEN_STEPS = """t_end = 0.01
+[numerics]
+N = 16
+dt = 1e-3
+[run]
+max_spectral_tail = 1.0
+sample_interval = 0.001
+snapshot_interval = 0.005
+checkpoint_interval = 0.005
+"""
+
 #: a short case (N = 32, psi_bar = 0.3, S = 80) with ``{t_end}`` and ``{checkpoint}`` to fill in
 SHORT = """
 [physics]

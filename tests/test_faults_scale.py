@@ -2,24 +2,14 @@
 bookkeeping between stages of hundreds of cases; each resumed to the file an uninterrupted run makes,
 bit for bit. Tiny cases (N = 16, 10 steps), so that the cases are many and the run short."""
 import pytest
-from jobs import MPIRUN, assert_same_results, hpcves, mpi_env
+from jobs import MPIRUN, TEN_STEPS, assert_same_results, hpcves, mpi_env
 
 pytestmark = [pytest.mark.faults, pytest.mark.skipif(MPIRUN is None, reason="no mpirun")]
 
-RUN = """t_end = 0.01
-[numerics]
-N = 16
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0
-sample_interval = 0.001
-snapshot_interval = 0.005
-checkpoint_interval = 0.005
-"""
 GRID = """[campaign]
 name = "bulk"
 output = "{output}"
-""" + RUN + """[sweep]
+""" + TEN_STEPS + """[sweep]
 shear_rate = {{ linspace = [1, 100, 5000] }}
 """
 # every point is undecided after 10 steps, so each refinement splits its cells to the tolerance:
@@ -27,7 +17,7 @@ shear_rate = {{ linspace = [1, 100, 5000] }}
 REFINE = """[campaign]
 name = "stages"
 output = "{output}"
-""" + RUN + """[sweep]
+""" + TEN_STEPS + """[sweep]
 shear_rate = [1.0, 100.0]
 psi_bar = [0.0, 0.8]
 B2 = [0.1, 0.2]

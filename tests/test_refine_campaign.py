@@ -19,7 +19,7 @@ from hpcves.model.params import ConfigError
 from hpcves.analysis.refine import CONVERGED, polylines
 from hpcves.campaign.study import study_from_toml
 
-from jobs import assert_same_results, hpcves, job_pids, start_job, wait_until
+from jobs import TEN_STEPS, assert_same_results, hpcves, job_pids, start_job, wait_until
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
 REFINE = """
@@ -280,20 +280,11 @@ def test_a_point_the_model_refuses_ends_an_mpi_refinement_in_one_line_not_a_hang
     path.write_text(f"""[campaign]
 name = "refuse"
 output = "{tmp_path / 'refuse.h5'}"
-t_end = 0.01
-[numerics]
-N = 16
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0
-sample_interval = 0.001
-snapshot_interval = 0.005
-checkpoint_interval = 0.005
-[sweep]
+""" + TEN_STEPS + """[sweep]
 shear_rate = [1.0, 100.0]
 psi_bar = [0.85, 1.0]
 [refine]
-tolerance = {{ shear_rate = 0.5, psi_bar = 0.02 }}
+tolerance = { shear_rate = 0.5, psi_bar = 0.02 }
 max_cases = 20
 """)
     result = hpcves("campaign", path, "--quiet", n=2)

@@ -511,9 +511,8 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
                     on_stage(outcomes)
                     plan = ("add", new) if new else ("done",)
                 except Exception as exc:      # told to every rank, which would wait for the plan for ever
-                    failure = exc
-                    plan = ("error", isinstance(exc, ConfigError), f"{type(exc).__name__}: {exc}"
-                            if not isinstance(exc, ConfigError) else str(exc))
+                    failure, config = exc, isinstance(exc, ConfigError)
+                    plan = ("error", config, str(exc) if config else f"{type(exc).__name__}: {exc}")
             if size > 1:
                 plan = bcast(comm, plan)
             if failure is not None:

@@ -258,26 +258,31 @@ class CampaignFile:
             return int(group["status"][()]), float(group["progress"][2])
         return found[1], float(found[0][2])
 
+    def _verdicts(self):
+        """index/verdict where the file keeps verdicts and this hpcves's classifier computed them, else None."""
+        dataset = self.h5["index"].get("verdict")
+        if dataset is None or attr_text(dataset.attrs.get("classifier", "")) != classifier():
+            return None
+        return dataset
+
     def stored_verdicts(self) -> dict[str, tuple[float, float]]:
         """{case id: (verdict code, the case's wall seconds when classified)} of the cases whose verdict
         a staged campaign stored (index/verdict), computed by this hpcves's classifier; {} else."""
-        index = self.h5["index"]
-        if "verdict" not in index or attr_text(index["verdict"].attrs.get("classifier", "")) != classifier():
+        dataset = self._verdicts()
+        if dataset is None:
             return {}
         ids = self.case_ids
-        values = index["verdict"][:len(ids)]
+        values = dataset[:len(ids)]
         return {case_id: (float(code), float(wall)) for case_id, (code, wall) in zip(ids, values) if code >= 0}
 
     def store_verdicts(self, found: dict[str, tuple[int, float]]) -> None:
         """Write {case id: (verdict code, wall seconds)} into index/verdict, in place (rank 0, between
         stages: raw data of a dataset only rank 0 writes; nothing where the file keeps no verdicts or
         another classifier's)."""
-        index = self.h5["index"]
-        if not found or "verdict" not in index or \
-                attr_text(index["verdict"].attrs.get("classifier", "")) != classifier():
+        dataset = self._verdicts() if found else None
+        if dataset is None:
             return
         rows = {case_id: i for i, case_id in enumerate(self.case_ids)}
-        dataset = index["verdict"]
         for case_id, (code, wall) in sorted(found.items()):
             if case_id in rows:
                 dataset[rows[case_id]] = (float(code), float(wall))
@@ -369,8 +374,6 @@ STATE = (("progress", (4,), "f"), ("status", (), "i"), ("message", (), "S"))
 
 def _addresses(group) -> list[int]:
     """The file offsets of a case's STATE datasets' bytes (contiguous, allocated when laid out)."""
-    import h5py
-
     return [h5py.h5d.open(group.id, name.encode()).get_offset() for name, _, _ in STATE]
 
 
@@ -378,8 +381,6 @@ def _summary(cases, case_id: str) -> tuple | None:
     """(progress, status, message bytes) of a case through h5py's low-level API -- a high-level lookup
     costs ~50 us, and ``status`` of 20 000 cases spent 6 of its 7 s on them -- or None where a dataset is
     not as laid out (missing, misshapen: the caller reads again the usual way, which says what is wrong)."""
-    import h5py
-
     try:
         group = h5py.h5g.open(cases.id, case_id.encode())
         out = []
@@ -442,7 +443,7 @@ class StateReader:
             return None
         out = []
         for (name, shape, kind), dtype, address in zip(STATE, self.dtypes, self.addresses[i]):
-            size = dtype.itemsize * (int(np.prod(shape)) if shape else 1)
+            size = dtype.itemsize * int(np.prod(shape))
             raw = os.pread(self.fd, size, int(address))
             if len(raw) != size:
                 return None

@@ -103,7 +103,7 @@ class StageDriver:
             store = campaign.store(case_id)
             verdict = Verdict.of(analyse_case(case_data(store, case_id), self.settings))
             if verdict.code >= 0:
-                self.fresh[case_id] = (verdict.code, float(store.progress[2]))
+                self.fresh[case_id] = (verdict.code, state[1])
         self._verdicts[case_id] = verdict
         return verdict
 
