@@ -19,7 +19,7 @@ from test_campaign import TINY_RUN
 
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.store import FINISHED, RUNNING
+from hpcves.run.store import FINISHED, RUNNING, CaseStore
 from hpcves.campaign.study import study_from_toml
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
@@ -301,22 +301,22 @@ def test_a_write_refused_while_cases_run_stops_the_campaign_and_loses_nothing(tm
 
     path, output = write_study(tmp_path / "job", t_end=0.1, checkpoint=0.02)
     study = study_from_toml(path.read_text())
-    real = h5py.Dataset.__setitem__
+    real = CaseStore._put
     writes = []
 
-    def refuse_one(self, key, value):       # h5py's write, as a full disk makes it fail
-        if "/checkpoint/" in self.name and self.name.endswith("/psi"):
-            writes.append(self.name)
+    def refuse_one(self, path, values, start=None):       # the store's write, as a full disk makes it fail
+        if path.startswith("checkpoint/") and path.endswith("/psi"):
+            writes.append(path)
             if len(writes) == 5:             # the 5th checkpoint, its slot marked invalid, theta already in
                 raise OSError(errno.ENOSPC, "No space left on device")
-        return real(self, key, value)
+        return real(self, path, values, start)
 
-    monkeypatch.setattr(h5py.Dataset, "__setitem__", refuse_one)
+    monkeypatch.setattr(CaseStore, "_put", refuse_one)
     summary = run_campaign(study, output)
     assert summary.exit_status == 2 and "No space left on device" in summary.not_written
     assert summary.failed == () and summary.counts["failed"] == 0
     assert summary.counts["running"] == 1                # the case whose write failed: as after a kill
-    monkeypatch.setattr(h5py.Dataset, "__setitem__", real)
+    monkeypatch.setattr(CaseStore, "_put", real)
     again = run_campaign(study, output, resume=True)
     assert again.exit_status == 0
     assert_same_results(output, reference_of(path, tmp_path))

@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import Callable
 
 from hpcves.campaign.file import CampaignFile
+from hpcves.run.store import RUNNING
 
 #: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
 WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshots", "truncate",
@@ -60,6 +61,9 @@ class Relay:
                 store.write_checkpoint(*args, self.flush)
             else:
                 getattr(store, name)(*args)
+            if name == "set_status" and args[0] != RUNNING:
+                # the run is over: its datasets are closed (every flush visits each open dataset)
+                del self._stores[case_id]
         elif kind == "read":
             _, case_id, name = message
             try:
