@@ -538,6 +538,7 @@ def _plan_text(estimate, study, suggested: int) -> str:
     from hpcves.reports.tables import markdown_table
 
     from hpcves.campaign.plan import DECIDED_AFTER
+    from hpcves.campaign.queue import ranks_for
 
     likely = estimate.likely
     kind = {"grid": "a grid", "search": f"{estimate.units} critical-shear search{'es' * (estimate.units != 1)}",
@@ -565,8 +566,8 @@ def _plan_text(estimate, study, suggested: int) -> str:
         lines.append("a refinement's later stages spend at most its budget (max_cases); how much depends on "
                      "the boundaries it finds")
     basis = likely or estimate
-    ranks = sorted({1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, suggested, basis.widest}
-                   & set(range(1, basis.widest + 1)))
+    most = ranks_for(basis.widest)
+    ranks = sorted({1, 2, 4, 8, 16, 32, 64, 128, 256, 512, 1024, suggested, most} & set(range(1, most + 1)))
     body = [[f"{p}" + (" (suggested)" if p == suggested else ""), _duration(basis.wall(p)),
              f"{100 * basis.core_seconds / (p * basis.wall(p)):.0f} %"]
             + ([_duration(estimate.wall(p))] if likely else []) for p in ranks]

@@ -51,7 +51,9 @@ def test_the_suggested_ranks_are_the_fewest_near_the_fastest():
     # one long case and ten short ones: two ranks do as well as eleven
     assert Plan("x", "grid", (Stage("grid", (10.0,) + (1.0,) * 10),), {}, 1).suggested_ranks() == 2
     equal = Plan("x", "grid", (Stage("grid", (1.0,) * 12),), {}, 1)
-    assert equal.suggested_ranks() == 12 and equal.wall(12) == 1.0 and equal.wall(5) == 3.0
+    # on more than four ranks rank 0 only schedules: 12 cases at once take 13 ranks
+    assert equal.suggested_ranks() == 13 and equal.wall(13) == 1.0 and equal.wall(12) == 2.0
+    assert equal.wall(4) == equal.wall(5) == 3.0 and equal.wall(6) == 3.0 and equal.wall(7) == 2.0
     # stages run one after the other: their walls add up
     staged = Plan("x", "search", (Stage("start", (2.0,) * 4), Stage("splits", (1.0,) * 2, rounds=3)), {}, 2)
     assert staged.cases == 10 and staged.core_seconds == 14.0
@@ -61,7 +63,8 @@ def test_the_suggested_ranks_are_the_fewest_near_the_fastest():
 
 def test_laying_out_and_classifying_on_rank_0_keep_many_short_cases_from_one_rank_each(tmp_path):
     """2000 cases of 0.1 core-seconds: without the layout the plan asked for a rank a case, whose job
-    the creation alone outlasts; with 10 ms a case on rank 0 first, ~100 ranks, ~20 cases each."""
+    the creation alone outlasts (2001 ranks: on more than four, rank 0 only schedules); with 10 ms a case on rank
+    0 first, ~100 ranks, ~20 cases each."""
     study = study_from_toml(TINY.format(name="g", output=tmp_path / "g.h5")
                             + "[sweep]\nshear_rate = { linspace = [10, 20, 40] }\npsi_bar = { linspace = [0.1, 0.5, 50] }\n")
     per_case = lambda case: 0.1 / case.estimated_steps                              # noqa: E731
@@ -70,7 +73,7 @@ def test_laying_out_and_classifying_on_rank_0_keep_many_short_cases_from_one_ran
     assert counted.creation == pytest.approx(0.01 * 2000) and counted.analysis == pytest.approx(0.002 * 2000)
     assert counted.bookkeeping == 0.0                                  # a grid classifies nothing between stages
     assert counted.wall(4) == pytest.approx(bare.wall(4) + 20.0)
-    assert bare.suggested_ranks() == 2000 and counted.suggested_ranks() <= 100      # wall 20 s + 200 s / ranks
+    assert bare.suggested_ranks() == 2001 and counted.suggested_ranks() <= 100      # wall 20 s + 200 s / ranks
     assert 2000 / counted.suggested_ranks() >= 20
     refine = study_from_toml(TINY.format(name="r", output=tmp_path / "r.h5")
                              + "[sweep]\nshear_rate = [10, 40]\npsi_bar = [0.3, 0.5]\n[refine]\nmax_cases = 20\n")
@@ -127,7 +130,7 @@ B2 = [0.1, 0.8]
     # the widest coarse interval on each axis, one after the other: S from 10 to 40 is log 4 = 14.5
     # tolerances, 4 halvings; psi_bar from 0.3 to 0.5 is 4 tolerances, 2 halvings
     assert sum(s.rounds for s in estimate.stages[1:]) == settings.stages_needed() - 1 == 4 + 2
-    assert estimate.widest == 18 and estimate.suggested_ranks() <= 18   # later widths are not known
+    assert estimate.widest == 18 and estimate.suggested_ranks() <= 19   # later widths are not known (19: 18 compute)
 
 
 def test_step_cost_is_measured_once_per_kind_of_step(tmp_path):

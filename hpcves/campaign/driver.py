@@ -1,10 +1,13 @@
 """Running a study on MPI: rank 0 schedules and computes, the other ranks compute.
 
 Scheduling (:class:`Master`, rank 0). Cases go out most expensive first
-(cost = steps x N^2) to whichever rank asks. Rank 0 runs cases itself: its
-run loop polls the message queue once per time step (``MPI.Iprobe``, ~1 us)
-and answers requests there, so with ``mpirun -n 2`` on two cores both cores
-compute. Nobody busy-waits: a rank with nothing to compute polls with a
+(cost = steps x N^2) to whichever rank asks. On up to 4 ranks (queue.RANK0_COMPUTES_UP_TO)
+rank 0 runs cases itself: its run loop polls the message queue once per time step
+(``MPI.Iprobe``, ~1 us) and answers requests there, so with ``mpirun -n 2`` on two
+cores both cores compute. On more ranks it only schedules (and, under relay, writes
+for everyone): a time step between its answers holds up every other rank, and the
+answers of a whole job add up to more than a worker's computing (under relay at
+-n 8, rank 0 running cases too used 7x a worker's CPU and set the pace). Nobody busy-waits: a rank with nothing to compute polls with a
 sleep that backs off from 1 ms to 50 ms (as mpi4py.futures does), and the
 final synchronisation is a non-blocking barrier polled the same way.
 
@@ -62,7 +65,7 @@ from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
-from hpcves.campaign.queue import Task, WorkQueue
+from hpcves.campaign.queue import Task, WorkQueue, computing_ranks
 from hpcves.campaign.relay import Relay
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
@@ -212,7 +215,7 @@ def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank:
 
 # ---------------------------------------------------------------------- rank 0
 class Master:
-    """Hands out cases, runs cases itself between scheduling turns, shows progress."""
+    """Hands out cases, runs cases itself between scheduling turns (on few ranks), shows progress."""
 
     def __init__(self, comm, campaign: CampaignFile, study: Study, todo, flush, stop_flag,
                  stop_timeout: float, display=None, relay: Relay | None = None):
@@ -232,6 +235,7 @@ class Master:
         self.stopping = False
         self.not_written = ""                    # the first write the file system refused
         self.cost_total = sum(study.by_id(c).cost for c, _ in todo)
+        self.computes = computing_ranks(self.size) == self.size
         if self.size > 1:
             from mpi4py import MPI
 
@@ -339,12 +343,13 @@ class Master:
 
     # -- the loop
     def run(self) -> list[CaseResult]:
-        backoff = Backoff()
+        # a rank 0 that only schedules answers within 5 ms: a worker's send past MPI's eager limit waits for it
+        backoff = Backoff() if self.computes else Backoff(limit=5e-3)
         self.not_run(self.queue.broken)
         while True:
             if self.service():
                 backoff.reset()
-            task = None if self.stopping else self.queue.pop()
+            task = None if self.stopping or not self.computes else self.queue.pop()
             if task is not None:
                 case_id = task.case_id
                 self.fraction[case_id] = 0.0

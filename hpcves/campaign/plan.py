@@ -14,7 +14,8 @@ decided (DECIDED_AFTER, measured).
 
 The wall time on P ranks replays the scheduler (driver.py): rank 0 lays out the
 cases alone first (and a staged study's later ones before their stage, after
-classifying the ended ones), then every rank computes, cases go out most
+classifying the ended ones), then the ranks compute (all of them on up to four; on more, rank 0
+only schedules: queue.computing_ranks), cases go out most
 expensive first to whichever rank is free, and a stage starts when the one
 before has ended. Laying out and classifying are measured here on the first
 stage's median case (timing.py), so a study of many short cases is not planned
@@ -33,6 +34,7 @@ from typing import Callable
 
 from hpcves.analysis.refine import coarse_points
 from hpcves.analysis.search import start_rates
+from hpcves.campaign.queue import computing_ranks, ranks_for
 from hpcves.campaign.study import Study
 from hpcves.run.resolution import expected_N
 
@@ -104,16 +106,17 @@ class Plan:
     def wall(self, ranks: int) -> float:
         """Wall seconds on ``ranks`` ranks: each stage as the scheduler runs it, one after the other,
         after rank 0 has laid out its cases (and, between stages, classified the ended ones) alone."""
-        return self.creation + self.bookkeeping + sum(makespan(s.seconds, ranks) * s.rounds for s in self.stages)
+        computing = computing_ranks(ranks)
+        return self.creation + self.bookkeeping + sum(makespan(s.seconds, computing) * s.rounds for s in self.stages)
 
     def fastest(self) -> float:
-        """The wall time with a rank for every case of the widest stage: no more ranks help."""
-        return self.wall(self.widest)
+        """The wall time with a computing rank for every case of the widest stage: no more ranks help."""
+        return self.wall(ranks_for(self.widest))
 
     def suggested_ranks(self) -> int:
         """The fewest ranks whose wall time is within NEAR_FASTEST of :meth:`fastest`."""
         target = NEAR_FASTEST * self.fastest()
-        low, high = 1, self.widest            # wall(ranks) falls with ranks (LPT: up to rounding)
+        low, high = 1, ranks_for(self.widest)   # wall(ranks) falls with ranks (LPT: up to rounding)
         while low < high:
             middle = (low + high) // 2
             if self.wall(middle) <= target:

@@ -17,6 +17,20 @@ from typing import Callable
 
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES
 
+#: the most ranks on which rank 0 runs cases itself between scheduling turns (driver.Master); on more it
+#: only schedules (and relays)
+RANK0_COMPUTES_UP_TO = 4
+
+
+def computing_ranks(ranks: int) -> int:
+    """How many of a job's ``ranks`` run cases: all of them on up to RANK0_COMPUTES_UP_TO, else all but rank 0."""
+    return ranks if ranks <= RANK0_COMPUTES_UP_TO else ranks - 1
+
+
+def ranks_for(computing: int) -> int:
+    """The fewest ranks of a job in which ``computing`` ranks run cases."""
+    return computing if computing <= RANK0_COMPUTES_UP_TO else computing + 1
+
 
 @dataclass(frozen=True)
 class Task:

@@ -13,20 +13,20 @@ were made, and its "done" after all of them. The file therefore always holds
 a prefix of each case's writes -- exactly what the checkpoint protocol
 (invalidate the slot, write it, validate it) needs to survive a kill at any
 moment, as it does under ``mpio``. Reads are a round trip; a run makes a few
-when it starts (its case, progress, newest checkpoint and, for a run until decided, its
-series so far) and none after.
+when it starts (its case's text, progress, newest checkpoint and, when it resumes or runs until
+decided, its series so far) and none after.
 """
 from __future__ import annotations
 
 from typing import Callable
 
 from hpcves.campaign.file import CampaignFile
-from hpcves.run.store import RUNNING
+from hpcves.run.store import RUNNING, stored_case
 
 #: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
 WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshots", "truncate",
                     "write_checkpoint", "set_decision"})
-READS = frozenset({"case", "status", "progress", "read_checkpoint", "passed_over", "newest_checkpoint_slot",
+READS = frozenset({"config", "status", "progress", "read_checkpoint", "passed_over", "newest_checkpoint_slot",
                    "timeseries"})
 
 
@@ -109,7 +109,11 @@ class RemoteCaseStore:
         return value
 
     # reads
-    case = property(lambda self: self._read("case"))
+    @property
+    def case(self):
+        """Parsed here: rank 0 sends the text (parsing costs ~ms, and rank 0 serves every rank)."""
+        return stored_case(self._read("config"), f"/cases/{self.case_id}")
+
     status = property(lambda self: self._read("status"))
     progress = property(lambda self: self._read("progress"))
 

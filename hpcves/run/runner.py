@@ -177,6 +177,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     state = None
     wall_before = 0.0                  # wall time of earlier calls on this case
     note = ""                          # a checkpoint passed over because it fails its checksums
+    resumed = False                    # from a checkpoint: the samples before it are on file
     if resume:
         wall_before = float(np.nan_to_num(store.progress[2]))
         found = store.read_checkpoint()
@@ -184,13 +185,14 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
             if note := store.passed_over():
                 log.warning(note)
             state, n_samples, n_snapshots = found
+            resumed = True
             store.truncate(n_samples, n_snapshots)
             solver = solver.at(state.N)
     if state is None:
         state = solver.initial_state()
         store.truncate(0, 0)
     clock = schedule.clock(case)
-    last_sample = _last_sample(store, state) if resume else (state.t, state.step)   # the stall watch
+    last_sample = _last_sample(store, state) if resumed else (state.t, state.step)   # the stall watch
     record = _Record(store, flush, solver, state.step, wall_before)
     samples = Samples(record)
     decisions = Decisions(record, analysis) if case.run.until_decided else None

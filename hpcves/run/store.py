@@ -191,23 +191,31 @@ def open_file(path, mode: str, **kwargs):
     return h5
 
 
-#: the size of HDF5's metadata cache for a file written by one process (HDF5's initial size)
-METADATA_CACHE_BYTES = 2 * 1024 * 1024
+#: the size of HDF5's metadata cache for a file written by one process (HDF5 starts at 2 MiB)
+METADATA_CACHE_BYTES = 256 * 1024
 
 
 def fixed_metadata_cache(h5, size: int = METADATA_CACHE_BYTES) -> None:
     """Keep HDF5's metadata cache of ``h5`` at ``size`` bytes.
 
     HDF5 grows the cache (to 32 MiB) when its hit rate falls, as it does when one process writes
-    many cases in turn (rank 0 under relay); every flush then walks all of its entries
-    (H5C_set_slist_enabled) -- tiny cases hold ~300-byte entries, so ~10^5 of them. Fixed at the
-    initial size the walk stays short; what is evicted is read again from the page cache.
+    many cases in turn (rank 0 under relay); every flush walks all of its entries
+    (H5C_set_slist_enabled) -- tiny cases hold ~300-byte entries, so ~10^5 of them. Kept small the
+    walk stays short; what is evicted is read again from the page cache (docs/design.md).
     """
     config = h5.id.get_mdc_config()
     config.set_initial_size = True
     config.initial_size = config.min_size = config.max_size = size
     config.incr_mode = config.flash_incr_mode = config.decr_mode = 0     # H5C_incr__off, ...
     h5.id.set_mdc_config(config)
+
+
+def stored_case(config: str, where: str) -> Case:
+    """The case of a stored ``config`` text (of the group ``where``)."""
+    try:
+        return case_from_toml(config, source=f"{where} config", stored=True)
+    except ConfigError as exc:
+        raise FileFormatError(str(exc)) from None
 
 
 def stored_N(case: Case) -> int:
@@ -487,12 +495,13 @@ class CaseStore:
 
     # ------------------------------------------------------------------ metadata
     @property
+    def config(self) -> str:
+        """The case as the TOML text it is stored as."""
+        return attr_text(self.group.attrs["config"])
+
+    @property
     def case(self) -> Case:
-        try:
-            return case_from_toml(attr_text(self.group.attrs["config"]), source=f"{self.group.name} config",
-                                  stored=True)
-        except ConfigError as exc:
-            raise FileFormatError(str(exc)) from None
+        return stored_case(self.config, self.group.name)
 
     @property
     def status(self) -> int:
@@ -544,8 +553,8 @@ class CaseStore:
         return self.group["progress"][:]
 
     # ------------------------------------------------------------------ the writer's access
-    def _id(self, path: str):
-        """The low-level id of the dataset at ``path`` in this case, opened once per store.
+    def _id(self, path: str) -> tuple:
+        """(low-level id, dtype, shape) of the dataset at ``path`` in this case, opened once per store.
 
         A run writes ~40 times a case, each time ~20 datasets; through h5py's high-level objects a
         dataset costs ~0.1 ms to open and select (7x what this costs), which made rank 0 the bottleneck
@@ -555,13 +564,14 @@ class CaseStore:
         """
         found = self._ids.get(path)
         if found is None:
-            found = self._ids[path] = h5py.h5d.open(self.group.id, path.encode())
+            dataset = h5py.h5d.open(self.group.id, path.encode())
+            found = self._ids[path] = (dataset, dataset.dtype, dataset.shape)
         return found
 
     def _put(self, path: str, values, start: int | None = None) -> None:
         """Write ``values`` to the dataset at ``path``, whole or from row ``start`` on."""
-        dataset = self._id(path)
-        values = np.asarray(values, dtype=dataset.dtype, order="C")
+        dataset, dtype, shape = self._id(path)
+        values = np.asarray(values, dtype=dtype, order="C")
         if start is None:
             dataset.write(h5py.h5s.ALL, h5py.h5s.ALL, values)
             return
@@ -571,15 +581,14 @@ class CaseStore:
 
     def _get(self, path: str, rows: int | None = None) -> np.ndarray:
         """The dataset at ``path``, whole or its first ``rows`` rows."""
-        dataset = self._id(path)
-        space = dataset.get_space()
-        shape = space.shape if rows is None else (rows,) + space.shape[1:]
-        out = np.empty(shape, dtype=dataset.dtype)
+        dataset, dtype, shape = self._id(path)
+        out = np.empty(shape if rows is None else (rows,) + shape[1:], dtype=dtype)
         if rows is None:
             dataset.read(h5py.h5s.ALL, h5py.h5s.ALL, out)
         elif rows:
-            space.select_hyperslab((0,) * len(shape), shape)
-            dataset.read(h5py.h5s.create_simple(shape), space, out)
+            space = dataset.get_space()
+            space.select_hyperslab((0,) * out.ndim, out.shape)
+            dataset.read(h5py.h5s.create_simple(out.shape), space, out)
         return out
 
     def _length(self, group: str) -> int:
@@ -616,7 +625,7 @@ class CaseStore:
         if not snaps:
             return
         start = self._length("snapshots")
-        width = self._id("snapshots/alpha").shape[0]
+        width = self._id("snapshots/alpha")[2][0]
         for name in ("t", "shift"):
             self._put(f"snapshots/{name}", [snap[name] for snap in snaps], start)
         for name in SNAPSHOT_FIELDS:           # taken at the run's N, which may be below the width
@@ -626,16 +635,16 @@ class CaseStore:
     def timeseries(self) -> dict:
         """The valid part of every series (numpy arrays)."""
         n = self.n_samples
-        return {name: self._ts[name][:n] for name in self.series_names}
+        return {name: _rows(self._ts, name, 0, n) for name in self.series_names}
 
     def snapshots(self) -> dict:
         n = self.n_snapshots
-        return {name: self._snap[name][:n] for name in SNAPSHOT_RECORDS}
+        return {name: _rows(self._snap, name, 0, n) for name in SNAPSHOT_RECORDS}
 
     def last_snapshots(self, names, count: int) -> dict:
         """The last ``count`` valid snapshots of the fields ``names`` (fewer if there are fewer)."""
         n = self.n_snapshots
-        return {name: self._snap[name][max(0, n - count):n] for name in names}
+        return {name: _rows(self._snap, name, max(0, n - count), n) for name in names}
 
     @_writes
     def truncate(self, n_samples: int, n_snapshots: int) -> None:
@@ -720,7 +729,7 @@ class CaseStore:
         faults.point("checkpoint")
         written = []
         for name in self._arrays:
-            value, size = getattr(state, name), self._id(f"{g}/{name}").shape[0]
+            value, size = getattr(state, name), self._id(f"{g}/{name}")[2][0]
             if value is None:
                 value = np.full(size, np.nan)
             elif value.size != size:               # N adapting: its N values first, then NaN
@@ -804,6 +813,22 @@ def digest(values) -> int:
     if data.dtype.byteorder == ">" or (data.dtype.byteorder == "=" and np.little_endian is False):
         data = data.astype(data.dtype.newbyteorder("<"))
     return int.from_bytes(hashlib.blake2b(data.reshape(-1).view(np.uint8), digest_size=8).digest(), "little")
+
+
+def _rows(group, name: str, start: int, stop: int) -> np.ndarray:
+    """``group[name][start:stop]`` (the same rows for any start and stop), through HDF5's low-level API:
+    h5py's ``Dataset`` costs ~0.1 ms to open and select, and classifying a case reads ~25 of them. The
+    dataset is opened for this read alone (an id kept open could serve later reads from HDF5's sieve
+    buffer, blind to other processes' writes)."""
+    dataset = h5py.h5d.open(group.id, name.encode())
+    space = dataset.get_space()
+    shape = space.shape
+    start, stop, _ = slice(start, stop).indices(shape[0])
+    out = np.empty((max(0, stop - start),) + shape[1:], dtype=dataset.dtype)
+    if out.size:
+        space.select_hyperslab((start,) + (0,) * (len(shape) - 1), out.shape)
+        dataset.read(h5py.h5s.create_simple(out.shape), space, out)
+    return out
 
 
 def _clip(text: str, size: int) -> bytes:
