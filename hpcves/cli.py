@@ -510,6 +510,8 @@ CASES_PER_RANK = 3
 def _overhead_text(basis, ranks: int) -> str:
     """What rank 0 does alone (in the wall times), what analyze takes afterwards, and the cases per rank
     at the suggestion -- with why, where they are fewer than CASES_PER_RANK."""
+    from hpcves.campaign.queue import computing_ranks, ranks_for
+
     def about(seconds):
         return "under 1 s" if seconds < 1 else f"~{_duration(seconds)}"
 
@@ -517,12 +519,13 @@ def _overhead_text(basis, ranks: int) -> str:
             + (f", classifying them between stages {about(basis.bookkeeping)}" if basis.bookkeeping else "")
             + f" (in the wall times above); hpcves analyze afterwards {about(basis.analysis)} (the "
             "classification; reading the file, figures and case pages come on top)")
-    per = basis.cases / ranks
+    per = basis.cases / computing_ranks(ranks)
     shown = f"{per:,.0f}" if per >= 100 else f"{per:.3g}"
+    schedules = " (rank 0 only schedules)" if computing_ranks(ranks) < ranks else ""
     if per >= CASES_PER_RANK or ranks == 1:
-        return text + f"\n{shown} cases a rank at the suggestion"
-    fewer = max(1, basis.cases // CASES_PER_RANK)
-    return (text + f"\n{shown} cases a rank at the suggestion, fewer than {CASES_PER_RANK}: the cases are few "
+        return text + f"\n{shown} cases a rank at the suggestion{schedules}"
+    fewer = ranks_for(max(1, basis.cases // CASES_PER_RANK))
+    return (text + f"\n{shown} cases a rank at the suggestion{schedules}, fewer than {CASES_PER_RANK}: the cases are few "
             f"for their length -- {fewer} rank{'s' * (fewer != 1)} ({CASES_PER_RANK} cases each) would take "
             f"{_duration(basis.wall(fewer))} instead of {_duration(basis.wall(ranks))}")
 
