@@ -671,7 +671,9 @@ class CaseStore:
         return {slot: self._ckpt[slot]["meta"][:] for slot in ("slot0", "slot1")}
 
     def newest_checkpoint_slot(self) -> str | None:
-        valid = [(meta[1], slot) for slot, meta in self._slot_meta().items() if meta[0] == 1]
+        """The valid slot of the highest step (the writer's question: read through its ids)."""
+        valid = [(meta[1], slot) for slot in ("slot0", "slot1")
+                 if (meta := self._get(f"checkpoint/{slot}/meta"))[0] == 1]
         return max(valid)[1] if valid else None
 
     def slot_damage(self, slot: str) -> list[str]:
@@ -720,10 +722,7 @@ class CaseStore:
 
         ``flush`` makes the file durable between the phases (h5py File.flush).
         """
-        valid = [(meta[1], slot) for slot in ("slot0", "slot1")
-                 if (meta := self._get(f"checkpoint/{slot}/meta"))[0] == 1]
-        newest = max(valid)[1] if valid else None
-        g = f"checkpoint/{'slot1' if newest == 'slot0' else 'slot0'}"
+        g = f"checkpoint/{'slot1' if self.newest_checkpoint_slot() == 'slot0' else 'slot0'}"
         self._put(f"{g}/meta", [0], 0)
         flush()
         faults.point("checkpoint")
