@@ -122,7 +122,7 @@ def test_every_verdict_is_kept_in_the_file_and_a_replay_classifies_nothing(refin
     differ (run again) is classified again; verdicts another classifier stored are not taken."""
     import shutil
 
-    import hpcves.campaign.search_stages as stages
+    import hpcves.run.verdict as verdict_module
     from hpcves.campaign.progress import progress
     from hpcves.campaign.file import read_table
     from hpcves.run.verdict import Verdict
@@ -142,7 +142,7 @@ def test_every_verdict_is_kept_in_the_file_and_a_replay_classifies_nothing(refin
         classified.append(data.case_id)
         return {"regime": "TU", "reason": ""}
 
-    monkeypatch.setattr(stages, "analyse_case", classify)
+    monkeypatch.setattr(verdict_module, "analyse_case", classify)
     rows = read_table(copy).rows
     assert progress(copy, rows, None).complete and classified == []
     again = run_campaign(study, copy, resume=True)
@@ -154,6 +154,46 @@ def test_every_verdict_is_kept_in_the_file_and_a_replay_classifies_nothing(refin
         f["index/verdict"].attrs["classifier"] = "another"
     progress(copy, read_table(copy).rows, None)
     assert len(classified) == 1 + len(regimes)
+
+
+def stored_codes(output) -> list[int]:
+    with h5py.File(output, "r") as f:
+        return [int(c) for c in f["index/verdict"][:, 0]]
+
+
+def classified_again(output) -> list[int]:
+    """Every case of the file read and classified again, as rank 0 would between stages."""
+    from hpcves.campaign.file import CampaignFile
+    from hpcves.run.verdict import verdict_of
+
+    study = study_from_toml(REFINE.format(output=output, checkpoint=0.5))
+    with h5py.File(output, "r") as f:
+        campaign = CampaignFile(f)
+        return [verdict_of(campaign.store(c), c, study.analysis)[0].code for c in campaign.case_ids]
+
+
+def test_the_rank_that_ran_a_case_classifies_it_and_rank_0_classifies_nothing(tmp_path, monkeypatch):
+    """A staged study's case is classified where it ran, right after it ended (driver._verdict); the
+    stage driver takes that verdict and reads no case between stages. The verdicts are rank 0's."""
+    import hpcves.campaign.driver as driver
+    import hpcves.campaign.search_stages as stages
+
+    where = {"ran": 0, "between stages": 0}
+
+    def counted(name, real):
+        def call(*args):
+            where[name] += 1
+            return real(*args)
+        return call
+
+    monkeypatch.setattr(driver, "verdict_of", counted("ran", driver.verdict_of))
+    monkeypatch.setattr(stages, "verdict_of", counted("between stages", stages.verdict_of))
+    path, output = write_refine(tmp_path)
+    text = path.read_text().replace("B2 = [0.1, 0.2]", "B2 = [0.1]")
+    assert run_campaign(study_from_toml(text), output).exit_status == 0
+    codes = stored_codes(output)
+    assert where == {"ran": len(codes), "between stages": 0} and len(codes) > 4
+    assert codes == classified_again(output)
 
 
 def test_verdict_codes_name_every_regime_and_reason_to_run_again():
@@ -243,6 +283,8 @@ def test_mpi_refinement_killed_in_a_later_stage_resumes_to_the_serial_result(ref
     result = hpcves("campaign", path, "--resume", n=2)
     assert result.returncode == 0, result.stderr
     assert_same_results(output, reference, attrs=False)        # checkpointed 10 times as often
+    # the verdicts the ranks that ran the cases sent (or rank 0 found on resuming) are the serial run's
+    assert stored_codes(output) == stored_codes(reference) == classified_again(output)
     with open(tmp_path / "refine_refinement.csv") as f:
         rows = list(csv.DictReader(f))
     assert [int(r["cases"]) for r in rows] == [len(o.regimes) for o in summary.searches]

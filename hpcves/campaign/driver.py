@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Callable
 
 from hpcves.run import runner
+from hpcves.run.verdict import verdict_of
 from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
     remove_partial, require_space, size_text
@@ -66,7 +67,7 @@ from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
 from hpcves.campaign.queue import Task, WorkQueue, computing_ranks
-from hpcves.campaign.relay import Relay
+from hpcves.campaign.relay import Relay, RemoteCaseStore
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
@@ -93,6 +94,7 @@ class CaseResult:
     wall: float
     rank: int
     end: tuple | None = None        # (theta_tilde, psi) it ended in, when a chain's next case waits for it
+    verdict: tuple | None = None    # staged studies: (verdict code, wall seconds) of an ended case (run.verdict)
 
 
 @dataclass(frozen=True)
@@ -167,7 +169,7 @@ def check_file(study: Study, path: Path) -> None:
                               f"({shown}{more}); hpcves status lists them; --overwrite starts the study over")
 
 
-def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[tuple[str, bool]]:
+def work_list(statuses: dict[str, int], study: Study, retry_failed: bool) -> list[tuple[str, bool]]:
     """(case_id, resume) for every case to run, most expensive first.
 
     Finished cases and those that reached the model's limit are skipped; failed ones too,
@@ -176,7 +178,7 @@ def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[
     """
     todo = []
     again = run_again(study)
-    for case_id, status in campaign.statuses().items():
+    for case_id, status in statuses.items():
         if status in (FINISHED, MODEL_LIMIT) or (status == FAILED and (not retry_failed or case_id in again)):
             continue
         todo.append((case_id, status != FAILED))
@@ -186,8 +188,9 @@ def work_list(campaign: CampaignFile, study: Study, retry_failed: bool) -> list[
 
 def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank: int,
             stop_requested: Callable[[], bool], progress: Callable[[float], None],
-            analysis: AnalysisSettings) -> CaseResult:
-    """Run one case to its end (or to a stop request); an exception is recorded, never raised."""
+            analysis: AnalysisSettings, classify: bool = False) -> CaseResult:
+    """Run one case to its end (or to a stop request); an exception is recorded, never raised.
+    ``classify`` (a staged study): an ended case's verdict comes with the result (:func:`_verdict`)."""
     case_id = task.case_id
     store = campaign.store(case_id)
     t0 = time.perf_counter()
@@ -199,7 +202,8 @@ def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank:
         out = runner.run(store, flush, resume=task.resume, progress=tick, stop_requested=stop_requested,
                          analysis=analysis, start=task.start)
         return CaseResult(case_id, out.status, out.message, out.t, out.steps, out.wall, rank,
-                          out.end if task.keep_end else None)
+                          out.end if task.keep_end else None,
+                          _verdict(store, case_id, analysis) if classify and out.status in ENDED else None)
     except StorageError as exc:                  # the file, not the case: nothing more is written
         return CaseResult(case_id, NOT_WRITTEN, str(exc), float("nan"), 0, time.perf_counter() - t0, rank)
     except Exception as exc:                     # noqa: BLE001 -- recorded in the file, the campaign goes on
@@ -213,17 +217,33 @@ def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank:
         return CaseResult(case_id, FAILED, message, float("nan"), 0, time.perf_counter() - t0, rank)
 
 
+def _verdict(store, case_id: str, analysis: AnalysisSettings) -> tuple[int, float] | None:
+    """(verdict code, wall seconds) of a case that just ended, read and classified by the rank that ran
+    it -- in parallel, while the others run theirs, instead of by rank 0 between stages (~10 ms a tiny
+    case). None where its store is rank 0's (--io relay: reading it would be rank 0's work again) or
+    it cannot be classified: rank 0 then classifies it between stages, as a resume does."""
+    if isinstance(store, RemoteCaseStore):
+        return None
+    try:
+        verdict, wall = verdict_of(store, case_id, analysis)
+    except Exception:                            # noqa: BLE001 -- rank 0 tries again, and reports
+        log.debug("case %s: not classified where it ran", case_id, exc_info=True)
+        return None
+    return (verdict.code, wall) if verdict.code >= 0 else None
+
+
 # ---------------------------------------------------------------------- rank 0
 class Master:
     """Hands out cases, runs cases itself between scheduling turns (on few ranks), shows progress."""
 
     def __init__(self, comm, campaign: CampaignFile, study: Study, todo, flush, stop_flag,
-                 stop_timeout: float, display=None, relay: Relay | None = None):
+                 stop_timeout: float, display=None, relay: Relay | None = None, statuses: dict | None = None):
         self.comm = comm
         self.relay = relay                       # applies the other ranks' file writes (--io relay)
         self.size = 1 if comm is None else comm.Get_size()
         self.campaign, self.study, self.flush = campaign, study, flush
-        self.queue = WorkQueue(todo, lambda c: study.by_id(c).cost, campaign.chain_links(), campaign.statuses(),
+        self.queue = WorkQueue(todo, lambda c: study.by_id(c).cost, campaign.chain_links(),
+                               campaign.statuses() if statuses is None else statuses,
                                lambda c: campaign.store(c).end_fields())
         self.stop_flag = stop_flag
         self.stop_timeout = stop_timeout
@@ -362,7 +382,8 @@ class Master:
                 def progress(fraction, case_id=case_id):
                     self.fraction[case_id] = fraction
 
-                result = run_one(self.campaign, task, self.flush, 0, poll, progress, self.study.analysis)
+                result = run_one(self.campaign, task, self.flush, 0, poll, progress, self.study.analysis,
+                                 self.study.staged)
                 del self.busy[0]
                 self.record(result)
                 backoff.reset()
@@ -378,8 +399,9 @@ class Master:
 
 
 # ---------------------------------------------------------------------- other ranks
-def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: AnalysisSettings) -> None:
-    """Ask rank 0 for cases and run them until told there are no more."""
+def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: AnalysisSettings,
+                classify: bool = False) -> None:
+    """Ask rank 0 for cases and run them until told there are no more (``classify``: run_one's)."""
     rank = comm.Get_rank()
     comm.send(("ready",), dest=0, tag=TAG_REQUEST)
     told_stop = False
@@ -401,7 +423,7 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: Analys
                     last[0] = now
                     comm.send(("progress", case_id, fraction), dest=0, tag=TAG_REQUEST)
 
-            result = run_one(campaign, task, flush, rank, stop_requested, progress, analysis)
+            result = run_one(campaign, task, flush, rank, stop_requested, progress, analysis, classify)
             comm.send(("done", result), dest=0, tag=TAG_REQUEST)
             backoff.reset()
         else:
@@ -509,6 +531,7 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
             plan, failure = ("stop",), None
             if rank == 0 and not stopped:
                 try:
+                    driver.ran(ran)
                     outcomes, new = driver.next_stage(study, campaign)
                     campaign.store_verdicts(driver.fresh)     # classified once: a resume or status reads them
                     driver.fresh.clear()
@@ -569,8 +592,8 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
     rank = 0 if comm is None else comm.Get_rank()
     results, stopped, refused = [], False, ""
     if rank == 0:
-        todo = work_list(campaign, study, retry_failed)
         statuses = campaign.statuses()
+        todo = work_list(statuses, study, retry_failed)
         finished = sum(1 for s in statuses.values() if s == FINISHED)
         if stage == 0:
             announce(_announcement(study, path, statuses, size, mode, access), None, finished)
@@ -580,11 +603,11 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
                 line += f"; {time.perf_counter() - ended:.1f} s between stages"
             announce(line, len(statuses), finished)
         master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display,
-                        access.relay(campaign, flush))
+                        access.relay(campaign, flush), statuses)
         results = master.run()
         stopped, refused = master.stopping, master.not_written
     else:
-        worker_loop(comm, campaign, flush, stop_flag, study.analysis)
+        worker_loop(comm, campaign, flush, stop_flag, study.analysis, study.staged)
     if size > 1:
         wait(comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
     return results, stopped, refused

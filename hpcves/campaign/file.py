@@ -283,15 +283,33 @@ class CampaignFile:
         if dataset is None:
             return
         rows = {case_id: i for i, case_id in enumerate(self.case_ids)}
-        for case_id, (code, wall) in sorted(found.items()):
-            if case_id in rows:
-                dataset[rows[case_id]] = (float(code), float(wall))
+        at = sorted((rows[c], code, wall) for c, (code, wall) in found.items() if c in rows)
+        if not at:
+            return
+        first, last = at[0][0], at[-1][0] + 1
+        values = dataset[first:last]              # one read and one write (h5py's ~0.1 ms a row otherwise)
+        for i, code, wall in at:
+            values[i - first] = (float(code), float(wall))
+        dataset[first:last] = values
 
     def store(self, case_id: str) -> CaseStore:
         return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
 
     def statuses(self) -> dict[str, int]:
-        return {case_id: int(self._cases[case_id]["status"][()]) for case_id in self.case_ids}
+        """{case id: status} of every case, read through h5py's low-level API (its high-level lookup
+        costs ~0.1 ms a case, and a staged campaign asks between its stages); a case whose status
+        cannot be read that way is read the usual way, which says what is wrong."""
+        found, cases, buffer = {}, self._cases.id, np.empty((), dtype=np.int64)
+        for case_id in self.case_ids:
+            try:
+                dataset = h5py.h5d.open(h5py.h5g.open(cases, case_id.encode()), b"status")
+                if dataset.shape != () or dataset.dtype.kind not in "iu":
+                    raise ValueError
+                dataset.read(h5py.h5s.ALL, h5py.h5s.ALL, buffer, mtype=h5py.h5t.NATIVE_INT64)
+                found[case_id] = int(buffer)
+            except (*HDF5_ERRORS, ValueError):
+                found[case_id] = int(self._cases[case_id]["status"][()])
+        return found
 
     def damaged(self, study: Study) -> list[tuple[str, list[str]]]:
         """(case id, problems) of every case whose data are missing, misshapen or inconsistent

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.run.verdict import Verdict, analyse_case, case_data
+from hpcves.run.verdict import Verdict, verdict_of
 from hpcves.run.store import ENDED
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
 from hpcves.campaign.study import SEARCHABLE, Study
@@ -100,12 +100,22 @@ class StageDriver:
         stored = self._stored.get(case_id)
         verdict = Verdict.from_code(stored[0]) if stored is not None and stored[1] == state[1] else None
         if verdict is None:
-            store = campaign.store(case_id)
-            verdict = Verdict.of(analyse_case(case_data(store, case_id), self.settings))
+            verdict = verdict_of(campaign.store(case_id), case_id, self.settings)[0]
             if verdict.code >= 0:
                 self.fresh[case_id] = (verdict.code, state[1])
         self._verdicts[case_id] = verdict
         return verdict
+
+    def ran(self, results) -> None:
+        """Take the verdicts the ranks that ran the cases sent with them (CaseResult.verdict: (code, wall
+        seconds)), so that none of those cases is read and classified here between stages."""
+        for result in results:
+            if result.verdict is not None and result.status in ENDED:
+                code, wall = result.verdict
+                verdict = Verdict.from_code(code)
+                if verdict is not None:
+                    self._verdicts[result.case_id] = verdict
+                    self.fresh[result.case_id] = (code, wall)
 
     def regime(self, campaign, case_id: str) -> str | None:
         """The regime of one case, or None while it has not ended."""

@@ -59,23 +59,26 @@ class CaseStamp:
         self.key = layout_key(case)
         #: every attribute a copy may need to change: those of the case and the caller's ``attrs``
         self.attributes = {**case_attributes(case), **(attrs or {})}
-        base = original.name.rstrip("/") + "/"
-        file = original.file
         #: (dataset, [[scale, ...] per dimension]) and (scale, [(dataset, dimension), ...]), relative names
         self.dimension_lists, self.reference_lists = [], []
+        datasets = []
+        original.visititems(lambda name, obj: datasets.append((name, obj)) if isinstance(obj, h5py.Dataset)
+                            else None)
+        # a reference is resolved to a name through the object's address: HDF5's name of an object opened
+        # by reference (h5py's .name) is found by searching the whole file -- 1-10 ms a reference in a
+        # file of 1000 cases, 35 s of a refinement's stages
+        names = {_address(obj.id): name for name, obj in datasets}
+        file_id = original.file.id
 
-        def visit(name, obj):
-            if not isinstance(obj, h5py.Dataset):
-                return
+        def named(ref) -> str:
+            return names[_address(h5py.h5r.dereference(ref, file_id))]
+
+        for name, obj in datasets:
             if "DIMENSION_LIST" in obj.attrs:
-                self.dimension_lists.append(
-                    (name, [[file[r].name[len(base):] for r in refs] for refs in obj.attrs["DIMENSION_LIST"]]))
+                self.dimension_lists.append((name, [[named(r) for r in refs] for refs in obj.attrs["DIMENSION_LIST"]]))
             if "REFERENCE_LIST" in obj.attrs:
                 entries = obj.attrs["REFERENCE_LIST"]
-                self.reference_lists.append(
-                    (name, [(file[r].name[len(base):], int(i)) for r, i in entries], entries.dtype))
-
-        original.visititems(visit)
+                self.reference_lists.append((name, [(named(r), int(i)) for r, i in entries], entries.dtype))
 
     def copy(self, parent, name: str, case: Case, attrs: dict | None = None):
         """``parent[name]``, laid out for ``case`` (same :func:`layout_key`) as a copy of the original,
@@ -109,6 +112,11 @@ class CaseStamp:
             _write_attribute(group, name, _DIMENSION_LIST, value)
         for name, entries, dtype in self.reference_lists:
             _write_attribute(group, name, _REFERENCE_LIST, np.array([(ref(p), i) for p, i in entries], dtype=dtype))
+
+
+def _address(object_id) -> int:
+    """Where an HDF5 object's header lies in its file: what tells two objects apart."""
+    return h5py.h5o.get_info(object_id).addr
 
 
 def _write_attribute(group, name: str, attribute: bytes, value) -> None:

@@ -44,6 +44,7 @@ class CaseData:
                                # adapts (numerics.N_max > 0), the largest N the run took
     patterns: dict = field(default_factory=dict)   # t, psi, curvature of the last PATTERN_SNAPSHOTS snapshots
     resolution: dict = field(default_factory=dict)  # the numerics a refinement's run again may change (resolution)
+    wall: float = math.nan     # the wall seconds its runs took (progress)
 
 
 #: how many of a case's last snapshots its pattern's topology is read from (those after t_settle)
@@ -55,7 +56,7 @@ TOPOLOGY_COLUMNS = ("soft_domains", "domains_on_tips", "two_fold", "topology_ste
 
 def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     attrs = store.group.attrs
-    t, t_end = (float(v) for v in store.progress[:2])
+    t, t_end, wall = (float(v) for v in store.progress[:3])
     series = store.timeseries()
     N = float(attrs.get("numerics.N", math.nan))
     if float(attrs.get("numerics.N_max", 0)) > 0 and len(series.get("N", ())):
@@ -64,7 +65,7 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, series,
                     search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
                     float(attrs.get("numerics.rtol", math.nan)), N,
-                    store.last_snapshots(("t", "psi", "curvature"), PATTERN_SNAPSHOTS), resolution(attrs))
+                    store.last_snapshots(("t", "psi", "curvature"), PATTERN_SNAPSHOTS), resolution(attrs), wall)
 
 
 def resolution(attrs) -> dict:
@@ -134,6 +135,14 @@ def classifier() -> str:
     for name in _CLASSIFIER_MODULES:
         digest.update(inspect.getsource(importlib.import_module(name)).encode())
     return digest.hexdigest()[:16]
+
+
+def verdict_of(store: CaseStore, case_id: str, settings: AnalysisSettings) -> tuple[Verdict, float]:
+    """(the verdict on an ended case, the wall seconds its file holds): what a staged campaign keeps of
+    it in index/verdict. Read and classified on the rank that ran the case, right after it ended, or on
+    rank 0 between stages."""
+    data = case_data(store, case_id)
+    return Verdict.of(analyse_case(data, settings)), data.wall
 
 
 def under_resolved(row: dict) -> bool:
