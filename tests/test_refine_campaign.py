@@ -196,6 +196,25 @@ def test_the_rank_that_ran_a_case_classifies_it_and_rank_0_classifies_nothing(tm
     assert codes == classified_again(output)
 
 
+@needs_mpi
+def test_under_relay_a_worker_classifies_its_case_from_data_rank_0_reads_for_it(refined, tmp_path):
+    """--io relay: the worker asks rank 0 for its ended case's data (relay read "case_data") and
+    classifies it; the verdicts stored are rank 0's, and the refinement is the serial one."""
+    _, _, summary, _ = refined
+    path, output = write_refine(tmp_path)
+    path.write_text(path.read_text().replace("B2 = [0.1, 0.2]", "B2 = [0.1]"))
+    result = hpcves("campaign", path, "--quiet", "--io", "relay", n=2)
+    from hpcves.run.verdict import Verdict
+
+    assert result.returncode == 0, result.stderr
+    assert "not classified where it ran" not in result.stderr
+    codes = stored_codes(output)
+    assert codes == classified_again(output) and min(codes) >= 0
+    with h5py.File(output, "r") as f:
+        points = zip(f["index/shear_rate"][:], f["index/psi_bar"][:], codes)
+        assert {(x, y): Verdict.from_code(c).regime for x, y, c in points} == summary.searches[0].regimes
+
+
 def test_verdict_codes_name_every_regime_and_reason_to_run_again():
     from hpcves.run.verdict import VERDICT_REGIMES, Verdict
 

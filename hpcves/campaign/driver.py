@@ -67,7 +67,7 @@ from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
 from hpcves.campaign.queue import Task, WorkQueue, computing_ranks
-from hpcves.campaign.relay import Relay, RemoteCaseStore
+from hpcves.campaign.relay import Relay
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
@@ -218,16 +218,15 @@ def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank:
 
 
 def _verdict(store, case_id: str, analysis: AnalysisSettings) -> tuple[int, float] | None:
-    """(verdict code, wall seconds) of a case that just ended, read and classified by the rank that ran
-    it -- in parallel, while the others run theirs, instead of by rank 0 between stages (~10 ms a tiny
-    case). None where its store is rank 0's (--io relay: reading it would be rank 0's work again) or
-    it cannot be classified: rank 0 then classifies it between stages, as a resume does."""
-    if isinstance(store, RemoteCaseStore):
-        return None
+    """(verdict code, wall seconds) of a case that just ended, classified by the rank that ran it -- in
+    parallel, while the others run theirs, instead of by rank 0 between stages (~10 ms a tiny case;
+    under --io relay rank 0 still reads its data, ~5 ms, but while the stage runs). None where it
+    cannot be classified: rank 0 then classifies it between stages, as a resume does."""
     try:
         verdict, wall = verdict_of(store, case_id, analysis)
-    except Exception:                            # noqa: BLE001 -- rank 0 tries again, and reports
-        log.debug("case %s: not classified where it ran", case_id, exc_info=True)
+    except Exception as exc:                     # noqa: BLE001 -- rank 0 tries again, and reports
+        log.warning("case %s: not classified where it ran (%s: %s); rank 0 classifies it between stages",
+                    case_id, type(exc).__name__, exc)
         return None
     return (verdict.code, wall) if verdict.code >= 0 else None
 

@@ -22,12 +22,13 @@ from typing import Callable
 
 from hpcves.campaign.file import CampaignFile
 from hpcves.run.store import RUNNING, stored_case
+from hpcves.run.verdict import case_data
 
 #: CaseStore methods a worker may have applied on rank 0, and attributes it may read there
 WRITES = frozenset({"set_status", "set_progress", "append_samples", "append_snapshots", "truncate",
                     "write_checkpoint", "set_decision"})
 READS = frozenset({"config", "status", "progress", "read_checkpoint", "passed_over", "newest_checkpoint_slot",
-                   "timeseries"})
+                   "timeseries", "case_data"})
 
 
 class Relay:
@@ -69,8 +70,11 @@ class Relay:
             try:
                 if name not in READS:
                     raise ValueError(f"unknown read {name!r}")
-                value = getattr(self._store(case_id), name)
-                reply = ("ok", value() if callable(value) else value)
+                if name == "case_data":           # what the worker classifies its ended case from
+                    reply = ("ok", case_data(self._store(case_id), case_id))
+                else:
+                    value = getattr(self._store(case_id), name)
+                    reply = ("ok", value() if callable(value) else value)
             except Exception as exc:            # noqa: BLE001 -- raised again on the asking rank
                 reply = ("error", exc)
             self._replies = [r for r in self._replies if not r.Test()]
@@ -128,6 +132,10 @@ class RemoteCaseStore:
 
     def timeseries(self):
         return self._read("timeseries")
+
+    def case_data(self):
+        """What run.verdict classifies an ended case from, read on rank 0 (run.verdict.case_data)."""
+        return self._read("case_data")
 
     # writes
     def set_status(self, status, message=None, traceback=None):
