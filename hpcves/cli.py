@@ -507,6 +507,11 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
 CASES_PER_RANK = 3
 
 
+def _short(seconds: float) -> str:
+    """~0.52 ms, ~40 ms, ~2.5 s: a duration that may be well under a second."""
+    return f"~{1e3 * seconds:.2g} ms" if seconds < 1 else f"~{_duration(seconds)}"
+
+
 def _overhead_text(basis, ranks: int) -> str:
     """What rank 0 does alone (in the wall times), what analyze takes afterwards, and the cases per rank
     at the suggestion -- with why, where they are fewer than CASES_PER_RANK."""
@@ -515,9 +520,11 @@ def _overhead_text(basis, ranks: int) -> str:
     def about(seconds):
         return "under 1 s" if seconds < 1 else f"~{_duration(seconds)}"
 
-    text = (f"rank 0 alone: laying out the {basis.cases} cases {about(basis.creation)}"
-            + (f", classifying them between stages {about(basis.bookkeeping)}" if basis.bookkeeping else "")
-            + f" (in the wall times above); hpcves analyze afterwards {about(basis.analysis)} (the "
+    staged = basis.mode != "grid" and basis.analysis > 0
+    text = (f"rank 0 alone: laying out the {basis.cases} cases {about(basis.creation)} (in the wall times above"
+            + (f"; each rank classifies the cases it ran as they end, {_short(basis.analysis / basis.cases)} "
+               "a case, in the cases' times" if staged else "")
+            + f"); hpcves analyze afterwards {about(basis.analysis)} (the "
             "classification; reading the file, figures and case pages come on top)")
     per = basis.cases / computing_ranks(ranks)
     shown = f"{per:,.0f}" if per >= 100 else f"{per:.3g}"

@@ -13,11 +13,10 @@ the plan also gives the likely cost, each case ended when cases typically are
 decided (DECIDED_AFTER, measured).
 
 The wall time on P ranks replays the scheduler (driver.py): rank 0 lays out the
-cases alone first (and a staged study's later ones before their stage, after
-classifying the ended ones), then the ranks compute (all of them on up to four; on more, rank 0
-only schedules: queue.computing_ranks), cases go out most
-expensive first to whichever rank is free, and a stage starts when the one
-before has ended. Laying out and classifying are measured here on the first
+cases alone first (and a staged study's later ones before their stage), then the ranks compute
+(all of them on up to four; on more, rank 0 only schedules: queue.computing_ranks), cases go out
+most expensive first to whichever rank is free -- in a staged study each rank classifies the case it
+ran as it ends --, and a stage starts when the one before has ended. Laying out and classifying are measured here on the first
 stage's median case (timing.py), so a study of many short cases is not planned
 as one rank per case whose job the creation alone outlasts. The suggested P is the fewest ranks that finish
 within 10 % of the wall time with a rank for every case of the widest stage whose
@@ -75,7 +74,6 @@ class Plan:
     units: int                  # searches or refinements (1 for a grid)
     likely: "Plan | None" = None   # until_decided: the same with each case ended when typically decided
     creation: float = 0.0       # seconds rank 0 takes to lay out the cases (the file, then each stage's)
-    bookkeeping: float = 0.0    # seconds rank 0 takes between stages to classify the ended cases (staged)
     analysis: float = 0.0       # seconds `hpcves analyze` takes afterwards to classify every case (not in the job)
 
     @property
@@ -105,9 +103,9 @@ class Plan:
 
     def wall(self, ranks: int) -> float:
         """Wall seconds on ``ranks`` ranks: each stage as the scheduler runs it, one after the other,
-        after rank 0 has laid out its cases (and, between stages, classified the ended ones) alone."""
+        after rank 0 has laid out its cases alone."""
         computing = computing_ranks(ranks)
-        return self.creation + self.bookkeeping + sum(makespan(s.seconds, computing) * s.rounds for s in self.stages)
+        return self.creation + sum(makespan(s.seconds, computing) * s.rounds for s in self.stages)
 
     def fastest(self) -> float:
         """The wall time with a computing rank for every case of the widest stage: no more ranks help."""
@@ -154,18 +152,19 @@ def plan(study: Study, step_seconds: Callable, layout_seconds: Callable | None =
         s = step_seconds(case)
         used[N] = (min(low, s), max(high, s))
     units = {"grid": 1, "search": len(study.searches), "refine": len(study.refinements)}[study.mode]
-    ceiling = Plan(study.name, study.mode, _stages(study, first, lambda case: case.estimated_steps
-                                                   * step_seconds(case)), used, units)
     typical = sorted(first, key=lambda case: case.run.t_end / case.run.sample_interval)[len(first) // 2]
+    classify = classify_seconds(typical) if classify_seconds else 0.0
+    # a staged study's case is classified by the rank that ran it, as soon as it ends (driver._verdict)
+    verdict = classify if study.mode != "grid" else 0.0
+    ceiling = Plan(study.name, study.mode, _stages(study, first, lambda case: case.estimated_steps
+                                                   * step_seconds(case) + verdict), used, units)
     cases = ceiling.cases
     layout = layout_seconds(typical) * cases if layout_seconds else 0.0
-    classify = classify_seconds(typical) * cases if classify_seconds else 0.0
-    ceiling = dataclasses.replace(ceiling, creation=layout, analysis=classify,
-                                  bookkeeping=classify if study.mode != "grid" else 0.0)
+    ceiling = dataclasses.replace(ceiling, creation=layout, analysis=classify * cases)
     if not study.base.run.until_decided:
         return ceiling
     likely = dataclasses.replace(ceiling, stages=_stages(study, first, lambda case: case.estimated_steps
-                                                         * step_seconds(case) * decided_share(case)))
+                                                         * step_seconds(case) * decided_share(case) + verdict))
     return dataclasses.replace(ceiling, likely=likely)
 
 

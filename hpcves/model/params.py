@@ -13,7 +13,7 @@ message that names the offending key, so the command line can print it as is.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from typing import Literal
 
 from hpcves.model import bending
@@ -470,7 +470,7 @@ class Case:
         return max(1, round(interval / self.numerics.dt))
 
     def to_dict(self) -> dict:
-        return {"physics": asdict(self.physics), "numerics": asdict(self.numerics), "run": asdict(self.run)}
+        return {"physics": _values(self.physics), "numerics": _values(self.numerics), "run": _values(self.run)}
 
     def significant(self) -> dict:
         """:meth:`to_dict` without the options that this run does not use: the adaptive options
@@ -511,6 +511,12 @@ class Case:
         option such as rtol of a fixed-step run is NaN)."""
         return {f"{group}.{key}": (math.nan if value is None else value) for group, values in self.to_dict().items()
                 for key, value in values.items()}
+
+
+def _values(parameters) -> dict:
+    """{field: value} of a parameter dataclass: ``dataclasses.asdict`` without its deep copy (every
+    value is a scalar; the copy was a tenth of laying out a campaign's case)."""
+    return {f.name: getattr(parameters, f.name) for f in fields(parameters)}
 
 
 def dealias_label(dealias: float) -> str:
