@@ -75,7 +75,8 @@ class CaseStamp:
 
         for name, obj in datasets:
             if "DIMENSION_LIST" in obj.attrs:
-                self.dimension_lists.append((name, [[named(r) for r in refs] for refs in obj.attrs["DIMENSION_LIST"]]))
+                self.dimension_lists.append((name, tuple(tuple(named(r) for r in refs)
+                                                         for refs in obj.attrs["DIMENSION_LIST"])))
             if "REFERENCE_LIST" in obj.attrs:
                 entries = obj.attrs["REFERENCE_LIST"]
                 self.reference_lists.append((name, [(named(r), int(i)) for r, i in entries], entries.dtype))
@@ -107,11 +108,13 @@ class CaseStamp:
             return refs[path]
 
         vlen = h5py.vlen_dtype(h5py.ref_dtype)
+        values = {}                      # most datasets share their scales (a series: the sample times)
         for name, dims in self.dimension_lists:
-            value = np.empty(len(dims), dtype=vlen)
-            for i, scales in enumerate(dims):
-                value[i] = np.array([ref(p) for p in scales], dtype=h5py.ref_dtype)
-            _write_attribute(group, name, _DIMENSION_LIST, value)
+            if dims not in values:
+                value = values[dims] = np.empty(len(dims), dtype=vlen)
+                for i, scales in enumerate(dims):
+                    value[i] = np.array([ref(p) for p in scales], dtype=h5py.ref_dtype)
+            _write_attribute(group, name, _DIMENSION_LIST, values[dims])
         for name, entries, dtype in self.reference_lists:
             _write_attribute(group, name, _REFERENCE_LIST, np.array([(ref(p), i) for p, i in entries], dtype=dtype))
 
