@@ -522,9 +522,9 @@ class CaseStore:
         """Status, and optionally the message and traceback (written before the status); an ended
         case's data get their checksums first (:meth:`data_damage`)."""
         if status in ENDED and self.version >= DIGESTS_SINCE:
-            n, m = self._length("timeseries"), self._length("snapshots")
-            self._put("timeseries/digest", [digest(self._get(f"timeseries/{name}", n)) for name in self.series_names])
-            self._put("snapshots/digest", [digest(self._get(f"snapshots/{name}", m)) for name in SNAPSHOT_RECORDS])
+            for group, names in self._record_names():
+                n = self._length(group)
+                self._put(f"{group}/digest", [digest(self._get(f"{group}/{name}", n)) for name in names])
         if message is not None:
             self._put("message", _clip(message, MESSAGE_BYTES))
         if traceback is not None and "traceback" in self.group:
@@ -582,14 +582,11 @@ class CaseStore:
     def _get(self, path: str, rows: int | None = None) -> np.ndarray:
         """The dataset at ``path``, whole or its first ``rows`` rows."""
         dataset, dtype, shape = self._id(path)
-        out = np.empty(shape if rows is None else (rows,) + shape[1:], dtype=dtype)
         if rows is None:
+            out = np.empty(shape, dtype=dtype)
             dataset.read(h5py.h5s.ALL, h5py.h5s.ALL, out)
-        elif rows:
-            space = dataset.get_space()
-            space.select_hyperslab((0,) * out.ndim, out.shape)
-            dataset.read(h5py.h5s.create_simple(out.shape), space, out)
-        return out
+            return out
+        return _read_rows(dataset, dtype, shape, 0, rows)
 
     def _length(self, group: str) -> int:
         """The valid rows of ``timeseries`` or ``snapshots``, as this writer last set them."""
@@ -652,11 +649,15 @@ class CaseStore:
         self._put("timeseries/length", n_samples)
         self._put("snapshots/length", n_snapshots)
 
+    def _record_names(self) -> tuple[tuple[str, tuple], ...]:
+        """(group, names) of the series, then of the snapshot records: the order of their digests."""
+        return ("timeseries", tuple(self.series_names)), ("snapshots", tuple(SNAPSHOT_RECORDS))
+
     def _records(self) -> list[tuple[str, np.ndarray]]:
         """(name, valid part) of every series, then of every snapshot record, in the order of their digests."""
-        n, m = self.n_samples, self.n_snapshots
-        return ([(f"timeseries/{name}", self._ts[name][:n]) for name in self.series_names]
-                + [(f"snapshots/{name}", self._snap[name][:m]) for name in SNAPSHOT_RECORDS])
+        valid = {"timeseries": (self._ts, self.n_samples), "snapshots": (self._snap, self.n_snapshots)}
+        return [(f"{group}/{name}", valid[group][0][name][:valid[group][1]])
+                for group, names in self._record_names() for name in names]
 
     def data_damage(self) -> list[str]:
         """The series and snapshot records of an ended case whose valid part fails the checksum written
@@ -820,11 +821,16 @@ def _rows(group, name: str, start: int, stop: int) -> np.ndarray:
     dataset is opened for this read alone (an id kept open could serve later reads from HDF5's sieve
     buffer, blind to other processes' writes)."""
     dataset = h5py.h5d.open(group.id, name.encode())
-    space = dataset.get_space()
-    shape = space.shape
+    shape = dataset.shape
     start, stop, _ = slice(start, stop).indices(shape[0])
-    out = np.empty((max(0, stop - start),) + shape[1:], dtype=dataset.dtype)
+    return _read_rows(dataset, dataset.dtype, shape, start, max(0, stop - start))
+
+
+def _read_rows(dataset, dtype, shape: tuple, start: int, rows: int) -> np.ndarray:
+    """``rows`` rows of a dataset (a low-level id) from row ``start`` on, through one hyperslab."""
+    out = np.empty((rows,) + shape[1:], dtype=dtype)
     if out.size:
+        space = dataset.get_space()
         space.select_hyperslab((start,) + (0,) * (len(shape) - 1), out.shape)
         dataset.read(h5py.h5s.create_simple(out.shape), space, out)
     return out
