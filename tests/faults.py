@@ -240,6 +240,11 @@ def _sleep_until(moment: float, job) -> None:
 
 # ---------------------------------------------------------------------- the whole experiment
 def experiment(work: Path, kills: int, seed: int, progress=print) -> tuple[list[Trial], dict]:
+    import shutil
+
+    # from nothing: a second run found the timelines' files of the first (refused without --overwrite)
+    # and would have compared with references an older hpcves wrote
+    shutil.rmtree(work, ignore_errors=True)
     rng = random.Random(seed)
     refs = {stepping: reference(work / f"reference-{stepping}", stepping=stepping) for stepping in STEPPING}
     timelines = {}
