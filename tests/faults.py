@@ -275,15 +275,16 @@ def report(trials: list[Trial], timelines: dict, seed: int, wall: float) -> str:
                 landings[key] = landings.get(key, 0) + 1
     torn = sum(1 for t in trials for k in t.kills if "checkpoint write" in k)
     late = sum(1 for t in trials for k in t.kills if k == AFTER)
+    refused = sum(t.refused for t in trials)
     lines = [
         "# Fault injection (`make faults`)", "",
         f"{datetime.date.today()}, {platform.node()} ({os.cpu_count()} cores), seed {seed}, {wall / 60:.1f} min. "
         "Written by `tests/faults.py` (its docstring says how the kills are chosen).", "",
         f"**{identical} of {len(trials)} trials resumed to results bitwise identical to an uninterrupted run**, "
         f"after {sum(t.landed for t in trials)} SIGKILLs of live jobs "
-        f"({sum(1 for t in trials if t.landed)} trials with a kill; {late} kills came after the job had ended "
-        f"and do not count; {sum(t.refused for t in trials)} resumes were refused by the lock while the ranks of "
-        "a killed mpirun were still alive, and ran once they were gone).", "",
+        f"({sum(1 for t in trials if t.landed)} trials with a kill; {late} {'kill' if late == 1 else 'kills'} came "
+        f"after the job had ended and {'does' if late == 1 else 'do'} not count; {refused} {'resume was' if refused == 1 else 'resumes were'} "
+        "refused by the lock while the ranks of a killed mpirun were still alive, and ran once they were gone).", "",
         "Where the kills landed: " + ", ".join(f"{n} {k}" for k, n in sorted(landings.items(), key=lambda x: -x[1]))
         + f"; {torn} of them inside a checkpoint write.", "",
         "Timelines of uninterrupted jobs (seconds from mpirun's start):", "",
