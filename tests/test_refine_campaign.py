@@ -164,12 +164,12 @@ def stored_codes(output) -> list[int]:
 def classified_again(output) -> list[int]:
     """Every case of the file read and classified again, as rank 0 would between stages."""
     from hpcves.campaign.file import CampaignFile
-    from hpcves.run.verdict import verdict_of
+    from hpcves.run.verdict import case_data, verdict_of
 
     study = study_from_toml(REFINE.format(output=output, checkpoint=0.5))
     with h5py.File(output, "r") as f:
         campaign = CampaignFile(f)
-        return [verdict_of(campaign.store(c), c, study.analysis)[0].code for c in campaign.case_ids]
+        return [verdict_of(case_data(campaign.store(c), c), study.analysis)[0].code for c in campaign.case_ids]
 
 
 def test_the_rank_that_ran_a_case_classifies_it_and_rank_0_classifies_nothing(tmp_path, monkeypatch):

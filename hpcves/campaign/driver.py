@@ -53,7 +53,7 @@ from pathlib import Path
 from typing import Callable
 
 from hpcves.run import runner
-from hpcves.run.verdict import verdict_of
+from hpcves.run.verdict import case_data, verdict_of
 from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
     remove_partial, require_space, size_text
@@ -67,7 +67,7 @@ from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
 from hpcves.campaign.queue import Task, WorkQueue, computing_ranks
-from hpcves.campaign.relay import Relay
+from hpcves.campaign.relay import Relay, RemoteCaseStore
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
@@ -223,7 +223,8 @@ def _verdict(store, case_id: str, analysis: AnalysisSettings) -> tuple[int, floa
     under --io relay rank 0 still reads its data, ~5 ms, but while the stage runs). None where it
     cannot be classified: rank 0 then classifies it between stages, as a resume does."""
     try:
-        verdict, wall = verdict_of(store, case_id, analysis)
+        data = store.case_data() if isinstance(store, RemoteCaseStore) else case_data(store, case_id)
+        verdict, wall = verdict_of(data, analysis)
     except Exception as exc:                     # noqa: BLE001 -- rank 0 tries again, and reports
         log.warning("case %s: not classified where it ran (%s: %s); rank 0 classifies it between stages",
                     case_id, type(exc).__name__, exc)
@@ -235,14 +236,13 @@ def _verdict(store, case_id: str, analysis: AnalysisSettings) -> tuple[int, floa
 class Master:
     """Hands out cases, runs cases itself between scheduling turns (on few ranks), shows progress."""
 
-    def __init__(self, comm, campaign: CampaignFile, study: Study, todo, flush, stop_flag,
-                 stop_timeout: float, display=None, relay: Relay | None = None, statuses: dict | None = None):
+    def __init__(self, comm, campaign: CampaignFile, study: Study, todo, statuses: dict[str, int], flush,
+                 stop_flag, stop_timeout: float, display=None, relay: Relay | None = None):
         self.comm = comm
         self.relay = relay                       # applies the other ranks' file writes (--io relay)
         self.size = 1 if comm is None else comm.Get_size()
         self.campaign, self.study, self.flush = campaign, study, flush
-        self.queue = WorkQueue(todo, lambda c: study.by_id(c).cost, campaign.chain_links(),
-                               campaign.statuses() if statuses is None else statuses,
+        self.queue = WorkQueue(todo, lambda c: study.by_id(c).cost, campaign.chain_links(), statuses,
                                lambda c: campaign.store(c).end_fields())
         self.stop_flag = stop_flag
         self.stop_timeout = stop_timeout
@@ -601,8 +601,8 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
             if ended is not None:
                 line += f"; {time.perf_counter() - ended:.1f} s between stages"
             announce(line, len(statuses), finished)
-        master = Master(comm, campaign, study, todo, flush, stop_flag, study.stop_timeout, display,
-                        access.relay(campaign, flush), statuses)
+        master = Master(comm, campaign, study, todo, statuses, flush, stop_flag, study.stop_timeout, display,
+                        access.relay(campaign, flush))
         results = master.run()
         stopped, refused = master.stopping, master.not_written
     else:

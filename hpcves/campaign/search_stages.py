@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.run.verdict import Verdict, verdict_of
+from hpcves.run.verdict import Verdict, case_data, verdict_of
 from hpcves.run.store import ENDED
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
 from hpcves.campaign.study import SEARCHABLE, Study
@@ -100,7 +100,7 @@ class StageDriver:
         stored = self._stored.get(case_id)
         verdict = Verdict.from_code(stored[0]) if stored is not None and stored[1] == state[1] else None
         if verdict is None:
-            verdict = verdict_of(campaign.store(case_id), case_id, self.settings)[0]
+            verdict = verdict_of(case_data(campaign.store(case_id), case_id), self.settings)[0]
             if verdict.code >= 0:
                 self.fresh[case_id] = (verdict.code, state[1])
         self._verdicts[case_id] = verdict

@@ -59,7 +59,7 @@ class CaseStamp:
         self.key = layout_key(case)
         #: every attribute a copy may need to change: those of the case and the caller's ``attrs``
         self.attributes = {**case_attributes(case), **(attrs or {})}
-        #: (dataset, [[scale, ...] per dimension]) and (scale, [(dataset, dimension), ...]), relative names
+        #: (dataset, ((scale, ...) per dimension)) and (scale, [(dataset, dimension), ...]), relative names
         self.dimension_lists, self.reference_lists = [], []
         datasets = []
         original.visititems(lambda name, obj: datasets.append((name, obj)) if isinstance(obj, h5py.Dataset)

@@ -137,11 +137,10 @@ def classifier() -> str:
     return digest.hexdigest()[:16]
 
 
-def verdict_of(store: CaseStore, case_id: str, settings: AnalysisSettings) -> tuple[Verdict, float]:
+def verdict_of(data: CaseData, settings: AnalysisSettings) -> tuple[Verdict, float]:
     """(the verdict on an ended case, the wall seconds its file holds): what a staged campaign keeps of
-    it in index/verdict. Read and classified on the rank that ran the case, right after it ended, or on
-    rank 0 between stages. A store that reads through rank 0 (campaign.relay) has its ``case_data``."""
-    data = store.case_data() if hasattr(store, "case_data") else case_data(store, case_id)
+    it in index/verdict. Classified on the rank that ran the case, right after it ended, or on rank 0
+    between stages."""
     return Verdict.of(analyse_case(data, settings)), data.wall
 
 
