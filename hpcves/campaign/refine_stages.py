@@ -148,7 +148,7 @@ class RefineDriver(StageDriver):
         starts = ([float(s) for s in index["start"][:n]] if study.refine.attractors else [None] * n)
         points = list(zip(campaign.searches_of_cases(), (float(x) for x in index[x_key][:n]),
                           (float(y) for y in index[y_key][:n]), starts))
-        cases = [study.refine_case(r, x, y, case_id, resolution(campaign.store(case_id).group.attrs) if attempt
+        cases = [study.refine_case(r, x, y, case_id, resolution(campaign.store(case_id).attrs) if attempt
                                    else None, start)
                  for case_id, (r, x, y, start), attempt in zip(campaign.case_ids, points, attempts(points))]
         return study.with_cases(cases)

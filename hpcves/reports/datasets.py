@@ -143,7 +143,7 @@ def open_campaign(path, *, variables=None):
             cases.append(_case_variables(store, names, False, "sample"))
             statuses.append(STATUS_NAMES.get(store.status, str(store.status)))
             for k in PARAMETERS:
-                parameters[k].append(float(store.group.attrs[f"physics.{k}"]))
+                parameters[k].append(float(store.attrs[f"physics.{k}"]))
         searches = np.asarray(h5["index"]["search"][:]) if "search" in h5["index"] else np.full(len(ids), -1)
         results = {}
         if "analysis" in h5 and "case" in h5["analysis"]:

@@ -121,7 +121,7 @@ def _writes(method):
         try:
             return method(self, *args, **kwargs)
         except (OSError, RuntimeError) as exc:
-            raise StorageError(f"{self.group.file.filename}: cannot write {self.group.name} "
+            raise StorageError(f"{self._place.filename}: cannot write {self.where} "
                                f"({_first_line(exc)})") from exc
     return wrapper
 
@@ -304,21 +304,44 @@ def describe(ts, snap) -> None:
         snap[name].dims[1].attach_scale(snap["alpha"])
 
 
-class CaseStore:
-    """Reads and writes one case inside an h5py Group."""
+class GroupPlace:
+    """Where a case laid out in an HDF5 group of its own keeps its datasets: the file's root (``hpcves
+    run``) or ``cases/<id>`` (campaign format 1). Each dataset is the case's whole array."""
+
+    prefix = ()
 
     def __init__(self, group):
         self.group = group
-        self.version = int(group.attrs.get("format_version", FORMAT_VERSION))
+        self.attrs = group.attrs
+        self.where = group.name
+        self.filename = group.file.filename
+        #: low-level ids of the datasets the writer writes (CaseStore._id)
+        self.ids = {}
+
+    def has(self, path: str) -> bool:
+        return path in self.group
+
+    def open(self, path: str):
+        return h5py.h5d.open(self.group.id, path.encode())
+
+
+class CaseStore:
+    """Reads and writes one case where ``place`` keeps it: a :class:`GroupPlace` (an h5py Group of its
+    own, formats 2-5) or a row of arrays with a case dimension (run/blocks.py, format 6)."""
+
+    def __init__(self, group=None, *, place=None):
+        self._place = place if place is not None else GroupPlace(group)
+        #: the case's own group (None where it is a row of a block)
+        self.group = getattr(self._place, "group", None)
+        self.attrs = self._place.attrs
+        self.where = self._place.where
+        self.version = int(self.attrs.get("format_version", FORMAT_VERSION))
         self._arrays = _ARRAYS.get(self.version, State.ARRAYS)
         self._scalars = _SCALAR_LAYOUTS.get(self.version, _SCALAR_LAYOUT)
-        self._ts = group["timeseries"]
-        self._snap = group["snapshots"]
-        self._ckpt = group["checkpoint"]
-        #: low-level ids of the datasets this store writes, opened at their first use (:meth:`_put`)
-        self._ids = {}
+        #: low-level ids of the datasets this store writes, opened at their first use (:meth:`_id`)
+        self._ids = self._place.ids
         #: the series this case records (files written before OPTIONAL_SERIES existed lack those)
-        self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or n in self._ts)
+        self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or self._place.has(f"timeseries/{n}"))
 
     # ------------------------------------------------------------------ creation
     @classmethod
@@ -390,9 +413,9 @@ class CaseStore:
         out = {"status": ((), "i"), "message": ((), "S"), "progress": ((4,), "f"),
                "timeseries/length": ((), "i"), "snapshots/length": ((), "i"),
                "snapshots/t": ((n_snapshots,), "f"), "snapshots/shift": ((n_snapshots,), "f")}
-        if "traceback" in self.group:                  # absent in files written before it existed
+        if self._place.has("traceback"):               # absent in files written before it existed
             out["traceback"] = ((), "S")
-        if "decision" in self.group:                   # likewise
+        if self._place.has("decision"):                # likewise
             out["decision"] = ((3,), "f")
         for name in self.series_names:
             out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f")
@@ -426,11 +449,12 @@ class CaseStore:
         if expected is not None and case.to_dict() != expected.to_dict():
             return ["its config differs from its study's case"]
         found = []
+        prefix = len(self._place.prefix)
         for name, (shape, kind) in self.layout(case).items():
             try:
-                d = self.group[name]
-                if d.shape != shape or d.dtype.kind != kind:
-                    found.append(f"{name} has shape {d.shape} ({d.dtype}), expected {shape} ({kind})")
+                d = self._place.open(name)
+                if d.shape[prefix:] != shape or d.dtype.kind != kind:
+                    found.append(f"{name} has shape {d.shape[prefix:]} ({d.dtype}), expected {shape} ({kind})")
             except HDF5_ERRORS as exc:
                 found.append(f"{name} is missing or unreadable ({_first_line(exc)})")
         if found:
@@ -438,7 +462,7 @@ class CaseStore:
         try:
             schedule = clock(case)
             n_samples, n_snapshots = schedule.capacities()
-            attrs = self.group.attrs
+            attrs = self.attrs
             if (int(attrs["sample_capacity"]), int(attrs["snapshot_capacity"]), int(attrs["N"])) != \
                     (n_samples, n_snapshots, case.numerics.N):
                 found.append("its capacities or N attributes do not match its config")
@@ -454,7 +478,7 @@ class CaseStore:
                 valid, step = int(meta[0]), int(meta[1])
                 t = self._checkpoint_time(slot, step, case) if valid == 1 else math.nan
                 damage = self.slot_damage(slot) if valid == 1 else []
-                if valid == 1 and not np.array_equal(self._ckpt[slot]["meta"][:], meta):
+                if valid == 1 and not np.array_equal(self._read(f"checkpoint/{slot}/meta"), meta):
                     continue          # a live run is rewriting this slot (it is the older one): not damage
                 if valid == 1:
                     (failing if damage else sound).append(damage)
@@ -497,25 +521,25 @@ class CaseStore:
     @property
     def config(self) -> str:
         """The case as the TOML text it is stored as."""
-        return attr_text(self.group.attrs["config"])
+        return attr_text(self.attrs["config"])
 
     @property
     def case(self) -> Case:
-        return stored_case(self.config, self.group.name)
+        return stored_case(self.config, self.where)
 
     @property
     def status(self) -> int:
-        return int(self.group["status"][()])
+        return int(self._read("status"))
 
     @property
     def message(self) -> str:
-        return bytes(self.group["message"][()]).decode(errors="replace")
+        return bytes(self._read("message")[()]).decode(errors="replace")
 
     @property
     def traceback(self) -> str:
-        if "traceback" not in self.group:
+        if not self._place.has("traceback"):
             return ""
-        return bytes(self.group["traceback"][()]).decode(errors="replace")
+        return bytes(self._read("traceback")[()]).decode(errors="replace")
 
     @_writes
     def set_status(self, status: int, message: str | None = None, traceback: str | None = None) -> None:
@@ -527,21 +551,21 @@ class CaseStore:
                 self._put(f"{group}/digest", [digest(self._get(f"{group}/{name}", n)) for name in names])
         if message is not None:
             self._put("message", _clip(message, MESSAGE_BYTES))
-        if traceback is not None and "traceback" in self.group:
+        if traceback is not None and self._place.has("traceback"):
             self._put("traceback", _clip(traceback, TRACEBACK_BYTES))
         self._put("status", status)
 
     @property
     def decision(self) -> tuple[int, float, int]:
         """(regime code, t, step) of the decision that stopped the run (code 0: none; decision.py)."""
-        if "decision" not in self.group:
+        if not self._place.has("decision"):
             return 0, math.nan, -1
-        code, t, step = self.group["decision"][:]
+        code, t, step = self._read("decision")
         return (int(code) if np.isfinite(code) else -1), float(t), (int(step) if np.isfinite(step) else -1)
 
     @_writes
     def set_decision(self, code: int, t: float, step: int) -> None:
-        if "decision" in self.group:
+        if self._place.has("decision"):
             self._put("decision", (code, t, step))
 
     @_writes
@@ -550,11 +574,12 @@ class CaseStore:
 
     @property
     def progress(self) -> np.ndarray:
-        return self.group["progress"][:]
+        return self._read("progress")
 
     # ------------------------------------------------------------------ the writer's access
     def _id(self, path: str) -> tuple:
-        """(low-level id, dtype, shape) of the dataset at ``path`` in this case, opened once per store.
+        """(low-level id, dtype, shape of the case's array) of the dataset at ``path``, opened once
+        per place (a block's rows share them: run/blocks.py).
 
         A run writes ~40 times a case, each time ~20 datasets; through h5py's high-level objects a
         dataset costs ~0.1 ms to open and select (7x what this costs), which made rank 0 the bottleneck
@@ -564,29 +589,27 @@ class CaseStore:
         """
         found = self._ids.get(path)
         if found is None:
-            dataset = h5py.h5d.open(self.group.id, path.encode())
-            found = self._ids[path] = (dataset, dataset.dtype, dataset.shape)
+            dataset = self._place.open(path)
+            found = self._ids[path] = (dataset, dataset.dtype, dataset.shape[len(self._place.prefix):])
         return found
 
     def _put(self, path: str, values, start: int | None = None) -> None:
-        """Write ``values`` to the dataset at ``path``, whole or from row ``start`` on."""
-        dataset, dtype, shape = self._id(path)
+        """Write ``values`` to the case's array at ``path``, whole or from row ``start`` on."""
+        dataset, dtype, _ = self._id(path)
         values = np.asarray(values, dtype=dtype, order="C")
-        if start is None:
-            dataset.write(h5py.h5s.ALL, h5py.h5s.ALL, values)
-            return
-        space = dataset.get_space()
-        space.select_hyperslab((start,) + (0,) * (values.ndim - 1), values.shape)
-        dataset.write(h5py.h5s.create_simple(values.shape), space, values)
+        _, memory, space = _slab(dataset, self._place.prefix, start, None if start is None else len(values))
+        dataset.write(memory, space, values)
 
     def _get(self, path: str, rows: int | None = None) -> np.ndarray:
-        """The dataset at ``path``, whole or its first ``rows`` rows."""
-        dataset, dtype, shape = self._id(path)
-        if rows is None:
-            out = np.empty(shape, dtype=dtype)
-            dataset.read(h5py.h5s.ALL, h5py.h5s.ALL, out)
-            return out
-        return _read_rows(dataset, dtype, shape, 0, rows)
+        """The case's array at ``path`` (through the writer's id), whole or its first ``rows`` rows."""
+        return _part(self._id(path)[0], self._place.prefix, None if rows is None else 0, rows)
+
+    def _read(self, path: str, start: int | None = None, stop: int | None = None) -> np.ndarray:
+        """The case's array at ``path``, whole or rows ``start:stop``, through a dataset opened for this
+        read alone (an id kept open could serve later reads from HDF5's sieve buffer, blind to other
+        processes' writes); h5py's ``Dataset`` costs ~0.1 ms to open and select, and classifying a
+        case reads ~25 of them."""
+        return _part(self._place.open(path), self._place.prefix, start, stop)
 
     def _length(self, group: str) -> int:
         """The valid rows of ``timeseries`` or ``snapshots``, as this writer last set them."""
@@ -595,16 +618,16 @@ class CaseStore:
     # ------------------------------------------------------------------ series
     @property
     def n_samples(self) -> int:
-        return int(self._ts["length"][()])
+        return int(self._read("timeseries/length"))
 
     @property
     def width(self) -> int:
         """The nodes of its snapshots (stored_N of its case)."""
-        return int(self._snap["alpha"].size)
+        return int(self._place.open("snapshots/x").shape[-1])
 
     @property
     def n_snapshots(self) -> int:
-        return int(self._snap["length"][()])
+        return int(self._read("snapshots/length"))
 
     @_writes
     def append_samples(self, rows: list[dict]) -> None:
@@ -622,7 +645,7 @@ class CaseStore:
         if not snaps:
             return
         start = self._length("snapshots")
-        width = self._id("snapshots/alpha")[2][0]
+        width = self._id("snapshots/x")[2][1]
         for name in ("t", "shift"):
             self._put(f"snapshots/{name}", [snap[name] for snap in snaps], start)
         for name in SNAPSHOT_FIELDS:           # taken at the run's N, which may be below the width
@@ -632,16 +655,16 @@ class CaseStore:
     def timeseries(self) -> dict:
         """The valid part of every series (numpy arrays)."""
         n = self.n_samples
-        return {name: _rows(self._ts, name, 0, n) for name in self.series_names}
+        return {name: self._read(f"timeseries/{name}", 0, n) for name in self.series_names}
 
     def snapshots(self) -> dict:
         n = self.n_snapshots
-        return {name: _rows(self._snap, name, 0, n) for name in SNAPSHOT_RECORDS}
+        return {name: self._read(f"snapshots/{name}", 0, n) for name in SNAPSHOT_RECORDS}
 
     def last_snapshots(self, names, count: int) -> dict:
         """The last ``count`` valid snapshots of the fields ``names`` (fewer if there are fewer)."""
         n = self.n_snapshots
-        return {name: _rows(self._snap, name, max(0, n - count), n) for name in names}
+        return {name: self._read(f"snapshots/{name}", max(0, n - count), n) for name in names}
 
     @_writes
     def truncate(self, n_samples: int, n_snapshots: int) -> None:
@@ -655,8 +678,8 @@ class CaseStore:
 
     def _records(self) -> list[tuple[str, np.ndarray]]:
         """(name, valid part) of every series, then of every snapshot record, in the order of their digests."""
-        valid = {"timeseries": (self._ts, self.n_samples), "snapshots": (self._snap, self.n_snapshots)}
-        return [(f"{group}/{name}", valid[group][0][name][:valid[group][1]])
+        valid = {"timeseries": self.n_samples, "snapshots": self.n_snapshots}
+        return [(f"{group}/{name}", self._read(f"{group}/{name}", 0, valid[group]))
                 for group, names in self._record_names() for name in names]
 
     def data_damage(self) -> list[str]:
@@ -664,12 +687,12 @@ class CaseStore:
         when it ended (none in a file of a format without checksums)."""
         if self.version < DIGESTS_SINCE:
             return []
-        stored = np.concatenate([self._ts["digest"][:], self._snap["digest"][:]])
+        stored = np.concatenate([self._read("timeseries/digest"), self._read("snapshots/digest")])
         return [name for (name, values), d in zip(self._records(), stored) if digest(values) != int(d)]
 
     # ------------------------------------------------------------------ checkpoints
     def _slot_meta(self):
-        return {slot: self._ckpt[slot]["meta"][:] for slot in ("slot0", "slot1")}
+        return {slot: self._read(f"checkpoint/{slot}/meta") for slot in ("slot0", "slot1")}
 
     def newest_checkpoint_slot(self) -> str | None:
         """The valid slot of the highest step (the writer's question: read through its ids)."""
@@ -679,12 +702,13 @@ class CaseStore:
 
     def slot_damage(self, slot: str) -> list[str]:
         """The datasets of a checkpoint slot that fail their checksums (none in a format without them)."""
-        g = self._ckpt[slot]
-        if "digest" not in g:
+        g = f"checkpoint/{slot}"
+        if not self._place.has(f"{g}/digest"):
             return []
-        values = [g[name][:] for name in self._arrays] + [g["scalars"][:], g["meta"][1:]]
+        values = [self._read(f"{g}/{name}") for name in self._arrays] + [self._read(f"{g}/scalars"),
+                                                                         self._read(f"{g}/meta")[1:]]
         names = [*self._arrays, "scalars", "meta"]
-        return [f"checkpoint/{slot}/{name}" for name, v, d in zip(names, values, g["digest"][:]) if digest(v) != int(d)]
+        return [f"{g}/{name}" for name, v, d in zip(names, values, self._read(f"{g}/digest")) if digest(v) != int(d)]
 
     def _resumable_slot(self) -> tuple[str | None, str]:
         """(the newest valid slot that passes its checksums, a note when a newer one failed them and was
@@ -697,11 +721,11 @@ class CaseStore:
             if not damage:
                 note = "; ".join(f"checkpoint {s} (step {k}) fails its checksum ({', '.join(d)}): passed over"
                                  for s, k, d in failed)
-                where = self.group.name if self.group.name != "/" else self.group.file.filename
+                where = self.where if self.where != "/" else self._place.filename
                 return slot, (f"{where}: {note}; resumed from {slot} (step {step})" if failed else "")
             failed.append((slot, step, [name.rsplit("/", 1)[-1] for name in damage]))
         if failed:
-            raise FileFormatError(f"{self.group.name}: every checkpoint fails its checksum ("
+            raise FileFormatError(f"{self.where}: every checkpoint fails its checksum ("
                                   + "; ".join(f"{s}: {', '.join(d)}" for s, _, d in failed) + "): cannot resume")
         return None, ""
 
@@ -715,7 +739,7 @@ class CaseStore:
         if self.version == 2:
             return step * case.numerics.dt
         names = [name for name, width in self._scalars for _ in range(width)]
-        return float(self._ckpt[slot]["scalars"][names.index("t")])
+        return float(self._read(f"checkpoint/{slot}/scalars")[names.index("t")])
 
     @_writes
     def write_checkpoint(self, state: State, flush) -> None:
@@ -750,7 +774,7 @@ class CaseStore:
     def end_fields(self) -> tuple[np.ndarray, np.ndarray]:
         """(theta_tilde, psi) of the state a finished case ended in -- its newest checkpoint, written at
         its end -- where a chain's next case starts (Outcome.end, read back)."""
-        where = self.group.name
+        where = self.where
         if self.status != FINISHED:
             raise FileFormatError(f"{where}: {STATUS_NAMES.get(self.status, self.status)}, not finished: "
                                   "no end state to start from")
@@ -766,21 +790,21 @@ class CaseStore:
         theta = arg dz/dalpha, unwrapped, minus 2 pi alpha -- without the two highest modes, which the
         positions are drawn without), or with ``time`` = -1 of the newest
         checkpoint (the end of a finished case): the state another case may start from."""
-        where = self.group.name
+        where = self.where
         if time == -1.0:
             found = self.read_checkpoint()
             if found is None:
                 raise FileFormatError(f"{where}: no checkpoint yet: no last state to start from")
             return found[0].theta, found[0].psi, found[0].t
-        times = self._snap["t"][:self.n_snapshots]
+        times = self._read("snapshots/t", 0, self.n_snapshots)
         if times.size == 0:
             raise FileFormatError(f"{where}: no snapshots: no state at t = {time:g} to start from")
         i = int(np.argmin(np.abs(times - time)))
-        z = self._snap["x"][i] + 1j * self._snap["y"][i]
+        z = self._read("snapshots/x", i, i + 1)[0] + 1j * self._read("snapshots/y", i, i + 1)[0]
         alpha = Spectral(z.size, 1.0, backend="numpy")           # length 1: d/ds is d/dalpha
         theta_tilde = np.unwrap(np.angle(alpha.ds_complex(z))) - alpha.circle_angle
         theta_tilde -= 2.0 * np.pi * np.round(theta_tilde[0] / (2.0 * np.pi))
-        return theta_tilde, self._snap["psi"][i].copy(), float(times[i])
+        return theta_tilde, self._read("snapshots/psi", i, i + 1)[0], float(times[i])
 
     def read_checkpoint(self) -> tuple[State, int, int] | None:
         """(state, n_samples, n_snapshots) from the newest valid slot that passes its checksums (a newer
@@ -788,11 +812,11 @@ class CaseStore:
         slot, _ = self._resumable_slot()
         if slot is None:
             return None
-        g = self._ckpt[slot]
-        meta = g["meta"][:]
-        scalars = _unpack_scalars(g["scalars"][:], self._scalars)
+        g = f"checkpoint/{slot}"
+        meta = self._read(f"{g}/meta")
+        scalars = _unpack_scalars(self._read(f"{g}/scalars"), self._scalars)
         N = int(scalars.pop("N")) if "N" in scalars else stored_N(self.case)
-        arrays = {name: g[name][:N] for name in self._arrays}
+        arrays = {name: self._read(f"{g}/{name}", 0, N) for name in self._arrays}
         step = int(meta[1])
         if self.version == 2:                 # a fixed-step run: its time and steps are implied
             dt = self.case.numerics.dt
@@ -803,7 +827,7 @@ class CaseStore:
         state = State(step=step, **kwargs)
         for name in ("theta", "psi"):
             if not np.all(np.isfinite(getattr(state, name))):
-                raise FileFormatError(f"{self.group.name}: checkpoint {slot} holds non-finite {name}")
+                raise FileFormatError(f"{self.where}: checkpoint {slot} holds non-finite {name}")
         return state, int(meta[2]), int(meta[3])
 
 
@@ -815,24 +839,33 @@ def digest(values) -> int:
     return int.from_bytes(hashlib.blake2b(data.reshape(-1).view(np.uint8), digest_size=8).digest(), "little")
 
 
-def _rows(group, name: str, start: int, stop: int) -> np.ndarray:
-    """``group[name][start:stop]`` (the same rows for any start and stop), through HDF5's low-level API:
-    h5py's ``Dataset`` costs ~0.1 ms to open and select, and classifying a case reads ~25 of them. The
-    dataset is opened for this read alone (an id kept open could serve later reads from HDF5's sieve
-    buffer, blind to other processes' writes)."""
-    dataset = h5py.h5d.open(group.id, name.encode())
-    shape = dataset.shape
-    start, stop, _ = slice(start, stop).indices(shape[0])
-    return _read_rows(dataset, dataset.dtype, shape, start, max(0, stop - start))
+def _slab(dataset, prefix: tuple, start: int | None, rows: int | None) -> tuple:
+    """(shape, memory space, file space) of a case's part of ``dataset`` (a low-level id): its whole
+    array, or ``rows`` rows from row ``start`` on. ``prefix`` is the case's place in the dataset's
+    leading dimensions: () where the dataset is the case's own, (row,) in a block (run/blocks.py)."""
+    shape = dataset.shape[len(prefix):]
+    if start is None:
+        count, first = shape, (0,) * len(shape)
+    else:
+        count, first = (rows,) + shape[1:], (start,) + (0,) * (len(shape) - 1)
+    if not prefix and start is None:
+        return count, h5py.h5s.ALL, h5py.h5s.ALL
+    space = dataset.get_space()
+    space.select_hyperslab(prefix + first, (1,) * len(prefix) + count)
+    return count, h5py.h5s.create_simple((1,) * len(prefix) + count), space
 
 
-def _read_rows(dataset, dtype, shape: tuple, start: int, rows: int) -> np.ndarray:
-    """``rows`` rows of a dataset (a low-level id) from row ``start`` on, through one hyperslab."""
-    out = np.empty((rows,) + shape[1:], dtype=dtype)
+def _part(dataset, prefix: tuple, start: int | None = None, stop: int | None = None) -> np.ndarray:
+    """A case's array in ``dataset`` (a low-level id), whole or rows ``start:stop`` (clipped as a slice
+    is), through one hyperslab."""
+    rows = None
+    if start is not None:
+        start, stop, _ = slice(start, stop).indices(dataset.shape[len(prefix)])
+        rows = max(0, stop - start)
+    count, memory, space = _slab(dataset, prefix, start, rows)
+    out = np.empty(count, dtype=dataset.dtype)
     if out.size:
-        space = dataset.get_space()
-        space.select_hyperslab((start,) + (0,) * (len(shape) - 1), out.shape)
-        dataset.read(h5py.h5s.create_simple(out.shape), space, out)
+        dataset.read(memory, space, out)
     return out
 
 

@@ -55,7 +55,7 @@ TOPOLOGY_COLUMNS = ("soft_domains", "domains_on_tips", "two_fold", "topology_ste
 
 
 def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
-    attrs = store.group.attrs
+    attrs = store.attrs
     t, t_end, wall = (float(v) for v in store.progress[:3])
     series = store.timeseries()
     N = float(attrs.get("numerics.N", math.nan))
