@@ -139,10 +139,63 @@ def kill_job(job):
     wait_until(lambda: not any(alive(p) for p in pids), "the killed job's processes are gone")
 
 
+class CaseView:
+    """One case of an open campaign file of either layout (a group per case, or a row of its block's
+    arrays): ``view[path]`` is the case's array at ``path`` ("status", "timeseries/theta"), ``view[path]
+    = value`` writes it, ``view.attrs`` its attributes (a row's: the store's), ``view.names()`` its
+    datasets, ``view.path(name)`` where in the file the dataset lies."""
+
+    def __init__(self, f, case_id, campaign=None):
+        from hpcves.campaign.file import CampaignFile
+
+        store = (campaign or CampaignFile(f)).store(case_id)
+        self.store = store
+        self.attrs = dict(store.attrs)
+        if store.group is not None:
+            self.group, self.row = store.group, None
+        else:
+            self.group, self.row = store._place.block, store._place.prefix[0]
+
+    def path(self, name):
+        return f"{self.group.name}/{name}"
+
+    def __getitem__(self, name):
+        d = self.group[name]
+        return np.asarray(d[()] if self.row is None else d[self.row])
+
+    def __setitem__(self, name, value):
+        d = self.group[name]
+        if self.row is None:
+            d[()] = value
+        else:
+            d[self.row] = value
+
+    def __contains__(self, name):
+        return name in self.group
+
+    def names(self):
+        found = []
+        self.group.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
+        scales = ("snapshots/alpha", "timeseries/xy") if self.row is None else ("case", "sample", "snapshot", "alpha", "xy")
+        return [n for n in found if n not in scales]
+
+
+def case_view(f, case_id):
+    return CaseView(f, case_id)
+
+
+def case_views(f):
+    """(case id, CaseView) of every case of an open campaign file, in id order."""
+    from hpcves.campaign.file import CampaignFile
+
+    campaign = CampaignFile(f)
+    return [(case_id, CaseView(f, case_id, campaign)) for case_id in campaign.case_ids]
+
+
 def case_statuses(path):
     """{case id: status} of a campaign file, read as a reader of a live file would (no lock)."""
     with h5py.File(path, "r", locking=False) as f:
-        return {case_id: int(g["status"][()]) for case_id, g in f["cases"].items()}
+        return {case_id: int(g["status"][()]) for case_id, g in case_views(f)}
 
 
 def running_cases(path, *, checkpointed=False, sampled=False):
@@ -152,7 +205,7 @@ def running_cases(path, *, checkpointed=False, sampled=False):
         return []
     with h5py.File(path, "r", locking=False) as f:
         out = []
-        for case_id, g in f["cases"].items():
+        for case_id, g in case_views(f):
             if int(g["status"][()]) != 1:
                 continue
             if checkpointed and not any(g[f"checkpoint/{s}/meta"][0] == 1 for s in ("slot0", "slot1")):
@@ -168,12 +221,13 @@ DETERMINED = {"progress": slice(0, 2)}      # t and t_end; wall seconds and step
 
 
 def newest_checkpoint(g):
-    metas = {s: g[f"checkpoint/{s}/meta"][:] for s in ("slot0", "slot1")}
+    metas = {s: g[f"checkpoint/{s}/meta"] for s in ("slot0", "slot1")}
     valid = [(m[1], s) for s, m in metas.items() if m[0] == 1]
     if not valid:
         return {}
     slot = max(valid)[1]
-    return {f"checkpoint/{name}": g[f"checkpoint/{slot}/{name}"][()] for name in g[f"checkpoint/{slot}"]}
+    return {f"checkpoint/{name.split('/', 2)[2]}": g[name] for name in g.names()
+            if name.startswith(f"checkpoint/{slot}/")}
 
 
 def results(path):
@@ -192,14 +246,12 @@ def results(path):
                 out[f"/index/{name}"] = d[:, 0]
             elif name != "addresses":
                 out[f"/index/{name}"] = d[()]
-        for case_id, g in f["cases"].items():
-            data = {"attrs": dict(g.attrs)}
-
-            def visit(name, obj, data=data):
-                if isinstance(obj, h5py.Dataset) and not name.startswith("checkpoint/"):
-                    value = obj[()]
+        for case_id, g in case_views(f):
+            data = {"attrs": {k: v for k, v in g.attrs.items() if k != "hpcves_version"}}
+            for name in g.names():
+                if not name.startswith("checkpoint/"):
+                    value = g[name]
                     data[name] = value[DETERMINED[name]] if name in DETERMINED else value
-            g.visititems(visit)
             data.update(newest_checkpoint(g))
             out[case_id] = data
     return out
@@ -215,6 +267,7 @@ def differences(a, b, attrs=True):
     if not attrs:
         for r in (ra, rb):
             r.pop("/attrs")
+            r.pop("/index/config", None)              # format 2 keeps each case's config text there
             for key in r:
                 if not key.startswith("/"):
                     r[key].pop("attrs")
@@ -346,3 +399,10 @@ def same_case_files(a, b, checkpoints=False):
                     continue
                 assert np.array_equal(fa[f"checkpoint/{newest[0]}/{name}"][()],
                                       fb[f"checkpoint/{newest[1]}/{name}"][()], equal_nan=True), name
+
+
+def case_store(f, case_id):
+    """The CaseStore of case ``case_id`` of an open campaign file (either layout)."""
+    from hpcves.campaign.file import CampaignFile
+
+    return CampaignFile(f).store(case_id)

@@ -382,7 +382,9 @@ def test_a_search_campaign_with_N_auto_runs_under_mpi_as_it_runs_serially(tmp_pa
     from hpcves.campaign.driver import run_campaign
     from hpcves.campaign.study import study_from_toml
     from hpcves.analysis.search import CONVERGED
-    from jobs import MPIRUN, assert_same_results, hpcves
+    from jobs import MPIRUN, assert_same_results, case_store, hpcves
+
+    from hpcves.campaign.file import CampaignFile
 
     serial, parallel = tmp_path / "serial.h5", tmp_path / "mpi.h5"
     text = SEARCH_AUTO.format(output=serial)
@@ -391,8 +393,9 @@ def test_a_search_campaign_with_N_auto_runs_under_mpi_as_it_runs_serially(tmp_pa
     assert summary.exit_status == 0 and search.state.status == CONVERGED
     assert 50 < search.state.low < search.state.high < 100         # TT at 70, PT at 80 (test_search_campaign)
     with h5py.File(serial, "r") as f:
-        Ns = [f[f"cases/{c}/timeseries/N"][: int(f[f"cases/{c}/timeseries/length"][()])] for c in f["cases"]]
-        assert all(f[f"cases/{c}/snapshots/x"].shape[1] == 48 for c in f["cases"])
+        stores = [case_store(f, c) for c in CampaignFile(f).case_ids]
+        Ns = [store.timeseries()["N"] for store in stores]
+        assert all(store.width == 48 for store in stores)
     assert all(N[0] >= 16 for N in Ns) and len({int(n) for N in Ns for n in N}) > 1      # grids differ
     if MPIRUN is None:
         pytest.skip("no mpirun: the serial half ran")

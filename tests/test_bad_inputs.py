@@ -10,6 +10,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from jobs import case_view
+
+from hpcves.campaign import file as campaign_file
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import CaseStore
 from hpcves.cli import main
@@ -292,6 +295,21 @@ def sound(tmp_path_factory):
     return study_file, campaign, single
 
 
+@pytest.fixture(scope="module")
+def sound_v1(sound, tmp_path_factory):
+    """The campaign of ``sound`` in the older layout (format 1: a group per case)."""
+    study_file, _, single = sound
+    campaign = tmp_path_factory.mktemp("sound_v1") / "campaign.h5"
+    campaign_file.WRITES_VERSION = 1
+    try:
+        assert run_campaign(study_from_toml(study_file.read_text()), campaign).exit_status == 0
+    finally:
+        campaign_file.WRITES_VERSION = campaign_file.FORMAT_VERSION
+    with h5py.File(campaign, "r") as f:
+        assert f.attrs["format_version"] == 1 and "cases" in f
+    return study_file, campaign, single
+
+
 def header_of(f, name):
     return h5py.h5o.get_info(f[name].id).addr
 
@@ -342,6 +360,22 @@ def set_value(name, value):
     return change
 
 
+def set_case(case_id, name, value):
+    """Damage: write ``value`` to case ``case_id``'s array ``name`` (either layout)."""
+    def change(f):
+        case_view(f, case_id)[name] = value
+    return change
+
+
+def set_config(case_id, text):
+    """Damage: a case's stored config text (format 2: its row of index/config) set to ``text`` (a
+    callable of the file gives it)."""
+    def change(f):
+        i = [v.decode() for v in f["index/case_id"][:]].index(case_id)
+        f["index/config"][i] = text(f) if callable(text) else text
+    return change
+
+
 def symlink_loop(path):
     path.unlink()
     os.symlink(path.name, path)
@@ -361,11 +395,59 @@ CAMPAIGN_DAMAGE = {
     "no format": (edit(lambda f: f.attrs.__delitem__("format")), "not an hpcves", ALL),
     "another format version": (edit(lambda f: f.attrs.__setitem__("format_version", 99)), "format version 99", ALL),
     "no index": (edit(lambda f: f.__delitem__("index")), "missing index", ALL),
-    "no cases": (edit(lambda f: f.__delitem__("cases")), "missing cases", ALL),
     "case count wrong": (edit(lambda f: f.attrs.__setitem__("n_cases", 9)), "holds 4 cases, its header says 9", ALL),
     "another study": (edit(lambda f: f.attrs.__setitem__("fingerprint", "0" * 64)), "belongs to", ("resume",)),
     "a short index": (edit(recreate("index/shear_rate", data=np.array([40.0]))), "", ALL),
-    "unknown status": (edit(set_value("cases/0003/status", 77)), "status 77 is not a status", ALL),
+    "unknown status": (edit(set_case("0003", "status", 77)), "status 77 is not a status", ALL),
+    "samples beyond capacity": (edit(set_case("0000", "timeseries/length", 10_000)), "lies outside", ALL),
+    "negative snapshot count": (edit(set_case("0000", "snapshots/length", -1)), "lies outside", ALL),
+    "validity marker 5": (edit(set_case("0001", "checkpoint/slot0/meta", [5, 1, 1, 1])), "neither 0 nor 1", ALL),
+    "checkpoint beyond the end": (edit(set_case("0001", "checkpoint/slot0/meta", [1, 999, 1, 1])),
+                                  "step 999 outside", ALL),
+    "checkpoint against its series": (edit(set_case("0001", "checkpoint/slot0/meta", [1, 10, 7, 1])),
+                                      "before step 10", ALL),
+    "finished, half the samples": (edit(set_case("0003", "timeseries/length", 2)), "finished, but holds", ALL),
+    "no blocks": (edit(lambda f: f.__delitem__("blocks")), "missing blocks", ALL),
+    "no status in the block": (edit(lambda f: f.__delitem__("blocks/0/status")), "0000", ALL),
+    "no theta in the block": (edit(lambda f: f.__delitem__("blocks/0/timeseries/theta")),
+                              "timeseries/theta is missing", ALL),
+    "theta of the wrong size": (edit(recreate("blocks/0/timeseries/theta", data=np.zeros((4, 3)))), "shape (3,)", ALL),
+    "checkpoint of the wrong size": (edit(recreate("blocks/0/checkpoint/slot1/psi", data=np.zeros((4, 33)))),
+                                     "checkpoint/slot1/psi has shape (33,)", ALL),
+    "scalars of the wrong type": (edit(recreate("blocks/0/checkpoint/slot0/scalars", data=np.zeros((4, 10), "i4"))),
+                                  "checkpoint/slot0/scalars has shape", ALL),
+    "a block with fewer rows": (edit(recreate("blocks/0/progress", data=np.zeros((2, 4)))), "0002", ALL),
+    "a block of another format version": (edit(lambda f: f["blocks/0"].attrs.__setitem__("format_version", 99)),
+                                          "format version 99", ALL),
+    "a block without its shape": (edit(lambda f: f["blocks/0"].attrs.__delitem__("shape")), "block 0", ALL),
+    "a row outside its block": (edit(set_value("index/row", [0, 99, 2, 3])), "row 99 lies outside", ALL),
+    "an unknown block": (edit(set_value("index/block", [0, 7, 0, 0])), "block 7 is missing", ALL),
+    "a negative row": (edit(set_value("index/row", [0, 1, -2, 3])), "row -2 lies outside", ALL),
+    "no config column": (edit(lambda f: f.__delitem__("index/config")), "index/config is missing", ALL),
+    "a short block column": (edit(recreate("index/block", data=np.zeros(2, "i4"))), "index/block is missing", ALL),
+    "config not TOML": (edit(set_config("0000", "[numerics\n")), "config attribute cannot be read", ALL),
+    "config empty": (edit(set_config("0002", "")), "0002", ALL),
+    "config of another case": (edit(set_config("0000", lambda f: f["index/config"][1])),
+                               "config differs from its study's case", ("resume",)),
+    "header of the block's status flipped": (flip("blocks/0/status"), "", ALL),
+    "header of the block's series flipped": (flip("blocks/0/timeseries/theta"), "0000", ALL),
+    "header of the block's checkpoint flipped": (flip("blocks/0/checkpoint/slot1/meta"), "0000", ALL),
+    "header of a block group flipped": (flip("blocks/0"), "", ALL),
+    "header of the config column flipped": (flip("index/config"), "", ALL),
+    "format version 1.5": (edit(lambda f: f.attrs.__setitem__("format_version", 1.5)), "format version 1.5", ALL),
+    "format version a string": (edit(lambda f: f.attrs.__setitem__("format_version", "1")), "format version '1',",
+                                ALL),
+    "an unknown mode": (edit(lambda f: f.attrs.__setitem__("mode", "bogus")), "mode 'bogus' is not a kind", ALL),
+    "case count 4.5": (edit(lambda f: f.attrs.__setitem__("n_cases", 4.5)), "case count 4.5 is not a count", ALL),
+    "header of the index flipped": (flip("index/case_id"), "", ALL),
+}
+#: damage to files of the older layout (a group per case)
+CAMPAIGN_V1_DAMAGE = {
+    "no cases": (edit(lambda f: f.__delitem__("cases")), "missing cases", ALL),
+    "case count wrong": (edit(lambda f: f.attrs.__setitem__("n_cases", 9)), "holds 4 cases, its header says 9", ALL),
+    "unknown status": (edit(set_case("0003", "status", 77)), "status 77 is not a status", ALL),
+    "config of another case": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", f["cases/0001"].attrs[
+        "config"])), "config differs from its study's case", ("resume",)),
     "no status": (edit(lambda f: f.__delitem__("cases/0002/status")), "0002", ALL),
     "no progress": (edit(lambda f: f.__delitem__("cases/0001/progress")), "0001", ALL),
     "no theta": (edit(lambda f: f.__delitem__("cases/0001/timeseries/theta")), "timeseries/theta is missing", ALL),
@@ -384,14 +466,6 @@ CAMPAIGN_DAMAGE = {
     "finished, half the samples": (edit(set_value("cases/0003/timeseries/length", 2)), "finished, but holds", ALL),
     "config not TOML": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", "[numerics\n")),
                         "config attribute cannot be read", ALL),
-    "format version 1.5": (edit(lambda f: f.attrs.__setitem__("format_version", 1.5)), "format version 1.5", ALL),
-    "format version a string": (edit(lambda f: f.attrs.__setitem__("format_version", "1")), "format version '1',",
-                                ALL),
-    "an unknown mode": (edit(lambda f: f.attrs.__setitem__("mode", "bogus")), "mode 'bogus' is not a kind", ALL),
-    "case count 4.5": (edit(lambda f: f.attrs.__setitem__("n_cases", 4.5)), "case count 4.5 is not a count", ALL),
-    "config of another case": (edit(lambda f: f["cases/0000"].attrs.__setitem__("config", f["cases/0001"].attrs[
-        "config"])), "config differs from its study's case", ("resume",)),
-    "header of the index flipped": (flip("index/case_id"), "", ALL),
     "header of a status flipped": (flip("cases/0001/status"), "0001", ALL),
     "header of a series flipped": (flip("cases/0002/timeseries/theta"), "0002", ALL),
     "header of a checkpoint flipped": (flip("cases/0003/checkpoint/slot1/meta"), "0003", ALL),
@@ -399,18 +473,20 @@ CAMPAIGN_DAMAGE = {
 }
 
 
-def damaged(sound, tmp_path, name):
+def damaged(sound, tmp_path, name, table=CAMPAIGN_DAMAGE):
     study_file, campaign, _ = sound
     copy = tmp_path / "damaged.h5"
     copy.write_bytes(campaign.read_bytes())
-    CAMPAIGN_DAMAGE[name][0](copy)
+    table[name][0](copy)
     return study_file, copy
 
 
-@pytest.mark.parametrize("name", list(CAMPAIGN_DAMAGE))
-def test_a_damaged_campaign_file(sound, tmp_path, name):
-    study_file, copy = damaged(sound, tmp_path, name)
-    _, words, commands = CAMPAIGN_DAMAGE[name]
+@pytest.mark.parametrize("layout, name", [(2, name) for name in CAMPAIGN_DAMAGE]
+                         + [(1, name) for name in CAMPAIGN_V1_DAMAGE])
+def test_a_damaged_campaign_file(sound, sound_v1, tmp_path, layout, name):
+    table = CAMPAIGN_DAMAGE if layout == 2 else CAMPAIGN_V1_DAMAGE
+    study_file, copy = damaged(sound if layout == 2 else sound_v1, tmp_path, name, table)
+    _, words, commands = table[name]
     calls = {"status": ("status", "--check", copy),
              "analyze": ("analyze", copy, "--out", tmp_path / "a", "--no-case-figures", "--no-write-back"),
              "resume": ("campaign", study_file, "--resume", "--out", copy, "--quiet")}
@@ -452,7 +528,7 @@ def test_a_damaged_run_file(sound, tmp_path, name):
 
 
 def test_the_corpus_holds_over_a_hundred_inputs():
-    assert len(CASE_FILES) + len(STUDY_FILES) + len(CAMPAIGN_DAMAGE) + len(CASE_DAMAGE) >= 100
+    assert len(CASE_FILES) + len(STUDY_FILES) + len(CAMPAIGN_DAMAGE) + len(CAMPAIGN_V1_DAMAGE) + len(CASE_DAMAGE) >= 100
 
 
 # ---------------------------------------------------------------------- paths that are not plain files

@@ -12,7 +12,7 @@ import signal
 import h5py
 import numpy as np
 import pytest
-from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, job_pids,
+from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, case_store, case_view, freeze_when, hpcves, job_pids,
                   running_cases, start_job, thaw, wait_until)
 
 from hpcves.campaign import access
@@ -84,7 +84,7 @@ def test_a_campaign_case_is_the_single_run_of_that_case(tmp_path, reference):
         store = CaseStore.create(h5, study.cases[3].case)
         assert runner.run(store, h5.flush).status == FINISHED
     with h5py.File(reference, "r") as ref, h5py.File(tmp_path / "single.h5", "r") as one:
-        a, b = CaseStore.open(ref["cases/0003"]).timeseries(), CaseStore.open(one).timeseries()
+        a, b = case_store(ref, "0003").timeseries(), CaseStore.open(one).timeseries()
         assert len(a["t"]) == 61
         for key in a:
             assert np.array_equal(a[key], b[key], equal_nan=True), key
@@ -95,10 +95,11 @@ def test_layout_and_status_command(reference):
         assert f.attrs["format"] == "hpcves-campaign" and f.attrs["n_cases"] == 4
         assert list(f["index/shear_rate"][:]) == [40, 40, 80, 80]
         assert list(f["index/psi_bar"][:]) == [0.3, 0.5, 0.3, 0.5]
-        g = f["cases/0002"]
+        g = case_view(f, "0002")
         assert g.attrs["physics.shear_rate"] == 80.0 and g.attrs["physics.psi_bar"] == 0.3
         assert int(g["status"][()]) == FINISHED
-        assert {"slot0", "slot1"} <= set(g["checkpoint"])
+        assert {"checkpoint/slot0/meta", "checkpoint/slot1/meta"} <= set(g.names())
+        assert f["index/block"][2] == 0 and f["index/row"][2] == 2 and f["blocks/0/status"].shape == (4,)
     result = hpcves("status", reference)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()
@@ -119,7 +120,7 @@ def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, refer
     real_run = campaign_module.runner.run
 
     def broken(store, *args, **kwargs):
-        if store.group.name.endswith("0001"):
+        if store.where.endswith("0001"):
             raise RuntimeError("injected failure")
         return real_run(store, *args, **kwargs)
 
@@ -129,7 +130,7 @@ def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, refer
     assert summary.failed == (("0001", "RuntimeError: injected failure"),)
     assert statuses(output) == {"0000": FINISHED, "0001": FAILED, "0002": FINISHED, "0003": FINISHED}
     with h5py.File(output, "r") as f:
-        store = CaseStore.open(f["cases/0001"])
+        store = case_store(f, "0001")
         assert "injected failure" in store.traceback and "in broken" in store.traceback
 
     monkeypatch.setattr(campaign_module.runner, "run", real_run)
@@ -284,7 +285,7 @@ def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path, io):
     assert len(interrupted) == 2, statuses(output)
     with h5py.File(output, "r") as f:
         for case_id in interrupted:
-            state, _, _ = CaseStore.open(f[f"cases/{case_id}"]).read_checkpoint()
+            state, _, _ = case_store(f, case_id).read_checkpoint()
             assert state.step > 0
     result = hpcves("campaign", path, "--resume", n=2)
     assert result.returncode == 0, result.stderr

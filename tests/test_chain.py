@@ -7,7 +7,7 @@ import dataclasses
 import h5py
 import numpy as np
 import pytest
-from jobs import MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, kill_job, running_cases, start_job
+from jobs import MPIRUN, assert_same_results, case_statuses, case_store, freeze_when, hpcves, kill_job, running_cases, start_job
 
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
@@ -15,7 +15,7 @@ from hpcves.campaign.queue import WorkQueue
 from hpcves.campaign.study import study_from_toml
 from hpcves.model import continuation, geometry
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
-from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING, CaseStore
+from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING
 from hpcves.numerics.spectral import resample
 from hpcves.run.timestepping import Solver
 
@@ -181,8 +181,8 @@ def test_the_queue_reads_the_ends_of_cases_finished_before():
 # ---------------------------------------------------------------------- campaigns
 def shape_and_phase_at(f, case_id, which):
     """(shape about its centroid, psi) of the first (which = 0) or last (-1) snapshot of a case."""
-    s = f[f"cases/{case_id}/snapshots"]
-    i = 0 if which == 0 else int(s["length"][()]) - 1
+    s = case_store(f, case_id).snapshots()
+    i = 0 if which == 0 else len(s["t"]) - 1
     z = s["x"][i] + 1j * s["y"][i]
     return z - z.mean(), s["psi"][i]
 
@@ -190,14 +190,14 @@ def shape_and_phase_at(f, case_id, which):
 def test_every_case_of_a_chain_starts_where_the_one_before_ended(decided_chain):
     study, output = decided_chain
     with h5py.File(output, "r") as f:
-        decided = [c.case_id for c in study.cases if CaseStore.open(f[f"cases/{c.case_id}"]).decision[0] > 0]
+        decided = [c.case_id for c in study.cases if case_store(f, c.case_id).decision[0] > 0]
         assert decided, "no case was decided before its end time: the test would not see a decided end"
         compared = []
         for c in study.cases:
-            assert CaseStore.open(f[f"cases/{c.case_id}"]).problems() == []   # the end checkpoint is sound
+            assert case_store(f, c.case_id).problems() == []   # the end checkpoint is sound
             if not c.after:
                 continue
-            before = CaseStore.open(f[f"cases/{c.after}"])
+            before = case_store(f, c.after)
             end = before.end_fields()
             shape, psi = shape_and_phase_at(f, c.case_id, 0)
             assert np.max(np.abs(psi - end[1])) < 1e-13     # the same psi, moved by the round-off its mean gathered
@@ -216,7 +216,7 @@ def test_a_failed_case_stops_its_chain_and_a_retry_runs_it_on(tmp_path, monkeypa
     real_run = campaign_module.runner.run
 
     def broken(store, *args, **kwargs):
-        if store.group.name.endswith("0002"):
+        if store.where.endswith("0002"):
             raise RuntimeError("injected failure")
         return real_run(store, *args, **kwargs)
 
@@ -228,7 +228,7 @@ def test_a_failed_case_stops_its_chain_and_a_retry_runs_it_on(tmp_path, monkeypa
                                                                              FAILED, FAILED]
     assert {states[c] for c in ("0005", "0006", "0007", "0008", "0009")} == {FINISHED}
     with h5py.File(output, "r") as f:
-        message = CaseStore.open(f["cases/0003"]).message
+        message = case_store(f, "0003").message
     assert message.startswith("not run: it starts from the end of case 0002, which ended failed")
     monkeypatch.setattr(campaign_module.runner, "run", real_run)
     retried = run_campaign(study, output, resume=True, retry_failed=True)
@@ -285,10 +285,10 @@ def test_a_stored_state_is_read_back_from_its_snapshot_as_from_its_checkpoint(de
     study, output = decided_chain
     with h5py.File(output, "r") as f:
         ended_on_snapshot = [c.case_id for c in study.cases
-                             if CaseStore.open(f[f"cases/{c.case_id}"]).snapshots()["t"][-1]
-                             == CaseStore.open(f[f"cases/{c.case_id}"]).progress[0]]
+                             if case_store(f, c.case_id).snapshots()["t"][-1]
+                             == case_store(f, c.case_id).progress[0]]
         assert ended_on_snapshot
-        store = CaseStore.open(f[f"cases/{ended_on_snapshot[0]}"])
+        store = case_store(f, ended_on_snapshot[0])
         theta, psi, t = store.fields_at(-1.0)
         theta_s, psi_s, t_s = store.fields_at(t + 0.3)          # the nearest snapshot: the last one
     assert t_s == t and np.array_equal(psi_s, psi)
@@ -312,7 +312,7 @@ def test_a_case_starts_from_the_stored_state_of_a_case_in_another_file(decided_c
                                run=dataclasses.replace(study.cases[7].case.run, t_end=0.1, until_decided=False))
     assert run_in_process(case, tmp_path / "from_stored.h5").status == FINISHED
     with h5py.File(output, "r") as f:
-        _, source_psi, t = CaseStore.open(f["cases/0007"]).fields_at(1.0)
+        _, source_psi, t = case_store(f, "0007").fields_at(1.0)
     assert t == pytest.approx(1.0)
     with h5py.File(tmp_path / "from_stored.h5", "r") as f:
         started = f["snapshots/psi"][0]
@@ -324,7 +324,7 @@ def test_a_case_starts_from_the_stored_state_of_a_case_in_another_file(decided_c
     ({"stored_case": "9999"}, "has no case '9999'"),
 ])
 def test_a_stored_start_that_is_not_there_is_refused_by_name(decided_chain, change, message):
-    from hpcves.run.store import read_stored_start
+    from hpcves.run.stored import read_stored_start
 
     _, output = decided_chain
     physics = Physics(initial_shape="stored", stored_file=str(output), stored_case="0001")

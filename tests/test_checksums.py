@@ -15,7 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
-from jobs import SHORT, resume_in_process, run_in_process, same_case_files
+from jobs import SHORT, case_view, resume_in_process, run_in_process, same_case_files
 
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
@@ -139,9 +139,10 @@ def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(t
     output = tmp_path / "sums.h5"
     assert run_campaign(study_from_toml(STUDY.format(output=output)), output).exit_status == 0
     with h5py.File(output, "r+") as f:
-        values = f["cases/0001/timeseries/theta"][()]
+        case = case_view(f, "0001")
+        values = case["timeseries/theta"]
         values.view(np.uint64)[5] ^= np.uint64(1)                 # one bit of the last mantissa place
-        f["cases/0001/timeseries/theta"][()] = values
+        case["timeseries/theta"] = values
     plain = subprocess.run(HPCVES + ["status", str(output)], capture_output=True, text=True, timeout=300)
     check = subprocess.run(HPCVES + ["status", "--check", str(output)], capture_output=True, text=True, timeout=300)
     assert check.returncode == 2, (check.stdout, check.stderr)

@@ -61,12 +61,12 @@ def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_
     assert not np.isnan(ds["theta"]).any() and not np.isnan(ds["t"]).any()  # nothing beyond what was computed
     with h5py.File(campaign, "r") as h5:
         for i, case in enumerate(ds["case"].values):
-            group = h5[f"cases/{case}/timeseries"]
-            n = int(group["length"][()])
-            assert n == 41 and np.isnan(group["theta"][n:]).all()         # the raw file: NaN padded
-            assert np.array_equal(ds["theta"].values[i], group["theta"][:n])
-            assert np.array_equal(ds["centroid"].values[i], group["centroid"][:n])
-            assert np.array_equal(ds["t"].values[i], group["t"][:n])
+            group, row = h5["blocks/0/timeseries"], int(h5["index/row"][i])
+            n = int(group["length"][row])
+            assert n == 41 and np.isnan(group["theta"][row, n:]).all()    # the raw file: NaN padded
+            assert np.array_equal(ds["theta"].values[i], group["theta"][row, :n])
+            assert np.array_equal(ds["centroid"].values[i], group["centroid"][row, :n])
+            assert np.array_equal(ds["t"].values[i], group["t"][row, :n])
         regimes = [r.decode() if isinstance(r, bytes) else r for r in h5["analysis/regime"][:]]
     assert list(ds["regime"].values) == regimes
     # selection by parameter, the xarray way
@@ -88,13 +88,14 @@ def test_one_case_of_a_campaign_and_its_raw_groups_through_h5netcdf(campaign):
     assert float(one["shear_rate"]) == 80 and one.attrs["status"] == "finished"
     assert one["psi"].dims == ("snapshot", "alpha") and one["alpha"].values[1] == 1 / 32
     # the raw groups: the dimension scales are netCDF dimensions, the attributes come along
-    raw = xr.open_dataset(campaign, engine="h5netcdf", group="cases/0003/timeseries", phony_dims="sort")
-    assert raw["theta"].dims == ("t",) and raw["centroid"].dims == ("t", "xy")
+    raw = xr.open_dataset(campaign, engine="h5netcdf", group="blocks/0/timeseries", phony_dims="sort")
+    assert raw["theta"].dims == ("case", "sample") and raw["centroid"].dims == ("case", "sample", "xy")
     assert raw["theta"].attrs["units"] == "rad"
-    n = int(raw["length"])
-    assert np.array_equal(raw["theta"].values[:n], one["theta"].values)
-    snaps = xr.open_dataset(campaign, engine="h5netcdf", group="cases/0003/snapshots", phony_dims="sort")
-    assert snaps["psi"].dims == ("t", "alpha") and snaps["psi"].attrs["long_name"].startswith("soft-phase")
+    n = int(raw["length"][3])
+    assert np.array_equal(raw["theta"].values[3, :n], one["theta"].values)
+    snaps = xr.open_dataset(campaign, engine="h5netcdf", group="blocks/0/snapshots", phony_dims="sort")
+    assert snaps["psi"].dims == ("case", "snapshot", "alpha")
+    assert snaps["psi"].attrs["long_name"].startswith("soft-phase")
     raw.close()
     snaps.close()
     for args, words in (((campaign,), "name the case"), ((campaign, "0009"), "no case '0009'")):

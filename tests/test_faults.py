@@ -13,11 +13,12 @@ import time
 import h5py
 import numpy as np
 import pytest
-from jobs import (MPIRUN, assert_same_results, case_statuses, freeze_when, hpcves, kill_job, running_cases,
+from jobs import (MPIRUN, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
                   start_job, thaw, wait_until)
 from test_campaign import TINY_RUN
 
 from hpcves.campaign import driver as campaign_module
+from hpcves.campaign import file as campaign_file
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED, RUNNING, CaseStore
 from hpcves.campaign.study import study_from_toml
@@ -101,11 +102,11 @@ def test_a_kill_while_the_file_is_created_leaves_nothing_that_blocks_a_resume(tm
 
 @needs_mpi
 def test_a_kill_at_an_exact_moment_of_creation_then_resume(tmp_path):
-    """The 40th case laid out (by rank 0, which lays the file out alone in every mode): deterministic."""
+    """The 40th array of the block grown (by rank 0, which lays the file out alone in every mode): deterministic."""
     path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
     from jobs import mpi_env
 
-    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="case-laid-out:40@0"))
+    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="block-grown:40@0"))
     assert killed.returncode != 0
     assert not output.exists() and output.with_name(output.name + ".partial").exists()
     status = hpcves("status", output)
@@ -414,6 +415,21 @@ def finished(tmp_path_factory):
     return path, output
 
 
+@pytest.fixture(scope="module")
+def finished_v1(tmp_path_factory):
+    """``finished`` in the older layout (campaign format 1: a group per case)."""
+    directory = tmp_path_factory.mktemp("finished_v1")
+    path, output = write_study(directory, t_end=0.05, checkpoint=0.02)
+    campaign_file.WRITES_VERSION = 1
+    try:
+        assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
+    finally:
+        campaign_file.WRITES_VERSION = campaign_file.FORMAT_VERSION
+    return path, output
+
+
+
+
 def damaged_copy(finished, tmp_path, name="damaged.h5"):
     path, output = finished
     copy = tmp_path / name
@@ -421,21 +437,25 @@ def damaged_copy(finished, tmp_path, name="damaged.h5"):
     return path, copy
 
 
-def test_a_bit_flipped_campaign_file_gets_one_line_everywhere(finished, tmp_path):
-    path, copy = damaged_copy(finished, tmp_path)
-    flip_header(copy, "cases/0002/timeseries/theta")
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_bit_flipped_campaign_file_gets_one_line_everywhere(finished, finished_v1, tmp_path, version):
+    """Format 1: the damaged case is named, the others read; format 2, where every case of a block shares
+    the dataset: every case of the block is damaged, each named."""
+    path, copy = damaged_copy(finished if version == 2 else finished_v1, tmp_path)
+    flip_header(copy, "cases/0002/timeseries/theta" if version == 1 else "blocks/0/timeseries/theta")
     assert hpcves("status", copy).returncode == 0          # status reads the status and progress only ...
     status = hpcves("status", "--check", copy)            # ... unless asked to check everything
     assert status.returncode == 2 and "0002" in one_line(status) and "damaged" in one_line(status)
     assert "0003" in status.stdout                     # the other cases are still shown
-    flip_header(copy, "cases/0001/progress")
+    flip_header(copy, "cases/0001/progress" if version == 1 else "blocks/0/progress")
     status = hpcves("status", copy)
     assert status.returncode == 2 and "0001" in one_line(status), status.stderr
     analysed = hpcves("analyze", copy, "--out", tmp_path / "a", "--no-case-figures")
     assert analysed.returncode == 2 and "0002" in error_line(analysed), analysed.stderr
-    assert (tmp_path / "a" / "regimes.csv").exists()   # the others are analysed
+    if version == 1:
+        assert (tmp_path / "a" / "regimes.csv").exists()   # the others are analysed
     resumed = hpcves("campaign", path, "--resume", "--out", copy)
-    assert resumed.returncode == 2 and "case 0002" in one_line(resumed), resumed.stderr
+    assert resumed.returncode == 2 and f"case 000{3 - version}" in one_line(resumed), resumed.stderr
 
 
 # ---------------------------------------------------------------------- 7. what --resume refuses
@@ -449,21 +469,33 @@ def damage_checkpoint_shape(f):
 
 
 def damage_status(f):
-    f["cases/0003/status"][()] = 77
+    case_view(f, "0003")["status"] = 77
 
 
 def damage_length(f):
-    f["cases/0000/timeseries/length"][()] = 10_000
+    case_view(f, "0000")["timeseries/length"] = 10_000
 
 
-@pytest.mark.parametrize("damage, case, words", [
-    (damage_missing_series, "0001", "timeseries/theta is missing"),
-    (damage_checkpoint_shape, "0002", "checkpoint/slot0/theta has shape (33,)"),
-    (damage_status, "0003", "status 77 is not a status"),
-    (damage_length, "0000", "timeseries/length = 10000 lies outside"),
+def damage_block_series(f):
+    del f["blocks/0/timeseries/theta"]
+
+
+def damage_block_checkpoint_shape(f):
+    del f["blocks/0/checkpoint/slot0/theta"]
+    f["blocks/0/checkpoint/slot0"].create_dataset("theta", data=np.zeros((4, 33)))
+
+
+@pytest.mark.parametrize("version, damage, case, words", [
+    (1, damage_missing_series, "0001", "timeseries/theta is missing"),
+    (1, damage_checkpoint_shape, "0002", "checkpoint/slot0/theta has shape (33,)"),
+    (1, damage_status, "0003", "status 77 is not a status"),
+    (2, damage_status, "0003", "status 77 is not a status"),
+    (2, damage_length, "0000", "timeseries/length = 10000 lies outside"),
+    (2, damage_block_series, "0000", "timeseries/theta is missing"),
+    (2, damage_block_checkpoint_shape, "0000", "checkpoint/slot0/theta has shape (33,)"),
 ])
-def test_resume_refuses_a_damaged_case_naming_it(finished, tmp_path, damage, case, words):
-    path, copy = damaged_copy(finished, tmp_path)
+def test_resume_refuses_a_damaged_case_naming_it(finished, finished_v1, tmp_path, version, damage, case, words):
+    path, copy = damaged_copy(finished if version == 2 else finished_v1, tmp_path)
     with h5py.File(copy, "r+") as f:
         damage(f)
     before = digest(copy)
@@ -579,7 +611,7 @@ more = pytest.mark.faults
 @needs_mpi
 @pytest.mark.parametrize("fault, n, io, stepping", [
     ("publish", 3, "relay", "fixed"),                # the file complete under .partial, killed before the rename
-    pytest.param("case-laid-out:20@0", 2, "relay", "fixed", marks=more),   # rank 0 laying the file out alone
+    pytest.param("block-grown:20@0", 2, "relay", "fixed", marks=more),     # rank 0 laying the file out alone
     ("checkpoint:7@1", 3, "mpio", "fixed"),          # rank 1 inside a checkpoint write (two points in each)
     pytest.param("checkpoint:12@0", 3, "relay", "fixed", marks=more),      # rank 0 applying another rank's checkpoint
     pytest.param("finished:3@0", 2, "mpio", "fixed", marks=more),          # rank 0 just after a case finished
@@ -699,7 +731,11 @@ def outside_raw_data(path):
     ranges = []
     with h5py.File(path, "r") as f:
         def visit(name, obj):
-            if isinstance(obj, h5py.Dataset) and obj.id.get_offset() is not None:
+            if isinstance(obj, h5py.Dataset) and obj.chunks is not None:           # format 2's blocks
+                for i in range(obj.id.get_num_chunks()):
+                    chunk = obj.id.get_chunk_info(i)
+                    ranges.append((chunk.byte_offset, chunk.byte_offset + chunk.size))
+            elif isinstance(obj, h5py.Dataset) and obj.id.get_offset() is not None:
                 ranges.append((obj.id.get_offset(), obj.id.get_offset() + obj.id.get_storage_size()))
         f.visititems(visit)
     data = bytearray(path.read_bytes())
@@ -751,7 +787,7 @@ def test_a_search_stage_the_disk_has_no_room_for_stops_the_campaign_and_loses_no
     summary = run_campaign(study, output)
     assert summary.exit_status == 2 and "adding stage 2's" in summary.not_written
     with h5py.File(output, "r") as f:
-        assert f.attrs["n_cases"] == len(f["cases"]) == 4 and not os.path.exists(f"{output}.partial")
+        assert f.attrs["n_cases"] == f["index/case_id"].shape[0] == 4 and not os.path.exists(f"{output}.partial")
     assert set(case_statuses(output).values()) == {FINISHED}
     monkeypatch.setattr(campaign_module, "copy_for_change", real_copy)
     assert run_campaign(study, output, resume=True).exit_status == 0

@@ -11,6 +11,8 @@ import csv
 import h5py
 import pytest
 
+from jobs import case_view
+
 from hpcves.analysis import refine
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.refine_stages import attempts, outcomes
@@ -247,7 +249,7 @@ def test_a_campaign_runs_under_resolved_cases_again_at_twice_n(retried, tmp_path
     (outcome,) = summary.searches
     with h5py.File(output, "r") as f:
         n = int(f.attrs["n_cases"])
-        cases = [f["cases"][f"{i:04d}"] for i in range(n)]
+        cases = [case_view(f, f"{i:04d}") for i in range(n)]
         rows = [(float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"]), int(g.attrs["numerics.N"]),
                  g["message"][()].decode() if isinstance(g["message"][()], bytes) else str(g["message"][()]))
                 for g in cases]
@@ -290,7 +292,7 @@ def test_a_refinement_with_retries_continues_when_its_budget_is_raised(retried, 
     with h5py.File(output, "r") as f, h5py.File(reference, "r") as g:
         assert f.attrs["n_cases"] == g.attrs["n_cases"]
         for i in range(int(g.attrs["n_cases"])):
-            a, b = f["cases"][f"{i:04d}"], g["cases"][f"{i:04d}"]
+            a, b = case_view(f, f"{i:04d}"), case_view(g, f"{i:04d}")
             assert [a.attrs[k] for k in ("numerics.N", "physics.shear_rate", "physics.psi_bar")] == \
                 [b.attrs[k] for k in ("numerics.N", "physics.shear_rate", "physics.psi_bar")]
             assert a["status"][()] == b["status"][()]
@@ -307,7 +309,7 @@ def test_where_N_adapts_a_point_left_under_resolved_runs_again_with_N_max_double
     by_point = {}
     with h5py.File(output, "r") as f:
         for i in range(int(f.attrs["n_cases"])):
-            g = f["cases"][f"{i:04d}"]
+            g = case_view(f, f"{i:04d}")
             message = g["message"][()]
             by_point.setdefault((float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"])), []).append(
                 (int(g.attrs["numerics.N"]), int(g.attrs["numerics.N_max"]), int(g["status"][()]),
@@ -332,7 +334,7 @@ def resolutions(path):
     with h5py.File(path, "r") as f:
         return [(float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"]), int(g.attrs["numerics.N_max"]),
                  float(g.attrs["numerics.resize_tail"]), int(g["status"][()]))
-                for g in (f["cases"][f"{i:04d}"] for i in range(int(f.attrs["n_cases"])))]
+                for g in (case_view(f, f"{i:04d}") for i in range(int(f.attrs["n_cases"])))]
 
 
 def test_a_campaign_runs_creeping_cases_again_with_a_tighter_resize_tail_and_resumes_them(tmp_path, monkeypatch):

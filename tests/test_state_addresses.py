@@ -1,5 +1,6 @@
-"""``status`` reads each case's state from where its bytes lie (index/addresses): the same table as
-through HDF5, never from addresses a rewritten file no longer honours, and damaged cases still found."""
+"""``status`` reads each case's state of a campaign file of format 1 (a group per case) from where its
+bytes lie (index/addresses): the same table as through HDF5, never from addresses a rewritten file no
+longer honours, and damaged cases still found. (Format 2 reads each block's arrays whole.)"""
 from __future__ import annotations
 
 import h5py
@@ -27,8 +28,9 @@ shear_rate = {{ linspace = [1, 10, {n}] }}
 
 
 @pytest.fixture
-def campaign(tmp_path):
+def campaign(tmp_path, monkeypatch):
     """A file of 40 cases in every state, with progress and messages of their own."""
+    monkeypatch.setattr(campaign_file, "WRITES_VERSION", 1)
     path = tmp_path / "c.h5"
     study = study_from_toml(STUDY.format(n=40))
     with h5py.File(path, "w") as h5:

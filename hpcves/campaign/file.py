@@ -5,15 +5,19 @@
                file's text), sweep_keys, n_cases
                mode ("grid", "search" or "refine")
     index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
+               format 2: block (n,) and row (n,), where each case lies, and config (n,), its
+               TOML text;
                search (n,) int (the search -- or refinement -- of each case; -1 in a grid);
                chain studies: after (n,) strings, the case each starts from ("" for none) --
                all resizable: a search or refinement adds its cases stage by stage
     searches/  search files: one (n_searches,) dataset per swept key
     refinements/  refine files: one (n_refinements,) dataset per swept key that is not an axis
-    cases/<id>/  one case, laid out exactly as a single run (checkpoint.CaseStore):
-               parameters as attributes, status, message, traceback, progress,
-               timeseries/ (preallocated, with a length counter), snapshots/,
-               checkpoint/slot0|slot1 with a validity marker written last
+    blocks/<k>/  format 2: the cases of one shape as rows of arrays with a case dimension
+               (run/blocks.py): status, message, traceback, progress, timeseries/ (preallocated,
+               with a length counter), snapshots/, checkpoint/slot0|slot1 with a validity
+               marker written last -- the datasets of a single run's file, one row a case
+    cases/<id>/  format 1: one case, laid out exactly as a single run (store.CaseStore), its
+               parameters as attributes
 
 The whole structure is created up front -- by rank 0 alone with serial HDF5,
 in every I/O mode (campaign/driver.py, ``_change``) -- under a temporary name
@@ -33,9 +37,11 @@ from dataclasses import dataclass
 
 from hpcves import __version__
 from hpcves.files import faults
+from hpcves.config import case_to_toml
 from hpcves.files.atomic import partial_path
 from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_integer, attr_shown,
                               attr_text, open_file, reading)
+from hpcves.run.blocks import BLOCKS, Blocks
 from hpcves.run.stamp import Stamper
 from hpcves.run.verdict import DAMAGED, classifier
 from hpcves.files.lock import writer
@@ -51,7 +57,12 @@ class CreationInterrupted(FileFormatError):
 FORMAT = "hpcves-campaign"
 #: the modes whose cases come stage by stage (a stage may be half-added when a crash cut it short)
 STAGED_MODES = ("search", "refine")
-FORMAT_VERSION = 1
+#: 2: cases as rows of blocks (run/blocks.py); 1: a group per case (read, resumed and extended as such)
+FORMAT_VERSION = 2
+READS_VERSIONS = (1, 2)
+#: the layout new files get (tests set 1 to make files of the older layout, which this hpcves reads,
+#: resumes and extends as such)
+WRITES_VERSION = FORMAT_VERSION
 
 
 class CampaignFile:
@@ -59,7 +70,13 @@ class CampaignFile:
 
     def __init__(self, h5):
         self.h5 = h5
-        self._cases = h5["cases"]
+        self.version = attr_integer(h5.attrs.get("format_version", FORMAT_VERSION))
+        if self.version == 1:
+            self._cases, self._blocks = h5["cases"], None
+        else:
+            self._cases, self._blocks = None, Blocks(h5)
+        #: format 2: {case id: (index row, block, row)} and the index's config column (read when first needed)
+        self._rows, self._configs = None, None
 
     # ------------------------------------------------------------------ creation / opening
     @classmethod
@@ -67,7 +84,8 @@ class CampaignFile:
         """Lay out the file and every case known yet (one process: rank 0, serial HDF5)."""
         a = h5.attrs
         a["format"] = FORMAT
-        a["format_version"] = FORMAT_VERSION
+        version = WRITES_VERSION
+        a["format_version"] = version
         a["hpcves_version"] = __version__
         a["name"] = study.name
         a["fingerprint"] = study.fingerprint
@@ -82,8 +100,13 @@ class CampaignFile:
             index.create_dataset(key, dtype="f8", **growing)
         index.create_dataset("cost", dtype="f8", **growing)
         index.create_dataset("search", dtype="i4", **growing)
-        index.create_dataset("addresses", shape=(0, len(STATE)), maxshape=(None, len(STATE)),
-                             chunks=(1024, len(STATE)), dtype="u8")
+        if version == 1:
+            index.create_dataset("addresses", shape=(0, len(STATE)), maxshape=(None, len(STATE)),
+                                 chunks=(1024, len(STATE)), dtype="u8")
+        else:
+            index.create_dataset("block", dtype="i4", **growing)
+            index.create_dataset("row", dtype="i8", **growing)
+            index.create_dataset("config", dtype=h5py.string_dtype(), **growing)
         if study.staged:
             verdicts = index.create_dataset("verdict", shape=(0, 2), maxshape=(None, 2), chunks=(1024, 2), dtype="f8")
             verdicts.attrs["classifier"] = classifier()
@@ -97,7 +120,10 @@ class CampaignFile:
             refinements = h5.create_group("refinements")
             for key in study.refinements[0]:
                 refinements.create_dataset(key, data=np.array([p[key] for p in study.refinements], dtype="f8"))
-        h5.create_group("cases")
+        if version == 1:
+            h5.create_group("cases")
+        else:
+            Blocks.create(h5)
         campaign = cls(h5)
         campaign.add_cases(study.cases)
         return campaign
@@ -115,12 +141,19 @@ class CampaignFile:
         cases = list(cases)
         if not cases:
             return
-        stamper = Stamper(self._cases)
-        addresses = []
-        for c in cases:
-            group = stamper.lay_out(c.case_id, c.case, {"case_id": c.case_id})
-            addresses.append(_addresses(group))
+        columns = {}
+        if self._blocks is not None:
+            places = self._blocks.add([c.case for c in cases], self.h5["index/case_id"].shape[0])
             faults.point("case-laid-out")
+            columns = {"block": [b for b, _ in places], "row": [r for _, r in places],
+                       "config": [case_to_toml(c.case) for c in cases]}
+        else:
+            stamper = Stamper(self._cases)
+            addresses = []
+            for c in cases:
+                group = stamper.lay_out(c.case_id, c.case, {"case_id": c.case_id})
+                addresses.append(_addresses(group))
+                faults.point("case-laid-out")
         index = self.h5["index"]
         start = index["case_id"].shape[0]
         stop = start + len(cases)
@@ -130,15 +163,16 @@ class CampaignFile:
         if "verdict" in index:
             index["verdict"].resize((stop, 2))
             index["verdict"][start:stop] = np.array([[-1.0, np.nan]] * len(cases))
-        columns = {"case_id": [c.case_id.encode() for c in cases], "cost": [c.cost for c in cases],
-                   "search": [c.search for c in cases]}
+        columns.update({"case_id": [c.case_id.encode() for c in cases], "cost": [c.cost for c in cases],
+                        "search": [c.search for c in cases]})
         columns.update({k: [c.swept[k] for c in cases] for k in self.sweep_keys})
         if "after" in index:
             columns["after"] = [c.after.encode() for c in cases]
         for key, values in columns.items():
             dataset = index[key]
             dataset.resize((stop,))
-            dataset[start:stop] = np.array(values, dtype=dataset.dtype)
+            dataset[start:stop] = np.array(values, dtype=object if key == "config" else dataset.dtype)
+        self._rows = None
         if source is not None and attr_text(self.h5.attrs.get("campaign_toml", "")) != source:
             self.h5.attrs["campaign_toml"] = source
         self.h5.attrs["n_cases"] = stop
@@ -150,13 +184,22 @@ class CampaignFile:
         Returns the number of case groups removed.
         """
         n = int(h5.attrs["n_cases"])
-        extra = [case_id for case_id in h5["cases"] if int(case_id) >= n]
-        for case_id in extra:
-            del h5["cases"][case_id]
+        if BLOCKS in h5:
+            index = h5["index"]
+            extra = max(0, index["case_id"].shape[0] - n)
+            used = {}
+            for block, row in zip(index["block"][:n], index["row"][:n]):
+                used[int(block)] = max(used.get(int(block), 0), int(row) + 1)
+            Blocks(h5).shrink(used)
+        else:
+            extra = [case_id for case_id in h5["cases"] if int(case_id) >= n]
+            for case_id in extra:
+                del h5["cases"][case_id]
+            extra = len(extra)
         for dataset in h5["index"].values():
             if dataset.shape[0] > n:
                 dataset.resize((n, *dataset.shape[1:]))
-        return len(extra)
+        return extra
 
     @classmethod
     def check(cls, h5, where: str) -> "CampaignFile":
@@ -167,25 +210,27 @@ class CampaignFile:
         if fmt != FORMAT:
             raise FileFormatError(f"{where}: not an hpcves campaign file (no format = {FORMAT!r} attribute)")
         written = h5.attrs.get("format_version", -1)
-        if attr_integer(written) != FORMAT_VERSION:
+        version = attr_integer(written)
+        if version not in READS_VERSIONS:
             raise FileFormatError(f"{where}: campaign format version {attr_shown(written)}, this hpcves reads "
-                                  f"{FORMAT_VERSION}")
+                                  + " and ".join(map(str, READS_VERSIONS)))
         mode = attr_text(h5.attrs.get("mode", "grid"))
         if mode not in ("grid", *STAGED_MODES):
             raise FileFormatError(f"{where}: mode {mode!r} is not a kind of campaign (grid, "
                                   + ", ".join(STAGED_MODES) + ")")
-        missing = [k for k in ("index", "cases") if k not in h5]
+        missing = [k for k in ("index", "cases" if version == 1 else BLOCKS) if k not in h5]
         if missing:
             raise FileFormatError(f"{where}: incomplete campaign file, missing {', '.join(missing)}")
         n = attr_integer(h5.attrs.get("n_cases", -1))
         if n is None or n < 0:
             raise FileFormatError(f"{where}: its header's case count {h5.attrs.get('n_cases')} is not a count")
         staged = mode in STAGED_MODES
-        if len(h5["cases"]) != n and not (staged and len(h5["cases"]) > n):   # a half-added stage
-            raise FileFormatError(f"{where}: holds {len(h5['cases'])} cases, its header says {n} "
+        held = len(h5["cases"]) if version == 1 else h5["index/case_id"].shape[0]
+        if held != n and not (staged and held > n):                          # a half-added stage
+            raise FileFormatError(f"{where}: holds {held} cases, its header says {n} "
                                   "(creation was interrupted?)")
         keys = [k for k in attr_text(h5.attrs.get("sweep_keys", "")).split(",") if k]
-        for key in ("case_id", "cost", *keys):
+        for key in ("case_id", "cost", *keys, *(("block", "row", "config") if version == 2 else ())):
             if key not in h5["index"] or h5["index"][key].shape[:1] < (n,):
                 raise FileFormatError(f"{where}: index/{key} is missing or shorter than the {n} cases")
         return cls(h5)
@@ -252,6 +297,9 @@ class CampaignFile:
 
     def state(self, case_id: str) -> tuple[int, float]:
         """(status, wall seconds) of one case."""
+        if self._blocks is not None:
+            store = self.store(case_id)
+            return store.status, float(store.progress[2])
         found = _summary(self._cases, case_id)
         if found is None:                    # the usual way, which says what is wrong
             group = self._cases[case_id]
@@ -292,13 +340,67 @@ class CampaignFile:
             values[i - first] = (float(code), float(wall))
         dataset[first:last] = values
 
+    def _index(self) -> dict[str, tuple[int, int, int]]:
+        """{case id: (index row, block, row)} of every complete case (format 2), read once."""
+        if self._rows is None:
+            index = self.h5["index"]
+            ids = self.case_ids
+            n = len(ids)
+            self._rows = {case_id: (i, int(b), int(r))
+                          for i, (case_id, b, r) in enumerate(zip(ids, index["block"][:n], index["row"][:n]))}
+            self._configs = None
+        return self._rows
+
     def store(self, case_id: str) -> CaseStore:
-        return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
+        """The case ``case_id``, to read or write (FileFormatError where it is not in the file)."""
+        if self._blocks is None:
+            return CaseStore.open(self._cases[case_id], where=f"cases/{case_id}")
+        where = f"/cases/{case_id}"
+        found = self._index().get(case_id)
+        if found is None:
+            raise FileFormatError(f"{where}: no such case in the index")
+        i, block, row = found
+        if self._configs is None:
+            self._configs = self.h5["index/config"][:len(self._rows)]
+        return self._blocks.store(block, row, attr_text(self._configs[i]), where, {"case_id": case_id})
+
+    def _by_block(self) -> dict[int, tuple[list[str], np.ndarray]]:
+        """{block: (its case ids, their rows)} (format 2)."""
+        out = {}
+        for case_id, (_, block, row) in self._index().items():
+            ids, rows = out.setdefault(block, ([], []))
+            ids.append(case_id)
+            rows.append(row)
+        return {b: (ids, np.array(rows, dtype=np.int64)) for b, (ids, rows) in out.items()}
+
+    def _block_values(self, names) -> dict[str, tuple]:
+        """{case id: (one value per name in ``names``)} read a block at a time (format 2); a block whose
+        arrays cannot be read whole is read a case at a time, and a case that cannot be read is left out
+        (its store says why)."""
+        found = {}
+        for block, (ids, rows) in self._by_block().items():
+            try:
+                group = self.h5[f"{BLOCKS}/{block}"]
+                columns = [group[name][:] for name in names]
+                for case_id, row in zip(ids, rows):
+                    found[case_id] = tuple(column[row] for column in columns)
+            except (*HDF5_ERRORS, ValueError):
+                for case_id in ids:
+                    try:
+                        store = self.store(case_id)
+                        found[case_id] = tuple(store._read(name) for name in names)
+                    except (FileFormatError, *HDF5_ERRORS):
+                        pass
+        return found
 
     def statuses(self) -> dict[str, int]:
         """{case id: status} of every case, read through h5py's low-level API (its high-level lookup
         costs ~0.1 ms a case, and a staged campaign asks between its stages); a case whose status
         cannot be read that way is read the usual way, which says what is wrong."""
+        if self._blocks is not None:
+            found = self._block_values(("status",))
+            return {case_id: int(found[case_id][0]) if case_id in found else self.store(case_id).status
+                    for case_id in self.case_ids}
         found, cases, buffer = {}, self._cases.id, np.empty((), dtype=np.int64)
         for case_id in self.case_ids:
             try:
@@ -349,14 +451,20 @@ class CampaignFile:
         links = self.chain_links()
         starts = self.start_names() if "start" in keys else []
         case_ids = self.case_ids
-        fast = StateReader(self.h5, case_ids if addresses else [])
+        fast = StateReader(self.h5, case_ids if addresses and self._blocks is None else [])
+        blocked = self._block_values(("progress", "status", "message")) if self._blocks is not None else {}
         for i, case_id in enumerate(case_ids):
             values = {k: float(swept[k][i]) if i < len(swept[k]) else float("nan") for k in keys}
             if starts and 0 <= values["start"] < len(starts):
                 values["start"] = starts[int(values["start"])]
             try:
-                found = None
-                if fast.fd is not None:           # the case's group must open: an unreadable one is damaged
+                found = blocked.get(case_id)
+                if self._blocks is not None and found is None:
+                    store = self.store(case_id)
+                    found = store.progress, store.status, store._read("message")[()]
+                if found is not None:
+                    found = found[0], int(found[1]), bytes(found[2])
+                elif fast.fd is not None:           # the case's group must open: an unreadable one is damaged
                     h5py.h5g.open(self._cases.id, case_id.encode())
                     found = fast.read(i)
                 if found is None:
@@ -371,7 +479,7 @@ class CampaignFile:
                 if name == DAMAGED:
                     message = f"status {status} is not a status"
                 elif check:
-                    problems = CaseStore.open(self._cases[case_id], where=case_id).problems()
+                    problems = self.store(case_id).problems()
                     if problems:
                         name, message = DAMAGED, "; ".join(problems[:2])
             except (FileFormatError, *HDF5_ERRORS) as exc:

@@ -5,7 +5,9 @@ the n-th time (default: the first) it passes :func:`point` ``point``, on MPI
 rank ``rank`` only if one is given. The points are where a kill is most
 likely to hurt:
 
-* ``case-laid-out``: after each case is laid out, while a file is created or a search stage added;
+* ``block-grown``: after each array of a block grew by a stage's (or a new file's) cases (campaign
+  format 2: run/blocks.py), while a file is created or a search stage added;
+* ``case-laid-out``: the same moment in files of format 1, after each case is laid out;
 * ``publish``: a finished ``.partial`` is about to be renamed over the file (atomic.py);
 * ``checkpoint``: inside a checkpoint write, once after the slot is marked invalid and once
   after its data are written, before it is marked valid again (run/store.py);

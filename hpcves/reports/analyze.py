@@ -67,10 +67,10 @@ class Source:
     starts: tuple = ()         # campaigns with [starts]: the name of each case's start, in case order
 
 
-def _read_case(group, case_id: str, search: int, swept: dict) -> CaseData:
+def _read_case(campaign: CampaignFile, case_id: str, search: int, swept: dict) -> CaseData:
     """One case's data; a case that cannot be read or fails CaseStore.problems comes back "damaged"."""
     try:
-        store = CaseStore.open(group, where=case_id)
+        store = campaign.store(case_id)
         problems = store.problems()
         if not problems:
             return case_data(store, case_id, search)
@@ -116,7 +116,7 @@ def read_source(path) -> Source:
             cases = []
             for i, (c, search) in enumerate(zip(campaign.case_ids, campaign.searches_of_cases())):
                 swept = {k: index[k][i] for k in campaign.sweep_keys}
-                cases.append(_read_case(h5["cases"].get(c), c, search, swept))
+                cases.append(_read_case(campaign, c, search, swept))
             toml = attr_text(h5.attrs.get("campaign_toml", ""))
             links = tuple(campaign.chain_links().items())
             starts = ()

@@ -15,6 +15,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from hpcves.model.params import ConfigError
+from hpcves.campaign.file import CampaignFile
 from hpcves.run.store import CaseStore, open_file
 
 #: ``which`` of the named selections
@@ -64,10 +65,9 @@ def draw_page(path: str, case_id: str | None, row: dict, streamlines: bool, targ
     from hpcves.reports import plots
 
     with open_file(path, "r", locking=False) as h5:
-        group = h5 if case_id is None else h5[f"cases/{case_id}"]
-        store = CaseStore(group)
+        store = CaseStore(h5) if case_id is None else CampaignFile(h5).store(case_id)
         title = (f"case {case_id}: " if case_id is not None else "") \
-            + plots.case_title(dict(group.attrs)) + f" -- {row['regime']}"
+            + plots.case_title(dict(store.attrs)) + f" -- {row['regime']}"
         fig = plots.case_figure(store.timeseries(), store.snapshots(), title=title, kymographs=True,
                                 t_settle=row["t_settle"], period=row["period"],
                                 physics=store.case.physics if streamlines else None,

@@ -72,27 +72,27 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         kind = attr_text(h5.attrs.get("format", ""))
         if kind == CAMPAIGN_FORMAT:
-            ids = CampaignFile.check(h5, str(path)).case_ids
+            campaign = CampaignFile.check(h5, str(path))
+            ids = campaign.case_ids
             if case is None or case not in ids:
                 listed = ", ".join(ids[:5]) + (", ..." if len(ids) > 5 else "")
                 raise FileFormatError(f"{path}: a campaign file; name the case, e.g. open_case(path, "
                                       f"{ids[0]!r}) (cases: {listed})" if case is None else
                                       f"{path}: no case {case!r} (cases: {listed})")
-            group = h5[f"cases/{case}"]
+            store = campaign.store(case)
         elif kind == CASE_FORMAT:
             if case is not None:
                 raise FileFormatError(f"{path}: the file of one run; it has no case {case!r}")
-            group = h5
+            store = CaseStore.open(h5, where=f"{path}:/")
         else:
             raise FileFormatError(f"{path}: not an hpcves campaign or run file (no format attribute)")
-        store = CaseStore.open(group, where=f"{path}:{group.name}")
         names = _check_names(variables, store)
         data = _case_variables(store, names, snapshots, "time")
-        attrs = {k: (attr_text(v) if isinstance(v, bytes) else v) for k, v in group.attrs.items()
+        attrs = {k: (attr_text(v) if isinstance(v, bytes) else v) for k, v in store.attrs.items()
                  if not k.startswith("physics.") or k.removeprefix("physics.") not in PARAMETERS}
         attrs.update(status=STATUS_NAMES.get(store.status, str(store.status)), message=store.message,
                      t_reached=float(store.progress[0]), source=str(path))
-        physics = {k: float(group.attrs[f"physics.{k}"]) for k in PARAMETERS}
+        physics = {k: float(store.attrs[f"physics.{k}"]) for k in PARAMETERS}
         N = store.width
     t = data.pop("t")
     coords = {"time": t[1], "xy": ["x", "y"], **physics}
@@ -130,7 +130,7 @@ def open_campaign(path, *, variables=None):
         names = None
         for i, case_id in enumerate(ids):
             try:
-                store = CaseStore.open(h5["cases"][case_id], where=case_id)
+                store = campaign.store(case_id)
                 if store.problems():
                     raise FileFormatError(case_id)
             except (FileFormatError, *HDF5_ERRORS):

@@ -11,6 +11,7 @@ import numpy as np
 
 from hpcves.reports.analyze import read_source
 from hpcves.run.verdict import DAMAGED, PARAMETERS, analyse_case
+from hpcves.campaign.file import CampaignFile
 from hpcves.run.store import CaseStore, open_file
 from hpcves.model.params import ConfigError, Physics
 
@@ -68,9 +69,9 @@ def choose(path, case_ids=(), where: dict | None = None, one: bool = False) -> l
         raise ConfigError(f"{path}: case {', '.join(damaged)} is damaged (hpcves status --check says why)")
     out = []
     with open_file(Path(path), "r", locking=False) as h5:
+        campaign = None if source.kind == "case" else CampaignFile(h5)
         for case in picked:
-            group = h5 if source.kind == "case" else h5[f"cases/{case.case_id}"]
-            store = CaseStore(group)
+            store = CaseStore(h5) if campaign is None else campaign.store(case.case_id)
             snapshots = store.snapshots()
             if len(snapshots["t"]) == 0:
                 raise ConfigError(f"{path}: case {case.case_id} has no snapshots yet")

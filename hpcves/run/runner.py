@@ -31,7 +31,8 @@ from hpcves.run import resolution
 from hpcves.files import faults
 from hpcves.run import schedule
 from hpcves.run import store as checkpoint_module
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore, read_stored_start
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore
+from hpcves.run.stored import read_stored_start
 from hpcves.model.flow import TensionSolveError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.run.timestepping import Solver, State

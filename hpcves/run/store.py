@@ -455,6 +455,8 @@ class CaseStore:
                 d = self._place.open(name)
                 if d.shape[prefix:] != shape or d.dtype.kind != kind:
                     found.append(f"{name} has shape {d.shape[prefix:]} ({d.dtype}), expected {shape} ({kind})")
+                elif any(not 0 <= i < n for i, n in zip(self._place.prefix, d.shape)):
+                    found.append(f"{name} holds {d.shape[0]} cases, this one is its row {self._place.prefix[0]}")
             except HDF5_ERRORS as exc:
                 found.append(f"{name} is missing or unreadable ({_first_line(exc)})")
         if found:
@@ -901,28 +903,3 @@ def _unpack_scalars(values: np.ndarray, layout=_SCALAR_LAYOUT) -> dict:
             out[name] = float(values[i])
         i += width
     return out
-
-
-def read_stored_start(physics) -> tuple[np.ndarray, np.ndarray]:
-    """(theta_tilde, psi) of the stored state a case with physics.initial_shape = "stored" starts from:
-    case ``stored_case`` of the campaign file ``stored_file`` (a single-run file: ``stored_case`` empty)
-    at ``stored_time`` (CaseStore.fields_at). Read without locking: the file must not be changing."""
-    path, case_id = physics.stored_file, physics.stored_case
-    where = f"physics.stored_file = {path!r}"
-    try:
-        h5 = open_file(path, "r", locking=False)
-    except FileNotFoundError:
-        raise ConfigError(f"{where}: no such file") from None
-    except HDF5_ERRORS as exc:
-        raise ConfigError(f"{where}: cannot be read ({_first_line(exc)})") from None
-    with h5, reading(path):
-        if "cases" in h5:
-            if case_id not in h5["cases"]:
-                raise ConfigError(f"{where}: has no case {case_id!r} (physics.stored_case)")
-            group = h5["cases"][case_id]
-        elif case_id:
-            raise ConfigError(f"{where}: a single-run file; leave physics.stored_case out")
-        else:
-            group = h5
-        theta, psi, _ = CaseStore.open(group, where=f"{path}:{case_id}").fields_at(physics.stored_time)
-    return theta, psi

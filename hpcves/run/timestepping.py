@@ -316,7 +316,7 @@ class Solver:
             return State(step=0, theta=theta.copy(), psi=psi.copy(), center=0j)
         if phys.initial_shape == "stored":
             raise ConfigError("physics.initial_shape = \"stored\": the runner reads the stored state "
-                              "(store.read_stored_start) and gives it to the solver")
+                              "(stored.read_stored_start) and gives it to the solver")
         if self._start_shape is None:          # once per solver: the smoothed shape takes ~30 ms
             a, b = geometry.ellipse_for_excess_length(phys.length, phys.excess_length)
             t, theta = geometry.ellipse_equal_arclength(a, b, sp.N)

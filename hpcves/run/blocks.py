@@ -1,0 +1,265 @@
+"""Many cases as rows of arrays with a case dimension (campaign format 2; docs/file-format.md).
+
+    blocks/<k>/   the cases of one shape -- stored N, sample and snapshot capacities (``shape``
+                  attribute) -- as rows: every dataset of a case's layout (store.py) with a
+                  leading case dimension, one case a chunk, every chunk allocated (and filled)
+                  when the block grows; attrs format_version (of the rows' data: store.py's),
+                  hpcves_version, shape;
+                  case (the index row of each), sample, snapshot, alpha and xy: HDF5 dimension
+                  scales along the arrays' axes, what netCDF readers (h5netcdf) take as dimensions
+
+A case is (block, row); its parameters live in the campaign's index (its config text), not in
+attributes. A stage's cases cost one resize per dataset and block, however many they are
+(laying out each case as a group of ~70 objects took ~2.4 ms a case), and a writer keeps one
+id per dataset for all of a block's cases (:class:`RowPlace` shares them).
+"""
+from __future__ import annotations
+
+import collections.abc
+
+import h5py
+import numpy as np
+
+from hpcves import __version__
+from hpcves.files import faults
+from hpcves.model.params import Case
+from hpcves.run.diagnostics import SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
+from hpcves.run.store import (FORMAT, FORMAT_VERSION, MESSAGE_BYTES, NOT_DECIDED, SNAPSHOT_RECORDS, TRACEBACK_BYTES,
+                              CaseStore, FileFormatError, attr_integer, capacities, stored_case, stored_N, _N_SCALARS)
+from hpcves.run.timestepping import State
+
+BLOCKS = "blocks"
+
+
+def block_shape(case: Case) -> tuple[int, int, int]:
+    """(stored N, sample capacity, snapshot capacity): what the cases of one block share."""
+    return (stored_N(case), *capacities(case))
+
+
+def row_layout(shape: tuple[int, int, int]) -> dict:
+    """Every dataset of a row: name -> (shape of one case's array, dtype, fill value)."""
+    N, n_samples, n_snapshots = shape
+    nan = np.nan
+    out = {"status": ((), "i1", 0), "message": ((), f"S{MESSAGE_BYTES}", b""),
+           "traceback": ((), f"S{TRACEBACK_BYTES}", b""), "decision": ((3,), "f8", nan),
+           "progress": ((4,), "f8", nan),
+           "timeseries/length": ((), "i8", 0), "timeseries/digest": ((len(SERIES),), "u8", 0),
+           "snapshots/length": ((), "i8", 0), "snapshots/digest": ((len(SNAPSHOT_RECORDS),), "u8", 0),
+           "snapshots/t": ((n_snapshots,), "f8", nan), "snapshots/shift": ((n_snapshots,), "f8", nan)}
+    for name in SERIES:
+        out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f8", nan)
+    for name in SNAPSHOT_FIELDS:
+        out[f"snapshots/{name}"] = ((n_snapshots, N), "f8", nan)
+    for slot in ("slot0", "slot1"):
+        out[f"checkpoint/{slot}/meta"] = ((4,), "i8", 0)
+        out[f"checkpoint/{slot}/digest"] = ((len(State.ARRAYS) + 2,), "u8", 0)
+        out[f"checkpoint/{slot}/scalars"] = ((_N_SCALARS,), "f8", nan)
+        for name in State.ARRAYS:
+            out[f"checkpoint/{slot}/{name}"] = ((N,), "f8", nan)
+    return out
+
+
+def _describe(group, shape: tuple[int, int, int]) -> None:
+    """``long_name`` and ``units`` of every series and snapshot field, and the dimension scales ``case``,
+    ``sample``, ``snapshot``, ``alpha`` and ``xy`` attached along their axes (static: written when the
+    block is made)."""
+    N, n_samples, n_snapshots = shape
+    case = group.create_dataset("case", shape=(0,), maxshape=(None,), chunks=(1024,), dtype="i8")
+    case.attrs["long_name"] = "the case's row of the campaign's index (its id as a number)"
+    scales = {"case": case,
+              "sample": group.create_dataset("sample", data=np.arange(n_samples, dtype=np.int64)),
+              "snapshot": group.create_dataset("snapshot", data=np.arange(n_snapshots, dtype=np.int64)),
+              "alpha": group.create_dataset("alpha", data=np.arange(N) / N),
+              "xy": group.create_dataset("xy", data=np.arange(2, dtype=np.int64))}
+    scales["xy"].attrs["long_name"] = "component: 0 = x, 1 = y"
+    scales["alpha"].attrs["long_name"] = "material label of the node (alpha = j / N)"
+    for name, scale in scales.items():
+        scale.make_scale(name)
+    for sub, table in (("timeseries", SERIES_ATTRS), ("snapshots", SNAPSHOT_ATTRS)):
+        for name, (long_name, units) in table.items():
+            if name in group[sub]:
+                group[sub][name].attrs["long_name"] = long_name
+                group[sub][name].attrs["units"] = units
+    labelled = {"status", "message", "traceback", "timeseries/length", "snapshots/length",       # (netCDF readers
+                *(f"timeseries/{n}" for n in SERIES), *(f"snapshots/{n}" for n in SNAPSHOT_RECORDS),  # refuse arrays
+                *(f"checkpoint/{s}/{n}" for s in ("slot0", "slot1") for n in State.ARRAYS)}     # with some axes
+    for name in labelled:                                                                       # unnamed)
+        group[name].dims[0].attach_scale(scales["case"])
+    axes = {"timeseries": ("sample", "xy"), "snapshots": ("snapshot", "alpha")}
+    for sub, (rows, columns) in axes.items():
+        for name in SERIES if sub == "timeseries" else SNAPSHOT_RECORDS:
+            dataset = group[sub][name]
+            dataset.dims[1].attach_scale(scales[rows])
+            if dataset.ndim == 3:
+                dataset.dims[2].attach_scale(scales[columns])
+    for slot in ("slot0", "slot1"):
+        for name in State.ARRAYS:
+            group[f"checkpoint/{slot}/{name}"].dims[1].attach_scale(scales["alpha"])
+
+
+def _early():
+    plist = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+    plist.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
+    return plist
+
+
+class RowAttrs(collections.abc.Mapping):
+    """What a case laid out as a group holds as attributes, for a row: the block's, the config text,
+    and (parsed from it when first asked for) one entry per parameter ("physics.shear_rate", ...)."""
+
+    def __init__(self, block_attrs: dict, config: str, where: str, extra: dict):
+        self._fixed = {**block_attrs, "config": config, **extra}
+        self._where = where
+        self._parameters = None
+
+    def _all(self) -> dict:
+        if self._parameters is None:
+            case = stored_case(self._fixed["config"], self._where)
+            self._parameters = {"N": case.numerics.N, **case.flat()}
+        return {**self._parameters, **self._fixed}
+
+    def __getitem__(self, key):
+        if key in self._fixed:
+            return self._fixed[key]
+        return self._all()[key]
+
+    def __iter__(self):
+        return iter(self._all())
+
+    def __len__(self):
+        return len(self._all())
+
+
+class RowPlace:
+    """Where a case of a block keeps its datasets: row ``row`` of each (store.py's CaseStore reads and
+    writes its part through the prefix)."""
+
+    group = None
+
+    def __init__(self, block, row: int, attrs: RowAttrs, where: str, ids: dict):
+        self.block, self.prefix, self.attrs, self.where = block, (row,), attrs, where
+        self.filename = block.file.filename
+        #: the writer's ids, shared by every row of the block (CaseStore._id)
+        self.ids = ids
+
+    def has(self, path: str) -> bool:
+        return path in self.block
+
+    def open(self, path: str):
+        return h5py.h5d.open(self.block.id, path.encode())
+
+
+class Blocks:
+    """The blocks of a campaign file (the ``blocks`` group of ``h5``)."""
+
+    def __init__(self, h5):
+        self.group = h5[BLOCKS]
+        #: per block: the attributes its rows share, and the writer's ids (kept for the file's life)
+        self._attrs, self._ids = {}, {}
+
+    @classmethod
+    def create(cls, h5) -> "Blocks":
+        h5.create_group(BLOCKS)
+        return cls(h5)
+
+    def names(self) -> list[str]:
+        return sorted(self.group, key=int)
+
+    def shape_of(self, block: str) -> tuple[int, ...]:
+        return tuple(int(v) for v in self.group[block].attrs["shape"])
+
+    def rows(self, block: str) -> int:
+        """The rows of ``block`` (those of a half-added stage included)."""
+        return int(self.group[block]["status"].shape[0])
+
+    def add(self, cases: list[Case], first: int = 0) -> list[tuple[int, int]]:
+        """Lay out ``cases`` as new rows (one process, serial HDF5): (block, row) of each, in order. The
+        rows start pending, with progress (0, t_end, 0, 0) and no decision; ``first`` is the index row
+        of the first case (the rows' ``case`` coordinate)."""
+        by_shape = {}
+        for i, case in enumerate(cases):
+            by_shape.setdefault(block_shape(case), []).append(i)
+        known = {self.shape_of(b): b for b in self.names()}
+        out = [None] * len(cases)
+        for shape, members in by_shape.items():
+            block = known.get(shape)
+            if block is None:
+                block = self._new_block(shape)
+            group = self.group[block]
+            start = self.rows(block)
+            stop = start + len(members)
+            for name in row_layout(shape):
+                dataset = group[name]
+                dataset.resize((stop, *dataset.shape[1:]))
+                faults.point("block-grown")
+            group["case"].resize((stop,))
+            group["case"][start:stop] = np.array([first + i for i in members], dtype=np.int64)
+            group["decision"][start:stop] = np.array([NOT_DECIDED] * len(members))
+            group["progress"][start:stop] = np.array([(0.0, cases[i].run.t_end, 0.0, 0.0) for i in members])
+            for k, i in enumerate(members):
+                out[i] = (int(block), start + k)
+        return out
+
+    def _new_block(self, shape: tuple[int, int, int]) -> str:
+        block = str(len(self.group))
+        group = self.group.create_group(block)
+        group.attrs["format"] = FORMAT
+        group.attrs["format_version"] = FORMAT_VERSION
+        group.attrs["hpcves_version"] = __version__
+        group.attrs["shape"] = np.array(shape, dtype=np.int64)
+        for name, (row, dtype, fill) in row_layout(shape).items():
+            group.create_dataset(name, shape=(0, *row), maxshape=(None, *row), chunks=(1, *row), dtype=dtype,
+                                 fillvalue=np.array(fill, dtype=dtype), dcpl=_early())
+        _describe(group, shape)
+        return block
+
+    def shrink(self, used: dict[int, int]) -> None:
+        """Drop the rows beyond ``used[block]`` of every block (a half-added stage; serial access)."""
+        for block in self.names():
+            keep = used.get(int(block), 0)
+            group = self.group[block]
+            if self.rows(block) > keep:
+                for name in (*row_layout(self.shape_of(block)), "case"):
+                    if name in group:
+                        dataset = group[name]
+                        dataset.resize((keep, *dataset.shape[1:]))
+
+    def store(self, block: int, row: int, config: str, where: str, extra: dict | None = None) -> CaseStore:
+        """The case in row ``row`` of ``block``, whose config text is ``config`` (the campaign's index)."""
+        name = str(block)
+        if name not in self._attrs:
+            if name not in self.group:
+                raise FileFormatError(f"{where}: its block {name} is missing")
+            a = self.group[name].attrs
+            version = attr_integer(a.get("format_version", -1))
+            shape = tuple(int(v) for v in a.get("shape", ()))
+            if version != FORMAT_VERSION or len(shape) != 3:
+                raise FileFormatError(f"{where}: block {name} has format version {version}, shape {shape}")
+            self._attrs[name] = {"format": FORMAT, "format_version": version,
+                                 "hpcves_version": a.get("hpcves_version", ""),
+                                 "sample_capacity": shape[1], "snapshot_capacity": shape[2]}
+            self._ids[name] = {}
+        group = self.group[name]
+        if not 0 <= row < self.rows(name):
+            raise FileFormatError(f"{where}: row {row} lies outside block {name}'s {self.rows(name)}")
+        attrs = RowAttrs(self._attrs[name], config, where, extra or {})
+        return CaseStore(place=RowPlace(group, row, attrs, where, self._ids[name]))
+
+
+def find_case(h5, case_id: str, where: str) -> CaseStore:
+    """Case ``case_id`` of an open campaign file of either layout, looked up in its index (the campaign
+    layer's CampaignFile.store keeps the index read; this reads it once, for one case)."""
+    if BLOCKS not in h5:
+        if case_id not in h5.get("cases", {}):
+            raise FileFormatError(f"{where}: has no case {case_id!r}")
+        return CaseStore.open(h5["cases"][case_id], where=f"{where}:{case_id}")
+    index = h5["index"]
+    n = int(h5.attrs.get("n_cases", 0))
+    ids = [v.decode() if isinstance(v, bytes) else str(v) for v in index["case_id"][:n]]
+    if case_id not in ids:
+        raise FileFormatError(f"{where}: has no case {case_id!r}")
+    i = ids.index(case_id)
+    config = index["config"][i]
+    return Blocks(h5).store(int(index["block"][i]), int(index["row"][i]),
+                            config.decode() if isinstance(config, bytes) else str(config), f"/cases/{case_id}",
+                            {"case_id": case_id})
