@@ -37,7 +37,7 @@ import h5py
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from jobs import (alive, command, differences, job_pids, kill_job, mpi_env, start_job,  # noqa: E402
+from jobs import (alive, case_views, command, differences, job_pids, kill_job, mpi_env, start_job,  # noqa: E402
                   wait_until)
 
 STUDY = """[campaign]
@@ -129,7 +129,7 @@ def measure(directory: Path, n: int, io: str, points: int = POINTS, stepping: st
 
 def all_finished(output: Path) -> bool:
     with h5py.File(output, "r", locking=False) as f:
-        return all(int(g["status"][()]) == 2 for g in f["cases"].values())
+        return all(int(g["status"][()]) == 2 for _, g in case_views(f))
 
 
 def landed(output: Path) -> str:
@@ -138,8 +138,9 @@ def landed(output: Path) -> str:
     if not output.exists():
         return "during creation" if partial.exists() else "before creation"
     with h5py.File(output, "r", locking=False) as f:
-        statuses = [int(g["status"][()]) for g in f["cases"].values()]
-        torn = sum(1 for g in f["cases"].values() for s in ("slot0", "slot1")
+        views = [g for _, g in case_views(f)]
+        statuses = [int(g["status"][()]) for g in views]
+        torn = sum(1 for g in views for s in ("slot0", "slot1")
                    if g[f"checkpoint/{s}/meta"][0] == 0 and np.isfinite(g[f"checkpoint/{s}/scalars"][0]))
     if all(s == 2 for s in statuses):
         return "at the very end"

@@ -235,17 +235,18 @@ def results(path):
 
     Left out: the wall-clock part of ``progress``, which checkpoint slot holds what (a stop writes an
     extra checkpoint; the newest valid checkpoint is compared instead), the campaign file's text
-    (it names the output path) and where the data lie in the file (index/addresses: the root's
-    attributes come first, and that text's length shifts everything after them).
+    (it names the output path), the file's format version and where the data lie in the file
+    (index/addresses: the root's attributes come first, and that text's length shifts everything
+    after them; format 2's index/block and index/row) -- so files of either layout compare.
     """
     out = {}
     with h5py.File(path, "r", locking=False) as f:
-        out["/attrs"] = {k: v for k, v in f.attrs.items() if k not in ("hpcves_version", "campaign_toml")}
+        out["/attrs"] = {k: v for k, v in f.attrs.items() if k not in ("hpcves_version", "campaign_toml", "format_version")}
         for name, d in f["index"].items():
             if name == "verdict":                 # the codes; the wall seconds they were stored with vary
                 out[f"/index/{name}"] = d[:, 0]
-            elif name != "addresses":
-                out[f"/index/{name}"] = d[()]
+            elif name not in ("addresses", "block", "row", "config"):     # where a case lies (its config:
+                out[f"/index/{name}"] = d[()]                             # its attrs, below, either layout)
         for case_id, g in case_views(f):
             data = {"attrs": {k: v for k, v in g.attrs.items() if k != "hpcves_version"}}
             for name in g.names():
@@ -267,7 +268,6 @@ def differences(a, b, attrs=True):
     if not attrs:
         for r in (ra, rb):
             r.pop("/attrs")
-            r.pop("/index/config", None)              # format 2 keeps each case's config text there
             for key in r:
                 if not key.startswith("/"):
                     r[key].pop("attrs")

@@ -250,3 +250,34 @@ def test_status_says_a_stage_is_left_until_the_searches_are_complete(searched, t
     status = hpcves("status", output, "--json")
     assert status.returncode == 0 and json.loads(status.stdout)["complete"] is True
     assert_same_results(output, reference, attrs=False)
+
+
+def test_a_search_in_a_file_of_the_older_layout_continues_in_it(searched, tmp_path, monkeypatch):
+    """A file of campaign format 1 (a group per case), its search cut short after its first stage, is
+    continued by this hpcves in that layout (stages laid out as groups: run/stamp.py), to the cases and
+    data of the search run in format 2 from the start."""
+    from hpcves.campaign import driver as campaign_module
+
+    _, reference, _, _ = searched
+    path, output = write_search(tmp_path)
+    study = study_from_toml(path.read_text())
+    real_add = campaign_module._add_stage
+
+    def stop_at_stage_2(path, comm, cases, stage, source):
+        if stage == 2:
+            raise KeyboardInterrupt
+        return real_add(path, comm, cases, stage, source)
+
+    monkeypatch.setattr(campaign_file, "WRITES_VERSION", 1)
+    monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(study, output)
+    monkeypatch.undo()
+    with h5py.File(output, "r") as f:
+        before = int(f.attrs["n_cases"])
+    summary = run_campaign(study, output, resume=True)
+    assert summary.exit_status == 0 and min(r.case_id for r in summary.ran) == f"{before:04d}"
+    with h5py.File(output, "r") as f:
+        assert f.attrs["format_version"] == 1 and "blocks" not in f
+        assert len(f["cases"]) == f.attrs["n_cases"] > before
+    assert_same_results(output, reference)

@@ -24,7 +24,8 @@ in every I/O mode (campaign/driver.py, ``_change``) -- under a temporary name
 that becomes the file's only once it is complete (atomic.py).
 Afterwards only raw data are written in place, each case by the one rank
 running it (independent I/O; attributes are never written again); a search
-stage's cases are added to a copy that replaces the file.
+stage's cases are added to a copy that replaces the file (format 2: its
+blocks grow by them, one resize per array).
 """
 from __future__ import annotations
 
@@ -523,7 +524,7 @@ def _summary(cases, case_id: str) -> tuple | None:
 
 
 class StateReader:
-    """Each case's STATE read from the bytes at its recorded addresses (index/addresses), with one
+    """Each case's STATE of a format-1 file read from the bytes at its recorded addresses (index/addresses), with one
     ``pread`` each instead of opening three datasets (~80 us a case: 1.6 s of ``status`` at 20 000).
 
     The bytes read are those HDF5 reads: a contiguous dataset's data never move once allocated. A file

@@ -1,7 +1,10 @@
 """HDF5 storage of one case: parameters, time series, snapshots, checkpoints.
 
 A case lives in an HDF5 group -- the file's root for ``hpcves run``, one
-``cases/<id>`` group per case in a campaign file. Layout (see docs/file-format.md):
+``cases/<id>`` group per case in a campaign file of format 1 -- or is one row of
+the same datasets with a leading case dimension (campaign format 2: run/blocks.py;
+:class:`CaseStore` reads and writes either through its place). Layout (see
+docs/file-format.md):
 
     attrs          format = "hpcves-case", format_version, hpcves_version,
                    config (the full case as TOML), one attribute per parameter
