@@ -154,3 +154,51 @@ def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(t
     assert "timeseries/theta fails its checksum" in analyzed.stdout + analyzed.stderr
     with pytest.raises(FileFormatError, match="case 0001: timeseries/theta fails its checksum"):
         run_campaign(study_from_toml(STUDY.format(output=output)), output, resume=True)
+
+
+@pytest.mark.parametrize("history", ["one run", "appended in batches", "truncated then appended",
+                                     "resumed mid-series"])
+def test_the_checksums_written_at_the_end_are_those_of_the_bytes_stored(tmp_path, history):
+    """An ended case's checksums come from the rows its writer appended (a running BLAKE2b) or, where
+    the writer did not append every row from the first on, from a read-back: either way they are
+    digest() of the valid part as stored."""
+    from hpcves.run.store import digest
+
+    case = case_from_toml(CASE)
+    rng = np.random.default_rng(5)
+
+    def rows(k):
+        return [{name: (rng.normal(size=2) if name == "centroid" else rng.normal()) for name in SERIES}
+                for _ in range(k)]
+
+    def snaps(k, width):
+        return [{"t": rng.normal(), "shift": rng.normal(),
+                 **{name: rng.normal(size=width) for name in SNAPSHOT_RECORDS if name not in ("t", "shift")}}
+                for _ in range(k)]
+
+    path = tmp_path / "case.h5"
+    with h5py.File(path, "w") as f:
+        store = CaseStore.create(f, case)
+        width = store.width
+        store.append_samples(rows(3))
+        store.append_snapshots(snaps(2, width))
+        if history != "one run":
+            store.append_samples(rows(4))
+            store.append_snapshots(snaps(1, width))
+        if history == "truncated then appended":
+            store.truncate(5, 1)
+            store.append_samples(rows(2))
+            store.append_snapshots(snaps(2, width))
+        if history == "resumed mid-series":
+            store = CaseStore.open(f)          # a new writer: the rows before it were written by another
+            store.truncate(6, 2)
+            store.append_samples(rows(3))
+            store.append_snapshots(snaps(1, width))
+        store.set_status(FINISHED)
+    with h5py.File(path, "r") as f:
+        store = CaseStore.open(f)
+        stored = np.concatenate([f["timeseries/digest"][()], f["snapshots/digest"][()]])
+        assert [int(d) for d in stored] == [digest(values) for _, values in store._records()]
+        assert store.data_damage() == [] and store.n_samples == {"one run": 3, "appended in batches": 7,
+                                                                  "truncated then appended": 7,
+                                                                  "resumed mid-series": 9}[history]

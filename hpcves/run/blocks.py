@@ -159,7 +159,8 @@ class Blocks:
 
     def __init__(self, h5):
         self.group = h5[BLOCKS]
-        #: per block: the attributes its rows share, and the writer's ids (kept for the file's life)
+        #: per block: the attributes its rows share, and the writer's ids (kept until the block grows or
+        #: shrinks: they hold its file spaces)
         self._attrs, self._ids = {}, {}
         #: per block: (its group, its rows, which datasets it holds), until it grows or shrinks
         self._open = {}
@@ -206,6 +207,7 @@ class Blocks:
             for k, i in enumerate(members):
                 out[i] = (int(block), start + k)
         self._open.clear()
+        self._ids.clear()
         return out
 
     def _new_block(self, shape: tuple[int, int, int]) -> str:
@@ -224,6 +226,7 @@ class Blocks:
     def shrink(self, used: dict[int, int]) -> None:
         """Drop the rows beyond ``used[block]`` of every block (a half-added stage; serial access)."""
         self._open.clear()
+        self._ids.clear()
         for block in self.names():
             keep = used.get(int(block), 0)
             group = self.group[block]
@@ -247,14 +250,13 @@ class Blocks:
             self._attrs[name] = {"format": FORMAT, "format_version": version,
                                  "hpcves_version": a.get("hpcves_version", ""),
                                  "sample_capacity": shape[1], "snapshot_capacity": shape[2]}
-            self._ids[name] = {}
         if name not in self._open:
             self._open[name] = (self.group[name], self.rows(name), {})
         group, rows, present = self._open[name]
         if not 0 <= row < rows:
             raise FileFormatError(f"{where}: row {row} lies outside block {name}'s {rows}")
         attrs = RowAttrs(self._attrs[name], config, where, extra or {})
-        return CaseStore(place=RowPlace(group, row, attrs, where, self._ids[name], present))
+        return CaseStore(place=RowPlace(group, row, attrs, where, self._ids.setdefault(name, {}), present))
 
 
 def find_case(h5, case_id: str, where: str) -> CaseStore:
