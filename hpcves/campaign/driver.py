@@ -67,7 +67,7 @@ from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
 from hpcves.campaign.queue import Task, WorkQueue, computing_ranks
-from hpcves.campaign.relay import Relay, RemoteCaseStore
+from hpcves.campaign.relay import Relay, RemoteCampaign, RemoteCaseStore
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
@@ -423,6 +423,8 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: Analys
                     comm.send(("progress", case_id, fraction), dest=0, tag=TAG_REQUEST)
 
             result = run_one(campaign, task, flush, rank, stop_requested, progress, analysis, classify)
+            if isinstance(campaign, RemoteCampaign):
+                campaign.send_pending()             # rank 0 takes the "done" after every write of the case
             comm.send(("done", result), dest=0, tag=TAG_REQUEST)
             backoff.reset()
         else:

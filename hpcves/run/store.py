@@ -889,12 +889,12 @@ def digest(values) -> int:
 
 
 def _digest_bytes(values) -> np.ndarray:
-    """An array's bytes in C order, little-endian: what :func:`digest` hashes (rows hashed one batch
-    after another give the digest of them all)."""
+    """The array whose bytes (C order, little-endian) :func:`digest` hashes (rows hashed one batch after
+    another give the digest of them all)."""
     data = np.ascontiguousarray(values)
     if data.dtype.byteorder == ">" or (data.dtype.byteorder == "=" and np.little_endian is False):
         data = data.astype(data.dtype.newbyteorder("<"))
-    return data.reshape(-1).view(np.uint8)
+    return data                        # hashlib reads a C-contiguous array's buffer: its bytes in C order
 
 
 def _slab(dataset, prefix: tuple, start: int | None, rows: int | None, space=None, shape=None) -> tuple:
