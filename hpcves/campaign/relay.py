@@ -115,7 +115,7 @@ class RemoteCaseStore:
 
     def _read(self, name: str):
         self.campaign.send_pending()
-        self.comm.send(("read", self.case_id, name), dest=0, tag=self._request_tag)
+        self.campaign.post(("read", self.case_id, name))
         self._wait(lambda: self.comm.Iprobe(source=0, tag=self._reply_tag))
         verdict, value = self.comm.recv(source=0, tag=self._reply_tag)
         if verdict == "error":
@@ -182,6 +182,9 @@ class RemoteCampaign:
         self.comm, self.tags, self.wait = comm, (request_tag, reply_tag), wait
         #: [(case id, CaseStore method, arguments)] not sent yet, in the order they were made
         self.pending = []
+        #: sends on their way (MPI keeps them in order): a blocking send past the eager limit spins
+        #: until rank 0 takes it
+        self._sent = []
 
     def store(self, case_id: str) -> RemoteCaseStore:
         return RemoteCaseStore(self, case_id)
@@ -190,7 +193,17 @@ class RemoteCampaign:
         """Send the pending writes to rank 0 as one message (and ask it to flush the file after them)."""
         if self.pending or flush:
             writes, self.pending = self.pending, []
-            self.comm.send(("writes", writes, flush), dest=0, tag=self.tags[0])
+            self.post(("writes", writes, flush))
+
+    def post(self, message: tuple) -> None:
+        """Send ``message`` to rank 0 without waiting for it to be taken."""
+        self._sent = [request for request in self._sent if not request.Test()]
+        self._sent.append(self.comm.isend(message, dest=0, tag=self.tags[0]))
+
+    def wait_sent(self) -> None:
+        """Wait until rank 0 has taken every message sent (before this rank leaves the campaign)."""
+        self.wait(lambda: all(request.Test() for request in self._sent))
+        self._sent = []
 
     def flush(self) -> None:
         self.send_pending(flush=True)
