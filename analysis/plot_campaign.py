@@ -30,7 +30,7 @@ def main(argv=None):
                 store = campaign.store(case_id)
                 snapshots = store.snapshots()
                 last = {k: snapshots[k][-1] for k in ("x", "y", "psi")} if len(snapshots["t"]) else None
-                attrs = dict(store.group.attrs)
+                attrs = dict(store.attrs)
                 cases.append({"id": case_id, "status": STATUS_NAMES[store.status], "series": store.timeseries(),
                               "snapshots": snapshots, "last": last, "title": case_title(attrs),
                               **{k: attrs[f"physics.{k}"] for k in keys}})

@@ -254,3 +254,19 @@ def test_case_pages_are_drawn_for_the_cases_asked_for_and_alike_in_parallel(camp
     analyze(campaign, tmp_path / "none", write_to_file=False, case_figures=False)
     assert (tmp_path / "none" / "regimes.csv").read_bytes() == (tmp_path / "serial" / "regimes.csv").read_bytes()
     assert not (tmp_path / "none" / "cases").exists()
+
+
+def test_the_overview_script_draws_every_case_of_a_campaign(campaign, tmp_path):
+    """analysis/plot_campaign.py (make demo's last step) reads a campaign of the current layout, whose
+    cases are rows of blocks with no group of their own, and draws the overview and one page a case."""
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parent.parent / "analysis" / "plot_campaign.py"
+    out = subprocess.run([sys.executable, str(script), str(campaign), "--out", str(tmp_path / "overview.png"),
+                          "--cases", str(tmp_path / "cases")], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    with h5py.File(campaign, "r") as f:
+        assert "blocks" in f
+        n = int(f.attrs["n_cases"])
+    pages = sorted(p.name for p in (tmp_path / "cases").glob("*.png"))
+    assert (tmp_path / "overview.png").stat().st_size > 10_000 and len(pages) == n == 4
