@@ -304,8 +304,9 @@ class Master:
     def received(self) -> list[tuple[int, tuple]]:
         """[(rank, message)] of the messages that have arrived whole, each rank's in the order it sent
         them. A message is matched, then received without blocking: a blocking receive of one past
-        MPI's eager limit waits, spinning, until its sender's process gets a core to send the rest --
-        half of rank 0's CPU under relay at -n 16 on 2 cores."""
+        MPI's eager limit waits, spinning, until its sender's process gets a core to send the rest
+        (47 % of rank 0's py-spy samples under relay at -n 16 on 2 cores), while other ranks wait
+        for their replies."""
         status = self._status
         while (matched := self.comm.improbe(source=self._any_source, tag=TAG_REQUEST, status=status)) is not None:
             self.incoming.append((status.Get_source(), matched.irecv()))

@@ -11,13 +11,14 @@ worker's scheduling messages, and MPI never reorders messages between two
 ranks on one tag, so rank 0 applies each worker's writes in the order they
 were made, and its "done" after all of them. A worker gathers its writes and
 sends them in one message when it flushes, reads, writes a checkpoint or
-reports (rank 0 receiving ~20 messages a tiny case took a fifth of its time);
-a write the worker has not sent yet is one the file had not made durable
-either. The file therefore always holds a prefix of each case's writes --
-exactly what the checkpoint protocol (invalidate the slot, write it, validate
-it) needs to survive a kill at any moment, as it does under ``mpio``. Reads are a round trip; a run makes a few
-when it starts (its case's text, progress, newest checkpoint and, when it resumes or runs until
-decided, its series so far) and none after.
+reports its case (~10 messages a tiny case instead of ~25); a write the worker
+has not sent yet is one the file had not made durable either. The file
+therefore always holds a prefix of each case's writes -- exactly what the
+checkpoint protocol (invalidate the slot, write it, validate it) needs to
+survive a kill at any moment, as it does under ``mpio``. Reads are a round
+trip; a run makes a few when it starts (its case's text, progress, newest
+checkpoint and, when it resumes or runs until decided, its series so far) and
+none after.
 """
 from __future__ import annotations
 
@@ -80,7 +81,6 @@ class Relay:
             self._replies[source] = comm.isend(reply, dest=source, tag=self.reply_tag)
         else:
             raise ValueError(f"rank {source} sent an unknown file request {kind!r}")
-
 
     def _write(self, source: int, case_id: str, name: str, args: tuple) -> None:
         if name not in WRITES:
