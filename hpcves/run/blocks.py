@@ -23,9 +23,10 @@ import numpy as np
 from hpcves import __version__
 from hpcves.files import faults
 from hpcves.model.params import Case
-from hpcves.run.diagnostics import SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
+from hpcves.run.diagnostics import SERIES, SNAPSHOT_FIELDS
 from hpcves.run.store import (FORMAT, FORMAT_VERSION, MESSAGE_BYTES, NOT_DECIDED, SNAPSHOT_RECORDS, TRACEBACK_BYTES,
-                              CaseStore, FileFormatError, attr_integer, capacities, stored_case, stored_N, _N_SCALARS)
+                              CaseStore, FileFormatError, attr_integer, capacities, name_records, stored_case, stored_N,
+                              _early, _N_SCALARS)
 from hpcves.run.timestepping import State
 
 BLOCKS = "blocks"
@@ -75,11 +76,7 @@ def _describe(group, shape: tuple[int, int, int]) -> None:
     scales["alpha"].attrs["long_name"] = "material label of the node (alpha = j / N)"
     for name, scale in scales.items():
         scale.make_scale(name)
-    for sub, table in (("timeseries", SERIES_ATTRS), ("snapshots", SNAPSHOT_ATTRS)):
-        for name, (long_name, units) in table.items():
-            if name in group[sub]:
-                group[sub][name].attrs["long_name"] = long_name
-                group[sub][name].attrs["units"] = units
+    name_records(group["timeseries"], group["snapshots"])
     labelled = {"status", "message", "traceback", "timeseries/length", "snapshots/length",       # (netCDF readers
                 *(f"timeseries/{n}" for n in SERIES), *(f"snapshots/{n}" for n in SNAPSHOT_RECORDS),  # refuse arrays
                 *(f"checkpoint/{s}/{n}" for s in ("slot0", "slot1") for n in State.ARRAYS)}     # with some axes
@@ -95,12 +92,6 @@ def _describe(group, shape: tuple[int, int, int]) -> None:
     for slot in ("slot0", "slot1"):
         for name in State.ARRAYS:
             group[f"checkpoint/{slot}/{name}"].dims[1].attach_scale(scales["alpha"])
-
-
-def _early():
-    plist = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
-    plist.set_alloc_time(h5py.h5d.ALLOC_TIME_EARLY)
-    return plist
 
 
 class RowAttrs(collections.abc.Mapping):

@@ -287,6 +287,15 @@ def _early():
     return plist
 
 
+def name_records(ts, snap) -> None:
+    """``long_name`` and ``units`` on every series (group ``ts``) and snapshot field (``snap``) present."""
+    for group, table in ((ts, SERIES_ATTRS), (snap, SNAPSHOT_ATTRS)):
+        for name, (long_name, units) in table.items():
+            if name in group:
+                group[name].attrs["long_name"] = long_name
+                group[name].attrs["units"] = units
+
+
 def describe(ts, snap) -> None:
     """``long_name`` and ``units`` on every series and snapshot field, and HDF5 dimension scales:
     ``timeseries/t`` along the rows of every series (``timeseries/xy`` = 0, 1 along ``centroid``'s columns),
@@ -294,11 +303,7 @@ def describe(ts, snap) -> None:
     netCDF readers (xarray's h5netcdf engine, ncdump) take as dimensions. Static metadata, written
     with the layout; files from before it lack them and read the same.
     """
-    for group, table in ((ts, SERIES_ATTRS), (snap, SNAPSHOT_ATTRS)):
-        for name, (long_name, units) in table.items():
-            if name in group:
-                group[name].attrs["long_name"] = long_name
-                group[name].attrs["units"] = units
+    name_records(ts, snap)
     ts["t"].make_scale("t")
     for name in SERIES:
         if name != "t":
@@ -338,7 +343,8 @@ class GroupPlace:
 
 class CaseStore:
     """Reads and writes one case where ``place`` keeps it: a :class:`GroupPlace` (an h5py Group of its
-    own, formats 2-5) or a row of arrays with a case dimension (run/blocks.py, format 6)."""
+    own: ``hpcves run``'s file, a format-1 campaign's case) or a row of arrays with a case dimension
+    (run/blocks.py: campaign format 2)."""
 
     def __init__(self, group=None, *, place=None):
         self._place = place if place is not None else GroupPlace(group)
@@ -612,13 +618,15 @@ class CaseStore:
                                        dataset.get_space(), _memory_type(dataset.dtype))
         return found
 
-    def _put(self, path: str, values, start: int | None = None) -> None:
-        """Write ``values`` to the case's array at ``path``, whole or from row ``start`` on."""
+    def _put(self, path: str, values, start: int | None = None) -> np.ndarray:
+        """Write ``values`` to the case's array at ``path``, whole or from row ``start`` on; returns
+        them as written (in the dataset's dtype)."""
         dataset, dtype, shape, space, mtype = self._id(path)
         values = np.asarray(values, dtype=dtype, order="C")
         _, memory, space = _slab(dataset, self._place.prefix, start, None if start is None else len(values), space,
                                  shape)
         dataset.write(memory, space, values, mtype=mtype)
+        return values
 
     def _get(self, path: str, rows: int | None = None) -> np.ndarray:
         """The case's array at ``path`` (through the writer's id), whole or its first ``rows`` rows."""
@@ -648,8 +656,7 @@ class CaseStore:
 
         The checksum is of the bytes handed to HDF5, not of a read-back: a write that stored other
         bytes is then caught by the checks, not blessed."""
-        values = np.asarray(values, dtype=self._id(path)[1], order="C")
-        self._put(path, values, start)
+        values = self._put(path, values, start)
         hashed, rows = self._running.get(path, (None, 0))
         if start == 0:
             hashed, rows = hashlib.blake2b(digest_size=8), 0
