@@ -3,6 +3,7 @@
 Everything here waits for *states* (a file, a status in it, processes gone), never for a time:
 the machines are shared and slow down without warning. A timeout only guards against a hang.
 """
+import contextlib
 import os
 import shutil
 import subprocess
@@ -12,9 +13,24 @@ import time
 import h5py
 import numpy as np
 
+from hpcves.campaign import file as campaign_file
+from hpcves.files import atomic
+
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
 MPIRUN = shutil.which("mpirun")
 HANG = float(os.environ.get("HPCVES_TEST_HANG", 300.0))      # seconds: only a hang takes this long
+
+
+@contextlib.contextmanager
+def writing_format_1():
+    """Campaign files written as hpcves wrote them before campaign format 2: a group per case, in HDF5's
+    earliest file formats (h5py's default libver)."""
+    saved = campaign_file.WRITES_VERSION, atomic.FILE_FORMAT
+    campaign_file.WRITES_VERSION, atomic.FILE_FORMAT = 1, ("earliest", "v110")
+    try:
+        yield
+    finally:
+        campaign_file.WRITES_VERSION, atomic.FILE_FORMAT = saved
 
 
 def mpi_env(**extra):

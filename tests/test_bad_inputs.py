@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from jobs import case_view
+from jobs import case_view, writing_format_1
 
-from hpcves.campaign import file as campaign_file
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import CaseStore
 from hpcves.cli import main
@@ -300,11 +299,8 @@ def sound_v1(sound, tmp_path_factory):
     """The campaign of ``sound`` in the older layout (format 1: a group per case)."""
     study_file, _, single = sound
     campaign = tmp_path_factory.mktemp("sound_v1") / "campaign.h5"
-    campaign_file.WRITES_VERSION = 1
-    try:
+    with writing_format_1():
         assert run_campaign(study_from_toml(study_file.read_text()), campaign).exit_status == 0
-    finally:
-        campaign_file.WRITES_VERSION = campaign_file.FORMAT_VERSION
     with h5py.File(campaign, "r") as f:
         assert f.attrs["format_version"] == 1 and "cases" in f
     return study_file, campaign, single

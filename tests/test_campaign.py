@@ -19,7 +19,7 @@ from hpcves.campaign import access
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
 from hpcves.files.lock import CampaignLock
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
 from hpcves.model.params import ConfigError
 from hpcves.campaign.study import study_from_toml
 
@@ -100,6 +100,9 @@ def test_layout_and_status_command(reference):
         assert int(g["status"][()]) == FINISHED
         assert {"checkpoint/slot0/meta", "checkpoint/slot1/meta"} <= set(g.names())
         assert f["index/block"][2] == 0 and f["index/row"][2] == 2 and f["blocks/0/status"].shape == (4,)
+        # HDF5 1.8's superblock (no open-for-writing mark: read while written), 1.10's object formats
+        assert h5py.h5o.get_info(f["blocks/0/timeseries/t"].id).hdr.version == 2
+    assert superblock_version(reference) == 2
     result = hpcves("status", reference)
     assert result.returncode == 0, result.stderr
     lines = result.stdout.splitlines()

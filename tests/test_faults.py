@@ -13,12 +13,11 @@ import time
 import h5py
 import numpy as np
 import pytest
-from jobs import (MPIRUN, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
+from jobs import (MPIRUN, writing_format_1, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
                   start_job, thaw, wait_until)
 from test_campaign import TINY_RUN
 
 from hpcves.campaign import driver as campaign_module
-from hpcves.campaign import file as campaign_file
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED, RUNNING, CaseStore
 from hpcves.campaign.study import study_from_toml
@@ -420,11 +419,8 @@ def finished_v1(tmp_path_factory):
     """``finished`` in the older layout (campaign format 1: a group per case)."""
     directory = tmp_path_factory.mktemp("finished_v1")
     path, output = write_study(directory, t_end=0.05, checkpoint=0.02)
-    campaign_file.WRITES_VERSION = 1
-    try:
+    with writing_format_1():
         assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
-    finally:
-        campaign_file.WRITES_VERSION = campaign_file.FORMAT_VERSION
     return path, output
 
 

@@ -14,13 +14,13 @@ import pytest
 from hpcves.campaign import file as campaign_file
 from hpcves.reports.analyze import analyze
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.store import FINISHED
+from hpcves.run.store import FINISHED, superblock_version
 from hpcves.model.params import ConfigError
 from hpcves.analysis.search import CONVERGED, UNBRACKETED
 from hpcves.reports.critical import CRITICAL_COLUMNS
 from hpcves.campaign.study import study_from_toml
 
-from jobs import assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until
+from jobs import writing_format_1, assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
 SEARCH = """
@@ -268,9 +268,8 @@ def test_a_search_in_a_file_of_the_older_layout_continues_in_it(searched, tmp_pa
             raise KeyboardInterrupt
         return real_add(path, comm, cases, stage, source)
 
-    monkeypatch.setattr(campaign_file, "WRITES_VERSION", 1)
     monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt), writing_format_1():
         run_campaign(study, output)
     monkeypatch.undo()
     with h5py.File(output, "r") as f:
@@ -280,4 +279,5 @@ def test_a_search_in_a_file_of_the_older_layout_continues_in_it(searched, tmp_pa
     with h5py.File(output, "r") as f:
         assert f.attrs["format_version"] == 1 and "blocks" not in f
         assert len(f["cases"]) == f.attrs["n_cases"] > before
+    assert superblock_version(output) == 0                 # and in HDF5's formats it was written in
     assert_same_results(output, reference)

@@ -122,14 +122,26 @@ def publish(partial, path) -> None:
         os.close(fd)
 
 
+#: the HDF5 formats a new file is made in (h5py's ``libver``): superblock version 2 (HDF5 1.8), which --
+#: unlike 1.10's version 3 -- marks no file as open for writing, so that a file is read while it is
+#: written (``hpcves status`` of a running campaign) and one whose writer was killed opens without
+#: h5clear. What goes into it is written in HDF5 1.10's formats (run/store.py: OBJECT_FORMAT).
+FILE_FORMAT = ("v108", "v108")
+
+
 @functools.cache
-def empty_hdf5_image() -> bytes:
-    """The bytes of an HDF5 file with nothing in it (made in memory: HDF5 writes nothing to disk)."""
+def empty_hdf5_image(libver: tuple[str, str]) -> bytes:
+    """The bytes of an HDF5 file with nothing in it, in the formats ``libver``, closed (made in memory:
+    HDF5 writes nothing to disk; an image taken while the file is open has the superblock of an open
+    file, whose checksum fails)."""
+    import io
+
     import h5py
 
-    with h5py.File("hpcves-empty.h5", "w", driver="core", backing_store=False) as h5:
-        h5.flush()
-        return h5.id.get_file_image()
+    image = io.BytesIO()
+    with h5py.File(image, "w", libver=libver):
+        pass
+    return image.getvalue()
 
 
 def _reserve(fd: int, nbytes: int) -> None:
@@ -150,7 +162,7 @@ def new_partial(path, nbytes: float, what: str) -> Path:
         fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         try:
             _reserve(fd, nbytes)
-            os.pwrite(fd, empty_hdf5_image(), 0)
+            os.pwrite(fd, empty_hdf5_image(FILE_FORMAT), 0)
         finally:
             os.close(fd)
     except OSError as exc:

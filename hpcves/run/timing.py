@@ -96,12 +96,13 @@ def layout_seconds(case: Case, count: int = 256) -> float:
     import h5py
 
     from hpcves.run.blocks import Blocks
+    from hpcves.run.store import OBJECT_FORMAT
 
     run = case.run
     t_end = min(run.t_end, LAYOUT_ROWS * max(run.sample_interval, case.numerics.dt or 0.0))
     if t_end < run.t_end:
         case = dataclasses.replace(case, run=dataclasses.replace(run, t_end=t_end))
-    with h5py.File("layout.h5", "w", driver="core", backing_store=False) as h5:
+    with h5py.File("layout.h5", "w", driver="core", backing_store=False, libver=OBJECT_FORMAT) as h5:
         blocks = Blocks.create(h5)
         blocks.add([case])
         start = time.perf_counter()
