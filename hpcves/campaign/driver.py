@@ -174,14 +174,16 @@ def work_list(statuses: dict[str, int], study: Study, retry_failed: bool) -> lis
 
     Finished cases and those that reached the model's limit are skipped; failed ones too,
     unless ``retry_failed`` (then they start over, but those a refinement ran again at a larger N);
-    everything else continues from its last valid checkpoint.
+    a case that started continues from its last valid checkpoint, and one still pending starts without
+    looking for one (it has none: its status is written before its first checkpoint; under relay the
+    look costs two round trips to rank 0 a case).
     """
     todo = []
     again = run_again(study)
     for case_id, status in statuses.items():
         if status in (FINISHED, MODEL_LIMIT) or (status == FAILED and (not retry_failed or case_id in again)):
             continue
-        todo.append((case_id, status != FAILED))
+        todo.append((case_id, status not in (FAILED, PENDING)))
     todo.sort(key=lambda item: (-study.by_id(item[0]).cost, item[0]))
     return todo
 
@@ -734,7 +736,7 @@ def _stage_line(study, statuses, todo, stage) -> str:
     """What a stage runs: cases to run, resumed, finished and failed before."""
     finished = sum(1 for s in statuses.values() if s == FINISHED)
     failed = sum(1 for s in statuses.values() if s == FAILED)
-    resumed = sum(1 for case_id, resume in todo if resume and statuses[case_id] != PENDING)
+    resumed = sum(1 for case_id, resume in todo if resume)
     parts = [f"{len(todo)} to run"]
     if resumed:
         parts.append(f"{resumed} from a checkpoint")
