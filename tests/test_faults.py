@@ -13,8 +13,8 @@ import time
 import h5py
 import numpy as np
 import pytest
-from jobs import (MPIRUN, writing_format_1, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
-                  start_job, thaw, wait_until)
+from jobs import (MPIRUN, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
+                  start_job, thaw, wait_until, writing_format_1)
 from test_campaign import TINY_RUN
 
 from hpcves.campaign import driver as campaign_module

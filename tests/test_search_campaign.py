@@ -20,7 +20,8 @@ from hpcves.analysis.search import CONVERGED, UNBRACKETED
 from hpcves.reports.critical import CRITICAL_COLUMNS
 from hpcves.campaign.study import study_from_toml
 
-from jobs import writing_format_1, assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until
+from jobs import (assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until,
+                  writing_format_1)
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
 SEARCH = """
