@@ -33,6 +33,18 @@ def writing_format_1():
         campaign_file.WRITES_VERSION, atomic.FILE_FORMAT = saved
 
 
+@contextlib.contextmanager
+def writing_format_2():
+    """Campaign files written as hpcves wrote them before campaign format 3: blocks with a dataset a
+    record (nothing packed)."""
+    saved = campaign_file.WRITES_VERSION
+    campaign_file.WRITES_VERSION = 2
+    try:
+        yield
+    finally:
+        campaign_file.WRITES_VERSION = saved
+
+
 def mpi_env(**extra):
     env = dict(os.environ)
     env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
@@ -172,14 +184,25 @@ class CaseView:
         else:
             self.group, self.row = store._place.block, store._place.prefix[0]
 
+    def _column(self, name):
+        return self.store._place.column(name)
+
     def path(self, name):
-        return f"{self.group.name}/{name}"
+        column = self._column(name)
+        return f"{self.group.name}/{column.array if column else name}"
 
     def __getitem__(self, name):
-        d = self.group[name]
-        return np.asarray(d[()] if self.row is None else d[self.row])
+        column = self._column(name)
+        d = self.group[column.array if column else name]
+        value = np.asarray(d[()] if self.row is None else d[self.row])
+        return value if column is None else np.ascontiguousarray(value[column.index()])
 
     def __setitem__(self, name, value):
+        column = self._column(name)
+        if column is not None:                  # a record of a packed array (campaign format 3)
+            whole = self.group[column.array][self.row]
+            whole[column.index()] = value
+            name, value = column.array, whole
         d = self.group[name]
         if self.row is None:
             d[()] = value
@@ -187,13 +210,20 @@ class CaseView:
             d[self.row] = value
 
     def __contains__(self, name):
-        return name in self.group
+        column = self._column(name)
+        return (column.array if column else name) in self.group
 
     def names(self):
+        """Its records (a packed array's as the records it holds, so files of every layout compare)."""
         found = []
         self.group.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
-        scales = ("snapshots/alpha", "timeseries/xy") if self.row is None else ("case", "sample", "snapshot", "alpha", "xy")
-        return [n for n in found if n not in scales]
+        scales = ("snapshots/alpha", "timeseries/xy") if self.row is None else (
+            "case", "sample", "snapshot", "alpha", "xy", "timeseries/quantity", "timeseries/long_name",
+            "timeseries/units", "snapshots/field", "snapshots/long_name", "snapshots/units", "checkpoint/array")
+        records = {}
+        for record, column in getattr(self.store._place, "_columns", {}).items():
+            records.setdefault(column.array, []).append(record)
+        return [record for n in found if n not in scales for record in records.get(n, [n])]
 
 
 def case_view(f, case_id):

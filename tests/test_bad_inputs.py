@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from jobs import case_view, writing_format_1
+from jobs import case_view, writing_format_1, writing_format_2
 
 from hpcves.campaign.driver import run_campaign
+from hpcves.run.blocks import QUANTITIES
 from hpcves.run.store import CaseStore
 from hpcves.cli import main
 from hpcves.config import case_from_toml
@@ -306,6 +307,18 @@ def sound_v1(sound, tmp_path_factory):
     return study_file, campaign, single
 
 
+@pytest.fixture(scope="module")
+def sound_v2(sound, tmp_path_factory):
+    """The campaign of ``sound`` in campaign format 2 (blocks, a dataset a record)."""
+    study_file, _, single = sound
+    campaign = tmp_path_factory.mktemp("sound_v2") / "campaign.h5"
+    with writing_format_2():
+        assert run_campaign(study_from_toml(study_file.read_text()), campaign).exit_status == 0
+    with h5py.File(campaign, "r") as f:
+        assert f.attrs["format_version"] == 2 and "blocks/0/timeseries/theta" in f
+    return study_file, campaign, single
+
+
 def header_of(f, name):
     return h5py.h5o.get_info(f[name].id).addr
 
@@ -379,6 +392,7 @@ def symlink_loop(path):
 
 #: damaged campaign files: damage -> (words, commands that must refuse it)
 ALL = ("status", "analyze", "resume")
+N_QUANTITIES = len(QUANTITIES)
 CAMPAIGN_DAMAGE = {
     "random bytes": (replace_bytes(lambda d: np.random.default_rng(1).bytes(4096)), "not a readable HDF5", ALL),
     "zeros": (replace_bytes(lambda d: bytes(len(d))), "not a readable HDF5", ALL),
@@ -405,11 +419,18 @@ CAMPAIGN_DAMAGE = {
     "finished, half the samples": (edit(set_case("0003", "timeseries/length", 2)), "finished, but holds", ALL),
     "no blocks": (edit(lambda f: f.__delitem__("blocks")), "missing blocks", ALL),
     "no status in the block": (edit(lambda f: f.__delitem__("blocks/0/status")), "0000", ALL),
-    "no theta in the block": (edit(lambda f: f.__delitem__("blocks/0/timeseries/theta")),
-                              "timeseries/theta is missing", ALL),
-    "theta of the wrong size": (edit(recreate("blocks/0/timeseries/theta", data=np.zeros((4, 3)))), "shape (3,)", ALL),
-    "checkpoint of the wrong size": (edit(recreate("blocks/0/checkpoint/slot1/psi", data=np.zeros((4, 33)))),
-                                     "checkpoint/slot1/psi has shape (33,)", ALL),
+    "no series in the block": (edit(lambda f: f.__delitem__("blocks/0/timeseries/series")),
+                               "timeseries/series is missing", ALL),
+    "series of the wrong length": (edit(recreate("blocks/0/timeseries/series", data=np.zeros((4, 3, N_QUANTITIES)))),
+                                   f"timeseries/series has shape (3, {N_QUANTITIES})", ALL),
+    "a quantity short": (edit(recreate("blocks/0/timeseries/series", data=np.zeros((4, 6, N_QUANTITIES - 1)))),
+                         f"expected (6, {N_QUANTITIES})", ALL),
+    "snapshot fields of the wrong width": (edit(recreate("blocks/0/snapshots/fields", data=np.zeros((4, 5, 7, 33)))),
+                                           "snapshots/fields has shape (5, 7, 33)", ALL),
+    "checkpoint of the wrong size": (edit(recreate("blocks/0/checkpoint/slot1/arrays", data=np.zeros((4, 8, 33)))),
+                                     "checkpoint/slot1/arrays has shape (8, 33)", ALL),
+    "a checkpoint array short": (edit(recreate("blocks/0/checkpoint/slot0/arrays", data=np.zeros((4, 7, 32)))),
+                                 "checkpoint/slot0/arrays has shape (7, 32)", ALL),
     "scalars of the wrong type": (edit(recreate("blocks/0/checkpoint/slot0/scalars", data=np.zeros((4, 10), "i4"))),
                                   "checkpoint/slot0/scalars has shape", ALL),
     "a block with fewer rows": (edit(recreate("blocks/0/progress", data=np.zeros((2, 4)))), "0002", ALL),
@@ -426,8 +447,10 @@ CAMPAIGN_DAMAGE = {
     "config of another case": (edit(set_config("0000", lambda f: f["index/config"][1])),
                                "config differs from its study's case", ("resume",)),
     "header of the block's status flipped": (flip("blocks/0/status"), "", ALL),
-    "header of the block's series flipped": (flip("blocks/0/timeseries/theta"), "0000", ALL),
+    "header of the block's series flipped": (flip("blocks/0/timeseries/series"), "0000", ALL),
+    "header of the block's snapshot fields flipped": (flip("blocks/0/snapshots/fields"), "0000", ALL),
     "header of the block's checkpoint flipped": (flip("blocks/0/checkpoint/slot1/meta"), "0000", ALL),
+    "header of the block's checkpoint arrays flipped": (flip("blocks/0/checkpoint/slot0/arrays"), "0000", ALL),
     "header of a block group flipped": (flip("blocks/0"), "", ALL),
     "header of the config column flipped": (flip("index/config"), "", ALL),
     "format version 1.5": (edit(lambda f: f.attrs.__setitem__("format_version", 1.5)), "format version 1.5", ALL),
@@ -436,6 +459,19 @@ CAMPAIGN_DAMAGE = {
     "an unknown mode": (edit(lambda f: f.attrs.__setitem__("mode", "bogus")), "mode 'bogus' is not a kind", ALL),
     "case count 4.5": (edit(lambda f: f.attrs.__setitem__("n_cases", 4.5)), "case count 4.5 is not a count", ALL),
     "header of the index flipped": (flip("index/case_id"), "", ALL),
+}
+#: damage to files of campaign format 2 (blocks with a dataset a record)
+CAMPAIGN_V2_DAMAGE = {
+    "unknown status": (edit(set_case("0003", "status", 77)), "status 77 is not a status", ALL),
+    "finished, half the samples": (edit(set_case("0003", "timeseries/length", 2)), "finished, but holds", ALL),
+    "no theta in the block": (edit(lambda f: f.__delitem__("blocks/0/timeseries/theta")),
+                              "timeseries/theta is missing", ALL),
+    "theta of the wrong size": (edit(recreate("blocks/0/timeseries/theta", data=np.zeros((4, 3)))), "shape (3,)", ALL),
+    "checkpoint of the wrong size": (edit(recreate("blocks/0/checkpoint/slot1/psi", data=np.zeros((4, 33)))),
+                                     "checkpoint/slot1/psi has shape (33,)", ALL),
+    "header of the block's series flipped": (flip("blocks/0/timeseries/theta"), "0000", ALL),
+    "a block of another format version": (edit(lambda f: f["blocks/0"].attrs.__setitem__("format_version", 99)),
+                                          "format version 99", ALL),
 }
 #: damage to files of the older layout (a group per case)
 CAMPAIGN_V1_DAMAGE = {
@@ -477,11 +513,11 @@ def damaged(sound, tmp_path, name, table=CAMPAIGN_DAMAGE):
     return study_file, copy
 
 
-@pytest.mark.parametrize("layout, name", [(2, name) for name in CAMPAIGN_DAMAGE]
-                         + [(1, name) for name in CAMPAIGN_V1_DAMAGE])
-def test_a_damaged_campaign_file(sound, sound_v1, tmp_path, layout, name):
-    table = CAMPAIGN_DAMAGE if layout == 2 else CAMPAIGN_V1_DAMAGE
-    study_file, copy = damaged(sound if layout == 2 else sound_v1, tmp_path, name, table)
+@pytest.mark.parametrize("layout, name", [(3, name) for name in CAMPAIGN_DAMAGE]
+                         + [(2, name) for name in CAMPAIGN_V2_DAMAGE] + [(1, name) for name in CAMPAIGN_V1_DAMAGE])
+def test_a_damaged_campaign_file(sound, sound_v2, sound_v1, tmp_path, layout, name):
+    table = {3: CAMPAIGN_DAMAGE, 2: CAMPAIGN_V2_DAMAGE, 1: CAMPAIGN_V1_DAMAGE}[layout]
+    study_file, copy = damaged({3: sound, 2: sound_v2, 1: sound_v1}[layout], tmp_path, name, table)
     _, words, commands = table[name]
     calls = {"status": ("status", "--check", copy),
              "analyze": ("analyze", copy, "--out", tmp_path / "a", "--no-case-figures", "--no-write-back"),

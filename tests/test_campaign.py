@@ -18,6 +18,7 @@ from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, case_store, 
 from hpcves.campaign import access
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
+from hpcves.run.blocks import QUANTITIES
 from hpcves.files.lock import CampaignLock
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
 from hpcves.model.params import ConfigError
@@ -101,7 +102,8 @@ def test_layout_and_status_command(reference):
         assert {"checkpoint/slot0/meta", "checkpoint/slot1/meta"} <= set(g.names())
         assert f["index/block"][2] == 0 and f["index/row"][2] == 2 and f["blocks/0/status"].shape == (4,)
         # HDF5 1.8's superblock (no open-for-writing mark: read while written), 1.10's object formats
-        assert h5py.h5o.get_info(f["blocks/0/timeseries/t"].id).hdr.version == 2
+        assert h5py.h5o.get_info(f["blocks/0/timeseries/series"].id).hdr.version == 2
+        assert f.attrs["format_version"] == 3 and f["blocks/0/timeseries/series"].shape[::2] == (4, len(QUANTITIES))
     assert superblock_version(reference) == 2
     result = hpcves("status", reference)
     assert result.returncode == 0, result.stderr

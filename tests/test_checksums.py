@@ -156,12 +156,46 @@ def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(t
         run_campaign(study_from_toml(STUDY.format(output=output)), output, resume=True)
 
 
+@pytest.mark.parametrize("record", ["timeseries/centroid", "snapshots/psi", "snapshots/t", "checkpoint/newest/prev_psi",
+                                    "checkpoint/newest/scalars"])
+def test_a_flipped_bit_in_each_kind_of_record_of_a_packed_block_is_named(tmp_path, record):
+    """Campaign format 3 packs a block's series, snapshot fields and checkpoint arrays into one array
+    each: a bit flipped in one record's part of it is named as that record (CaseStore.problems; a data
+    record by CampaignFile.damaged too, what status --check, analyze and --resume report)."""
+    from hpcves.campaign.file import CampaignFile
+    from hpcves.run.store import open_file
+
+    output = tmp_path / "sums.h5"
+    study = study_from_toml(STUDY.format(output=output))
+    assert run_campaign(study, output).exit_status == 0
+    with h5py.File(output, "r+") as f:
+        case = case_view(f, "0000")
+        newest = max(("slot0", "slot1"), key=lambda s: case[f"checkpoint/{s}/meta"][1])
+        name = record.replace("newest", newest)
+        assert case.path(name).endswith({"timeseries": "timeseries/series", "snapshots/psi": "snapshots/fields",
+                                         "snapshots/t": "snapshots/t", "checkpoint/newest/prev_psi": f"{newest}/arrays",
+                                         "checkpoint/newest/scalars": f"{newest}/scalars"}.get(
+                                             record.split("/")[0] if record.startswith("time") else record))
+        values = case[name]
+        values.reshape(-1).view(np.uint64)[1] ^= np.uint64(1 << 40)
+        case[name] = values
+    with open_file(output, "r") as h5:
+        campaign = CampaignFile(h5)
+        assert campaign.store("0000").problems() == [f"{name} fails its checksum"]
+        damaged = dict(campaign.damaged(study))        # as --resume sees it: the other slot would do
+    assert damaged == ({} if record.startswith("checkpoint") else {"0000": [f"{name} fails its checksum"]})
+
+
 @pytest.mark.parametrize("history", ["one run", "appended in batches", "truncated then appended",
                                      "resumed mid-series"])
-def test_the_checksums_written_at_the_end_are_those_of_the_bytes_stored(tmp_path, history):
+@pytest.mark.parametrize("layout", ["group", "packed row"])
+def test_the_checksums_written_at_the_end_are_those_of_the_bytes_stored(tmp_path, history, layout):
     """An ended case's checksums come from the rows its writer appended (a running BLAKE2b) or, where
     the writer did not append every row from the first on, from a read-back: either way they are
-    digest() of the valid part as stored."""
+    digest() of the valid part as stored -- in a group of its own and as a row of a block whose records
+    are packed (campaign format 3: a series is a column of timeseries/series)."""
+    from hpcves.config import case_to_toml
+    from hpcves.run.blocks import Blocks
     from hpcves.run.store import digest
 
     case = case_from_toml(CASE)
@@ -176,9 +210,18 @@ def test_the_checksums_written_at_the_end_are_those_of_the_bytes_stored(tmp_path
                  **{name: rng.normal(size=width) for name in SNAPSHOT_RECORDS if name not in ("t", "shift")}}
                 for _ in range(k)]
 
+    def new_store(f, create):
+        if layout == "group":
+            return CaseStore.create(f, case) if create else CaseStore.open(f)
+        if create:
+            f.attrs["format_version"] = 3
+            Blocks.create(f).add([case])
+        return Blocks(f).store(0, 0, case_to_toml(case), "/cases/0000")
+
     path = tmp_path / "case.h5"
     with h5py.File(path, "w") as f:
-        store = CaseStore.create(f, case)
+        store = new_store(f, create=True)
+        assert (store._place.column("timeseries/theta") is None) == (layout == "group")
         width = store.width
         store.append_samples(rows(3))
         store.append_snapshots(snaps(2, width))
@@ -190,14 +233,14 @@ def test_the_checksums_written_at_the_end_are_those_of_the_bytes_stored(tmp_path
             store.append_samples(rows(2))
             store.append_snapshots(snaps(2, width))
         if history == "resumed mid-series":
-            store = CaseStore.open(f)          # a new writer: the rows before it were written by another
+            store = new_store(f, create=False)  # a new writer: the rows before it were written by another
             store.truncate(6, 2)
             store.append_samples(rows(3))
             store.append_snapshots(snaps(1, width))
         store.set_status(FINISHED)
     with h5py.File(path, "r") as f:
-        store = CaseStore.open(f)
-        stored = np.concatenate([f["timeseries/digest"][()], f["snapshots/digest"][()]])
+        store = new_store(f, create=False)
+        stored = np.concatenate([store._read("timeseries/digest"), store._read("snapshots/digest")])
         assert [int(d) for d in stored] == [digest(values) for _, values in store._records()]
         assert store.data_damage() == [] and store.n_samples == {"one run": 3, "appended in batches": 7,
                                                                   "truncated then appended": 7,

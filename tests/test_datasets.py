@@ -63,10 +63,12 @@ def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_
         for i, case in enumerate(ds["case"].values):
             group, row = h5["blocks/0/timeseries"], int(h5["index/row"][i])
             n = int(group["length"][row])
-            assert n == 41 and np.isnan(group["theta"][row, n:]).all()    # the raw file: NaN padded
-            assert np.array_equal(ds["theta"].values[i], group["theta"][row, :n])
-            assert np.array_equal(ds["centroid"].values[i], group["centroid"][row, :n])
-            assert np.array_equal(ds["t"].values[i], group["t"][row, :n])
+            column = {q.decode() if isinstance(q, bytes) else q: k for k, q in enumerate(group["quantity"][:])}
+            series = group["series"][row]                                   # (sample, quantity): format 3
+            assert n == 41 and np.isnan(series[n:]).all()                   # the raw file: NaN padded
+            assert np.array_equal(ds["theta"].values[i], series[:n, column["theta"]])
+            assert np.array_equal(ds["centroid"].values[i], series[:n, [column["centroid_x"], column["centroid_y"]]])
+            assert np.array_equal(ds["t"].values[i], series[:n, column["t"]])
         regimes = [r.decode() if isinstance(r, bytes) else r for r in h5["analysis/regime"][:]]
     assert list(ds["regime"].values) == regimes
     # selection by parameter, the xarray way
@@ -89,13 +91,18 @@ def test_one_case_of_a_campaign_and_its_raw_groups_through_h5netcdf(campaign):
     assert one["psi"].dims == ("snapshot", "alpha") and one["alpha"].values[1] == 1 / 32
     # the raw groups: the dimension scales are netCDF dimensions, the attributes come along
     raw = xr.open_dataset(campaign, engine="h5netcdf", group="blocks/0/timeseries", phony_dims="sort")
-    assert raw["theta"].dims == ("case", "sample") and raw["centroid"].dims == ("case", "sample", "xy")
-    assert raw["theta"].attrs["units"] == "rad"
+    assert raw["series"].dims == ("case", "sample", "quantity")          # campaign format 3: packed
+    theta = raw["series"].sel(quantity="theta")
+    assert raw["units"].sel(quantity="theta") == "rad"
+    assert list(raw["quantity"].values[6:9]) == ["centroid_x", "centroid_y", "tension_min"]
     n = int(raw["length"][3])
-    assert np.array_equal(raw["theta"].values[3, :n], one["theta"].values)
+    assert np.array_equal(theta.values[3, :n], one["theta"].values)
+    assert np.array_equal(raw["series"].sel(quantity=["centroid_x", "centroid_y"]).values[3, :n],
+                          one["centroid"].values)
     snaps = xr.open_dataset(campaign, engine="h5netcdf", group="blocks/0/snapshots", phony_dims="sort")
-    assert snaps["psi"].dims == ("case", "snapshot", "alpha")
-    assert snaps["psi"].attrs["long_name"].startswith("soft-phase")
+    assert snaps["fields"].dims == ("case", "snapshot", "field", "alpha")
+    assert str(snaps["long_name"].sel(field="psi").values).startswith("soft-phase")
+    assert np.array_equal(snaps["fields"].sel(field="psi").values[3, :int(snaps["length"][3])], one["psi"].values)
     raw.close()
     snaps.close()
     for args, words in (((campaign,), "name the case"), ((campaign, "0009"), "no case '0009'")):

@@ -101,11 +101,12 @@ def test_a_kill_while_the_file_is_created_leaves_nothing_that_blocks_a_resume(tm
 
 @needs_mpi
 def test_a_kill_at_an_exact_moment_of_creation_then_resume(tmp_path):
-    """The 40th array of the block grown (by rank 0, which lays the file out alone in every mode): deterministic."""
+    """The 15th of the block's 21 arrays grown (by rank 0, which lays the file out alone in every mode):
+    deterministic."""
     path, output = write_study(tmp_path / "job", t_end=0.002, shear=MANY, psi="[0.3, 0.4, 0.5]")
     from jobs import mpi_env
 
-    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="block-grown:40@0"))
+    killed = hpcves("campaign", path, "--quiet", n=2, env=mpi_env(HPCVES_FAULT="block-grown:15@0"))
     assert killed.returncode != 0
     assert not output.exists() and output.with_name(output.name + ".partial").exists()
     status = hpcves("status", output)
@@ -305,9 +306,9 @@ def test_a_write_refused_while_cases_run_stops_the_campaign_and_loses_nothing(tm
     writes = []
 
     def refuse_one(self, path, values, start=None):       # the store's write, as a full disk makes it fail
-        if path.startswith("checkpoint/") and path.endswith("/psi"):
+        if path.startswith("checkpoint/") and path.endswith("/scalars"):
             writes.append(path)
-            if len(writes) == 5:             # the 5th checkpoint, its slot marked invalid, theta already in
+            if len(writes) == 5:             # the 5th checkpoint, its slot marked invalid, its arrays already in
                 raise OSError(errno.ENOSPC, "No space left on device")
         return real(self, path, values, start)
 
@@ -433,12 +434,12 @@ def damaged_copy(finished, tmp_path, name="damaged.h5"):
     return path, copy
 
 
-@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("version", [1, 3])
 def test_a_bit_flipped_campaign_file_gets_one_line_everywhere(finished, finished_v1, tmp_path, version):
-    """Format 1: the damaged case is named, the others read; format 2, where every case of a block shares
+    """Format 1: the damaged case is named, the others read; format 3, where every case of a block shares
     the dataset: every case of the block is damaged, each named."""
-    path, copy = damaged_copy(finished if version == 2 else finished_v1, tmp_path)
-    flip_header(copy, "cases/0002/timeseries/theta" if version == 1 else "blocks/0/timeseries/theta")
+    path, copy = damaged_copy(finished if version == 3 else finished_v1, tmp_path)
+    flip_header(copy, "cases/0002/timeseries/theta" if version == 1 else "blocks/0/timeseries/series")
     assert hpcves("status", copy).returncode == 0          # status reads the status and progress only ...
     status = hpcves("status", "--check", copy)            # ... unless asked to check everything
     assert status.returncode == 2 and "0002" in one_line(status) and "damaged" in one_line(status)
@@ -451,7 +452,7 @@ def test_a_bit_flipped_campaign_file_gets_one_line_everywhere(finished, finished
     if version == 1:
         assert (tmp_path / "a" / "regimes.csv").exists()   # the others are analysed
     resumed = hpcves("campaign", path, "--resume", "--out", copy)
-    assert resumed.returncode == 2 and f"case 000{3 - version}" in one_line(resumed), resumed.stderr
+    assert resumed.returncode == 2 and f"case 000{2 if version == 1 else 0}" in one_line(resumed), resumed.stderr
 
 
 # ---------------------------------------------------------------------- 7. what --resume refuses
@@ -473,25 +474,25 @@ def damage_length(f):
 
 
 def damage_block_series(f):
-    del f["blocks/0/timeseries/theta"]
+    del f["blocks/0/timeseries/series"]
 
 
 def damage_block_checkpoint_shape(f):
-    del f["blocks/0/checkpoint/slot0/theta"]
-    f["blocks/0/checkpoint/slot0"].create_dataset("theta", data=np.zeros((4, 33)))
+    del f["blocks/0/checkpoint/slot0/arrays"]
+    f["blocks/0/checkpoint/slot0"].create_dataset("arrays", data=np.zeros((4, 8, 33)))
 
 
 @pytest.mark.parametrize("version, damage, case, words", [
     (1, damage_missing_series, "0001", "timeseries/theta is missing"),
     (1, damage_checkpoint_shape, "0002", "checkpoint/slot0/theta has shape (33,)"),
     (1, damage_status, "0003", "status 77 is not a status"),
-    (2, damage_status, "0003", "status 77 is not a status"),
-    (2, damage_length, "0000", "timeseries/length = 10000 lies outside"),
-    (2, damage_block_series, "0000", "timeseries/theta is missing"),
-    (2, damage_block_checkpoint_shape, "0000", "checkpoint/slot0/theta has shape (33,)"),
+    (3, damage_status, "0003", "status 77 is not a status"),
+    (3, damage_length, "0000", "timeseries/length = 10000 lies outside"),
+    (3, damage_block_series, "0000", "timeseries/series is missing"),
+    (3, damage_block_checkpoint_shape, "0000", "checkpoint/slot0/arrays has shape (8, 33)"),
 ])
 def test_resume_refuses_a_damaged_case_naming_it(finished, finished_v1, tmp_path, version, damage, case, words):
-    path, copy = damaged_copy(finished if version == 2 else finished_v1, tmp_path)
+    path, copy = damaged_copy(finished if version == 3 else finished_v1, tmp_path)
     with h5py.File(copy, "r+") as f:
         damage(f)
     before = digest(copy)
@@ -727,7 +728,7 @@ def outside_raw_data(path):
     ranges = []
     with h5py.File(path, "r") as f:
         def visit(name, obj):
-            if isinstance(obj, h5py.Dataset) and obj.chunks is not None:           # format 2's blocks
+            if isinstance(obj, h5py.Dataset) and obj.chunks is not None:           # blocks (formats 2, 3)
                 for i in range(obj.id.get_num_chunks()):
                     chunk = obj.id.get_chunk_info(i)
                     ranges.append((chunk.byte_offset, chunk.byte_offset + chunk.size))

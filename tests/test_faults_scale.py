@@ -60,13 +60,13 @@ def killed_and_resumed(tmp_path, text, fault, io, n=2):
 
 @pytest.mark.parametrize("io", ["mpio", "relay"])
 def test_a_kill_while_5000_cases_are_laid_out_resumes_bitwise(tmp_path, references, io):
-    output = killed_and_resumed(tmp_path, GRID, "block-grown:40@0", io)
+    output = killed_and_resumed(tmp_path, GRID, "block-grown:15@0", io)
     assert_same_results(output, references(GRID))
 
 
 @pytest.mark.parametrize("fault, io", [
     ("verdicts-stored:3@0", "mpio"),       # just after the third stage's verdicts were written in place
-    ("block-grown:150@0", "relay"),        # rank 0 growing the block by a later stage's cases in the copy
+    ("block-grown:50@0", "relay"),         # rank 0 growing the block by a later stage's cases in the copy (21 arrays a stage)
     ("publish:4@0", "mpio"),               # a stage's copy complete, killed before it replaces the file
 ])
 def test_a_kill_in_the_bookkeeping_between_stages_resumes_bitwise(tmp_path, references, fault, io):

@@ -21,7 +21,7 @@ from hpcves.reports.critical import CRITICAL_COLUMNS
 from hpcves.campaign.study import study_from_toml
 
 from jobs import (assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until,
-                  writing_format_1)
+                  writing_format_1, writing_format_2)
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
 SEARCH = """
@@ -253,10 +253,11 @@ def test_status_says_a_stage_is_left_until_the_searches_are_complete(searched, t
     assert_same_results(output, reference, attrs=False)
 
 
-def test_a_search_in_a_file_of_the_older_layout_continues_in_it(searched, tmp_path, monkeypatch):
-    """A file of campaign format 1 (a group per case), its search cut short after its first stage, is
-    continued by this hpcves in that layout (stages laid out as groups: run/stamp.py), to the cases and
-    data of the search run in format 2 from the start."""
+@pytest.mark.parametrize("version", [1, 2])
+def test_a_search_in_a_file_of_an_older_layout_continues_in_it(searched, tmp_path, monkeypatch, version):
+    """A file of campaign format 1 (a group per case) or 2 (blocks, a dataset a record), its search cut
+    short after its first stage, is continued by this hpcves in that layout (format 1: stages laid out
+    as groups, run/stamp.py), to the cases and data of the search run in format 3 from the start."""
     from hpcves.campaign import driver as campaign_module
 
     _, reference, _, _ = searched
@@ -270,7 +271,7 @@ def test_a_search_in_a_file_of_the_older_layout_continues_in_it(searched, tmp_pa
         return real_add(path, comm, cases, stage, source)
 
     monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
-    with pytest.raises(KeyboardInterrupt), writing_format_1():
+    with pytest.raises(KeyboardInterrupt), (writing_format_1() if version == 1 else writing_format_2()):
         run_campaign(study, output)
     monkeypatch.undo()
     with h5py.File(output, "r") as f:
@@ -278,7 +279,11 @@ def test_a_search_in_a_file_of_the_older_layout_continues_in_it(searched, tmp_pa
     summary = run_campaign(study, output, resume=True)
     assert summary.exit_status == 0 and min(r.case_id for r in summary.ran) == f"{before:04d}"
     with h5py.File(output, "r") as f:
-        assert f.attrs["format_version"] == 1 and "blocks" not in f
-        assert len(f["cases"]) == f.attrs["n_cases"] > before
-    assert superblock_version(output) == 0                 # and in HDF5's formats it was written in
+        assert f.attrs["format_version"] == version
+        if version == 1:
+            assert "blocks" not in f and len(f["cases"]) == f.attrs["n_cases"] > before
+        else:                                               # a dataset a record, every stage's rows in it
+            assert "blocks/0/timeseries/series" not in f
+            assert f["blocks/0/timeseries/theta"].shape[0] == f.attrs["n_cases"] > before
+    assert superblock_version(output) == (0 if version == 1 else 2)      # and in the HDF5 formats it was written in
     assert_same_results(output, reference)

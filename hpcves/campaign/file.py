@@ -5,17 +5,19 @@
                file's text), sweep_keys, n_cases
                mode ("grid", "search" or "refine")
     index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
-               format 2: block (n,) and row (n,), where each case lies, and config (n,), its
+               formats 2, 3: block (n,) and row (n,), where each case lies, and config (n,), its
                TOML text;
                search (n,) int (the search -- or refinement -- of each case; -1 in a grid);
                chain studies: after (n,) strings, the case each starts from ("" for none) --
                all resizable: a search or refinement adds its cases stage by stage
     searches/  search files: one (n_searches,) dataset per swept key
     refinements/  refine files: one (n_refinements,) dataset per swept key that is not an axis
-    blocks/<k>/  format 2: the cases of one shape as rows of arrays with a case dimension
+    blocks/<k>/  format 2 and 3: the cases of one shape as rows of arrays with a case dimension
                (run/blocks.py): status, message, traceback, progress, timeseries/ (preallocated,
                with a length counter), snapshots/, checkpoint/slot0|slot1 with a validity
-               marker written last -- the datasets of a single run's file, one row a case
+               marker written last -- the datasets of a single run's file, one row a case;
+               format 3 packs the series into one array, the snapshot fields into one, and
+               the arrays of each checkpoint slot into one
     cases/<id>/  format 1: one case, laid out exactly as a single run (store.CaseStore), its
                parameters as attributes
 
@@ -58,9 +60,11 @@ class CreationInterrupted(FileFormatError):
 FORMAT = "hpcves-campaign"
 #: the modes whose cases come stage by stage (a stage may be half-added when a crash cut it short)
 STAGED_MODES = ("search", "refine")
-#: 2: cases as rows of blocks (run/blocks.py); 1: a group per case (read, resumed and extended as such)
-FORMAT_VERSION = 2
-READS_VERSIONS = (1, 2)
+#: 3: blocks whose records a run writes together are packed into one array each (run/blocks.py,
+#: ``packing``); 2: cases as rows of blocks, a dataset a record; 1: a group per case (2 and 1 are read,
+#: resumed and extended as such)
+FORMAT_VERSION = 3
+READS_VERSIONS = (1, 2, 3)
 #: the layout new files get (tests set 1 to make files of the older layout, which this hpcves reads,
 #: resumes and extends as such)
 WRITES_VERSION = FORMAT_VERSION
@@ -231,7 +235,7 @@ class CampaignFile:
             raise FileFormatError(f"{where}: holds {held} cases, its header says {n} "
                                   "(creation was interrupted?)")
         keys = [k for k in attr_text(h5.attrs.get("sweep_keys", "")).split(",") if k]
-        for key in ("case_id", "cost", *keys, *(("block", "row", "config") if version == 2 else ())):
+        for key in ("case_id", "cost", *keys, *(("block", "row", "config") if version >= 2 else ())):
             if key not in h5["index"] or h5["index"][key].shape[:1] < (n,):
                 raise FileFormatError(f"{where}: index/{key} is missing or shorter than the {n} cases")
         return cls(h5)

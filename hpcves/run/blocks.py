@@ -8,6 +8,18 @@
                   case (the index row of each), sample, snapshot, alpha and xy: HDF5 dimension
                   scales along the arrays' axes, what netCDF readers (h5netcdf) take as dimensions
 
+Campaign format 3 packs the records a run writes together into one array each (a tiny case then
+takes ~35 writes instead of ~133: under ``--io relay`` rank 0 makes every write of every case):
+
+    timeseries/series      (case, sample, quantity): every series a column (centroid two), in
+                           :data:`QUANTITIES` order; ``quantity``, ``units`` and ``long_name`` along
+                           the last axis name them
+    snapshots/fields       (case, snapshot, field, alpha): the snapshot fields (``field``)
+    checkpoint/<slot>/arrays  (case, array, alpha): the arrays of a State (``array``)
+
+The store reads and writes each record as before, through its :class:`~hpcves.run.store.Column`
+(:func:`packing`); t, shift, the lengths, digests, scalars and meta stay arrays of their own.
+
 A case is (block, row); its parameters live in the campaign's index (its config text), not in
 attributes. A stage's cases cost one resize per dataset and block, however many they are
 (laying out each case as a group of ~70 objects took ~2.4 ms a case), and a writer keeps one
@@ -24,12 +36,40 @@ from hpcves import __version__
 from hpcves.files import faults
 from hpcves.model.params import Case
 from hpcves.run.diagnostics import SERIES, SNAPSHOT_FIELDS
+from hpcves.run.diagnostics import SERIES_ATTRS, SNAPSHOT_ATTRS
 from hpcves.run.store import (FORMAT, FORMAT_VERSION, MESSAGE_BYTES, NOT_DECIDED, SNAPSHOT_RECORDS, TRACEBACK_BYTES,
-                              CaseStore, FileFormatError, attr_integer, capacities, name_records, stored_case, stored_N,
-                              _early, _N_SCALARS)
+                              CaseStore, Column, FileFormatError, attr_integer, capacities, name_records, stored_case,
+                              stored_N, _early, _N_SCALARS)
 from hpcves.run.timestepping import State
 
 BLOCKS = "blocks"
+#: the campaign format whose blocks pack their records (:func:`packing`)
+PACKED_SINCE = 3
+#: the columns of timeseries/series (format 3)
+QUANTITIES = tuple(q for name in SERIES for q in ((f"{name}_x", f"{name}_y") if name == "centroid" else (name,)))
+SLOTS = ("slot0", "slot1")
+#: the largest chunk of a packed array, in bytes (a case's rows split into chunks of at most this; a
+#: reader of one column reads whole chunks, through HDF5's 1 MiB chunk cache)
+CHUNK_BYTES = 256 * 1024
+
+
+def packing() -> dict[str, Column]:
+    """{record: where it lies in its packed array} of a block of campaign format 3."""
+    out, first = {}, 0
+    for name in SERIES:
+        width = 2 if name == "centroid" else 1
+        out[f"timeseries/{name}"] = Column("timeseries/series", 1, first, width, squeezed=width == 1)
+        first += width
+    for k, name in enumerate(SNAPSHOT_FIELDS):
+        out[f"snapshots/{name}"] = Column("snapshots/fields", 1, k)
+    for slot in SLOTS:
+        for k, name in enumerate(State.ARRAYS):
+            out[f"checkpoint/{slot}/{name}"] = Column(f"checkpoint/{slot}/arrays", 0, k)
+    return out
+
+
+PACKING = packing()
+PACKED_ARRAYS = frozenset(column.array for column in PACKING.values())
 
 
 def block_shape(case: Case) -> tuple[int, int, int]:
@@ -37,8 +77,9 @@ def block_shape(case: Case) -> tuple[int, int, int]:
     return (stored_N(case), *capacities(case))
 
 
-def row_layout(shape: tuple[int, int, int]) -> dict:
-    """Every dataset of a row: name -> (shape of one case's array, dtype, fill value)."""
+def row_layout(shape: tuple[int, int, int], packed: bool = False) -> dict:
+    """Every dataset of a row: name -> (shape of one case's array, dtype, fill value); ``packed``: of
+    campaign format 3 (:func:`packing`)."""
     N, n_samples, n_snapshots = shape
     nan = np.nan
     out = {"status": ((), "i1", 0), "message": ((), f"S{MESSAGE_BYTES}", b""),
@@ -47,17 +88,46 @@ def row_layout(shape: tuple[int, int, int]) -> dict:
            "timeseries/length": ((), "i8", 0), "timeseries/digest": ((len(SERIES),), "u8", 0),
            "snapshots/length": ((), "i8", 0), "snapshots/digest": ((len(SNAPSHOT_RECORDS),), "u8", 0),
            "snapshots/t": ((n_snapshots,), "f8", nan), "snapshots/shift": ((n_snapshots,), "f8", nan)}
-    for name in SERIES:
-        out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f8", nan)
-    for name in SNAPSHOT_FIELDS:
-        out[f"snapshots/{name}"] = ((n_snapshots, N), "f8", nan)
-    for slot in ("slot0", "slot1"):
+    if packed:
+        out["timeseries/series"] = ((n_samples, len(QUANTITIES)), "f8", nan)
+        out["snapshots/fields"] = ((n_snapshots, len(SNAPSHOT_FIELDS), N), "f8", nan)
+    else:
+        for name in SERIES:
+            out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f8", nan)
+        for name in SNAPSHOT_FIELDS:
+            out[f"snapshots/{name}"] = ((n_snapshots, N), "f8", nan)
+    for slot in SLOTS:
         out[f"checkpoint/{slot}/meta"] = ((4,), "i8", 0)
         out[f"checkpoint/{slot}/digest"] = ((len(State.ARRAYS) + 2,), "u8", 0)
         out[f"checkpoint/{slot}/scalars"] = ((_N_SCALARS,), "f8", nan)
-        for name in State.ARRAYS:
-            out[f"checkpoint/{slot}/{name}"] = ((N,), "f8", nan)
+        if packed:
+            out[f"checkpoint/{slot}/arrays"] = ((len(State.ARRAYS), N), "f8", nan)
+        else:
+            for name in State.ARRAYS:
+                out[f"checkpoint/{slot}/{name}"] = ((N,), "f8", nan)
     return out
+
+
+def _chunks(name: str, row: tuple) -> tuple:
+    """One case a chunk; a packed array's case in chunks of at most CHUNK_BYTES (whole rows)."""
+    if name not in PACKED_ARRAYS:
+        return (1, *row)
+    per_row = 8 * int(np.prod(row[1:]))
+    return (1, max(1, min(row[0], CHUNK_BYTES // per_row)), *row[1:])
+
+
+def _names(group, name: str, names, table: dict | None = None) -> None:
+    """A dimension scale ``name`` of ``names`` (strings) in ``group``; with ``table`` ({name: (long_name,
+    units)}), the datasets ``long_name`` and ``units`` beside it, along it."""
+    text = h5py.string_dtype()
+    scale = group.create_dataset(name, data=np.array(names, dtype=object), dtype=text)
+    scale.make_scale(name)
+    if table is not None:
+        for k, what in enumerate(("long_name", "units")):
+            column = group.create_dataset(what, data=np.array([table[n.rsplit("_", 1)[0] if n.startswith("centroid_")
+                                                                    else n][k] for n in names], dtype=object),
+                                          dtype=text)
+            column.dims[0].attach_scale(scale)
 
 
 def _describe(group, shape: tuple[int, int, int]) -> None:
@@ -77,6 +147,9 @@ def _describe(group, shape: tuple[int, int, int]) -> None:
     for name, scale in scales.items():
         scale.make_scale(name)
     name_records(group["timeseries"], group["snapshots"])
+    if "timeseries/series" in group:
+        _describe_packed(group, scales)
+        return
     labelled = {"status", "message", "traceback", "timeseries/length", "snapshots/length",       # (netCDF readers
                 *(f"timeseries/{n}" for n in SERIES), *(f"snapshots/{n}" for n in SNAPSHOT_RECORDS),  # refuse arrays
                 *(f"checkpoint/{s}/{n}" for s in ("slot0", "slot1") for n in State.ARRAYS)}     # with some axes
@@ -92,6 +165,24 @@ def _describe(group, shape: tuple[int, int, int]) -> None:
     for slot in ("slot0", "slot1"):
         for name in State.ARRAYS:
             group[f"checkpoint/{slot}/{name}"].dims[1].attach_scale(scales["alpha"])
+
+
+def _describe_packed(group, scales: dict) -> None:
+    """The dimensions of a packed block's arrays (campaign format 3), and the names of their columns."""
+    _names(group["timeseries"], "quantity", QUANTITIES, SERIES_ATTRS)
+    _names(group["snapshots"], "field", SNAPSHOT_FIELDS, {n: SNAPSHOT_ATTRS[n] for n in SNAPSHOT_FIELDS})
+    _names(group["checkpoint"], "array", State.ARRAYS)
+    scales = {**scales, "quantity": group["timeseries/quantity"], "field": group["snapshots/field"],
+              "array": group["checkpoint/array"]}
+    group["timeseries/series"].attrs["long_name"] = "the time series, a column a quantity (quantity, long_name, units)"
+    group["snapshots/fields"].attrs["long_name"] = "the snapshot fields (field, long_name, units)"
+    axes = {"timeseries/series": ("case", "sample", "quantity"), "snapshots/fields": ("case", "snapshot", "field", "alpha"),
+            "snapshots/t": ("case", "snapshot"), "snapshots/shift": ("case", "snapshot"),
+            **{name: ("case",) for name in ("status", "message", "traceback", "timeseries/length", "snapshots/length")},
+            **{f"checkpoint/{slot}/arrays": ("case", "array", "alpha") for slot in SLOTS}}
+    for name, dims in axes.items():
+        for axis, scale in enumerate(dims):
+            group[name].dims[axis].attach_scale(scales[scale])
 
 
 class RowAttrs(collections.abc.Mapping):
@@ -127,22 +218,32 @@ class RowPlace:
 
     group = None
 
-    def __init__(self, block, row: int, attrs: RowAttrs, where: str, ids: dict, present: dict):
+    def __init__(self, block, row: int, attrs: RowAttrs, where: str, ids: dict, present: dict,
+                 columns: dict | None = None, plans: dict | None = None):
         self.block, self.prefix, self.attrs, self.where = block, (row,), attrs, where
         self.filename = block.file.filename
-        #: the writer's ids, shared by every row of the block (CaseStore._id)
-        self.ids = ids
+        #: the writer's ids and plans, shared by every row of the block (CaseStore._id, CaseStore._plan)
+        self.ids, self.plans = ids, ({} if plans is None else plans)
         #: {path: whether the block holds it}, shared likewise (h5py's lookup costs ~25 us)
         self._present = present
+        #: {record: its Column} in a packed block (campaign format 3), else empty
+        self._columns = columns or {}
+
+    def column(self, path: str) -> Column | None:
+        return self._columns.get(path)
 
     def has(self, path: str) -> bool:
+        column = self._columns.get(path)
+        if column is not None:
+            path = column.array
         found = self._present.get(path)
         if found is None:
             found = self._present[path] = path in self.block
         return found
 
     def open(self, path: str):
-        return h5py.h5d.open(self.block.id, path.encode())
+        column = self._columns.get(path)
+        return h5py.h5d.open(self.block.id, (column.array if column else path).encode())
 
 
 class Blocks:
@@ -150,9 +251,11 @@ class Blocks:
 
     def __init__(self, h5):
         self.group = h5[BLOCKS]
-        #: per block: the attributes its rows share, and the writer's ids (kept until the block grows or
-        #: shrinks: they hold its file spaces)
-        self._attrs, self._ids = {}, {}
+        #: campaign format 3: the blocks pack their records (:func:`packing`)
+        self.packed = (attr_integer(h5.attrs.get("format_version", PACKED_SINCE)) or 0) >= PACKED_SINCE
+        #: per block: the attributes its rows share, and the writer's ids and plans (kept until the block
+        #: grows or shrinks: they hold its file spaces)
+        self._attrs, self._ids, self._plans = {}, {}, {}
         #: per block: (its group, its rows, which datasets it holds), until it grows or shrinks
         self._open = {}
 
@@ -187,7 +290,7 @@ class Blocks:
             group = self.group[block]
             start = self.rows(block)
             stop = start + len(members)
-            for name in row_layout(shape):
+            for name in row_layout(shape, self.packed):
                 dataset = group[name]
                 dataset.resize((stop, *dataset.shape[1:]))
                 faults.point("block-grown")
@@ -199,6 +302,7 @@ class Blocks:
                 out[i] = (int(block), start + k)
         self._open.clear()
         self._ids.clear()
+        self._plans.clear()
         return out
 
     def _new_block(self, shape: tuple[int, int, int]) -> str:
@@ -208,8 +312,8 @@ class Blocks:
         group.attrs["format_version"] = FORMAT_VERSION
         group.attrs["hpcves_version"] = __version__
         group.attrs["shape"] = np.array(shape, dtype=np.int64)
-        for name, (row, dtype, fill) in row_layout(shape).items():
-            group.create_dataset(name, shape=(0, *row), maxshape=(None, *row), chunks=(1, *row), dtype=dtype,
+        for name, (row, dtype, fill) in row_layout(shape, self.packed).items():
+            group.create_dataset(name, shape=(0, *row), maxshape=(None, *row), chunks=_chunks(name, row), dtype=dtype,
                                  fillvalue=np.array(fill, dtype=dtype), dcpl=_early())
         _describe(group, shape)
         return block
@@ -218,11 +322,12 @@ class Blocks:
         """Drop the rows beyond ``used[block]`` of every block (a half-added stage; serial access)."""
         self._open.clear()
         self._ids.clear()
+        self._plans.clear()
         for block in self.names():
             keep = used.get(int(block), 0)
             group = self.group[block]
             if self.rows(block) > keep:
-                for name in (*row_layout(self.shape_of(block)), "case"):
+                for name in (*row_layout(self.shape_of(block), self.packed), "case"):
                     if name in group:
                         dataset = group[name]
                         dataset.resize((keep, *dataset.shape[1:]))
@@ -247,7 +352,8 @@ class Blocks:
         if not 0 <= row < rows:
             raise FileFormatError(f"{where}: row {row} lies outside block {name}'s {rows}")
         attrs = RowAttrs(self._attrs[name], config, where, extra or {})
-        return CaseStore(place=RowPlace(group, row, attrs, where, self._ids.setdefault(name, {}), present))
+        return CaseStore(place=RowPlace(group, row, attrs, where, self._ids.setdefault(name, {}), present,
+                                        PACKING if self.packed else None, self._plans.setdefault(name, {})))
 
 
 def find_case(h5, case_id: str, where: str) -> CaseStore:

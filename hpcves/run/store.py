@@ -44,6 +44,7 @@ import contextlib
 import functools
 import hashlib
 import math
+from dataclasses import dataclass
 
 import h5py
 import numpy as np
@@ -98,6 +99,37 @@ _N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
 
 class FileFormatError(ConfigError):
     """An HDF5 file or group that is not (or no longer) a readable hpcves case."""
+
+
+@dataclass(frozen=True)
+class Column:
+    """Where a record lies inside a packed array (campaign format 3: run/blocks.py): indices ``first`` to
+    ``first + width`` along axis ``axis`` of the case's part of ``array``; ``squeezed``: the record has no
+    axis there (width 1). A series is a column of ``timeseries/series`` (centroid two), a snapshot field
+    a slice of ``snapshots/fields``, a checkpoint array a row of ``checkpoint/<slot>/arrays``."""
+
+    array: str
+    axis: int
+    first: int
+    width: int = 1
+    squeezed: bool = True
+
+    def shape(self, packed: tuple) -> tuple | None:
+        """The record's shape, from the case's part of the packed array's (None: it lies outside)."""
+        if len(packed) <= self.axis or packed[self.axis] < self.first + self.width:
+            return None
+        return packed[:self.axis] + (() if self.squeezed else (self.width,)) + packed[self.axis + 1:]
+
+    def place(self, first: tuple, count: tuple) -> tuple[tuple, tuple]:
+        """A hyperslab of the record (first, count) as one of the packed array."""
+        a = self.axis
+        if self.squeezed:
+            return first[:a] + (self.first,) + first[a:], count[:a] + (1,) + count[a:]
+        return (first[:a] + (self.first + first[a],) + first[a + 1:], count)
+
+    def index(self) -> tuple:
+        """Where the record lies in a numpy array shaped as the packed array's selected rows."""
+        return (slice(None),) * self.axis + (self.first if self.squeezed else slice(self.first, self.first + self.width),)
 
 
 #: what h5py raises when the file under it is damaged (unreadable metadata, objects of the wrong kind);
@@ -353,14 +385,18 @@ class GroupPlace:
         self.attrs = group.attrs
         self.where = group.name
         self.filename = group.file.filename
-        #: low-level ids of the datasets the writer writes (CaseStore._id)
-        self.ids = {}
+        #: low-level ids of the datasets the writer writes (CaseStore._id), and its plans (CaseStore._plan)
+        self.ids, self.plans = {}, {}
 
     def has(self, path: str) -> bool:
         return path in self.group
 
     def open(self, path: str):
         return h5py.h5d.open(self.group.id, path.encode())
+
+    def column(self, path: str) -> Column | None:
+        """Each record is a dataset of its own here."""
+        return None
 
 
 class CaseStore:
@@ -377,8 +413,9 @@ class CaseStore:
         self.version = int(self.attrs.get("format_version", FORMAT_VERSION))
         self._arrays = _ARRAYS.get(self.version, State.ARRAYS)
         self._scalars = _SCALAR_LAYOUTS.get(self.version, _SCALAR_LAYOUT)
-        #: low-level ids of the datasets this store writes, opened at their first use (:meth:`_id`)
-        self._ids = self._place.ids
+        #: low-level ids of the datasets this store writes, opened at their first use (:meth:`_id`), and
+        #: how it writes a set of records (:meth:`_plan`), both shared by the rows of a block
+        self._ids, self._plans = self._place.ids, self._place.plans
         #: the valid rows of timeseries and snapshots as this writer last set them (:meth:`_length`)
         self._lengths = {}
         #: {record path: (BLAKE2b of its rows 0..k, k)} for the records this writer appended from row 0
@@ -477,6 +514,23 @@ class CaseStore:
                 out[f"checkpoint/{slot}/{name}"] = ((N,), "f")
         return out
 
+    def _arrays_of(self, layout: dict) -> dict:
+        """``layout`` with the records of a packed array (campaign format 3) replaced by the array: its
+        case's part is a record's shape with the packed axis as wide as its records together."""
+        out, packed = {}, {}
+        for name, (shape, kind) in layout.items():
+            column = self._place.column(name)
+            if column is None:
+                out[name] = (shape, kind)
+                continue
+            width, squeezed = packed.get(column.array, (0, None))
+            packed[column.array] = (width + column.width, shape if column.squeezed else squeezed)
+            out[column.array] = (column.axis, kind)
+        for array, (width, shape) in packed.items():
+            axis, kind = out[array]
+            out[array] = (shape[:axis] + (width,) + shape[axis:], kind)
+        return out
+
     def problems(self, expected: Case | None = None, resuming: bool = False) -> list[str]:
         """What is wrong with this case's data (empty if nothing): missing or misshapen datasets, a
         status or counters out of range, checkpoints that contradict the series, data that fail their
@@ -494,7 +548,7 @@ class CaseStore:
             return ["its config differs from its study's case"]
         found = []
         prefix = len(self._place.prefix)
-        for name, (shape, kind) in self.layout(case).items():
+        for name, (shape, kind) in self._arrays_of(self.layout(case)).items():
             try:
                 d = self._place.open(name)
                 if d.shape[prefix:] != shape or d.dtype.kind != kind:
@@ -643,24 +697,78 @@ class CaseStore:
     def _put(self, path: str, values, start: int | None = None) -> np.ndarray:
         """Write ``values`` to the case's array at ``path``, whole or from row ``start`` on; returns
         them as written (in the dataset's dtype)."""
-        dataset, dtype, shape, space, mtype = self._id(path)
+        column = self._place.column(path)
+        dataset, dtype, shape, space, mtype = self._id(column.array if column else path)
         values = np.asarray(values, dtype=dtype, order="C")
         _, memory, space = _slab(dataset, self._place.prefix, start, None if start is None else len(values), space,
-                                 shape)
+                                 shape, column)
         dataset.write(memory, space, values, mtype=mtype)
         return values
 
+    def _put_records(self, records: dict, start: int | None = None) -> dict:
+        """Write several records (path -> values, all of ``rows`` rows from ``start`` on, or whole),
+        those packed into one array (campaign format 3) with one write where they fill it; returns
+        {path: values as written}."""
+        plan = self._plans.get(tuple(records))
+        if plan is None:
+            plan = self._plans[tuple(records)] = self._plan(tuple(records))
+        singles, arrays = plan
+        written = {path: self._put(path, records[path], start) for path in singles}
+        for array, members in arrays:
+            dataset, dtype, shape, space, mtype = self._id(array)
+            rows = None if start is None else len(records[members[0][0]])
+            count, memory, space = _slab(dataset, self._place.prefix, start, rows, space, shape)
+            block = np.empty(count, dtype=dtype)
+            for path, index in members:
+                block[index] = written[path] = np.asarray(records[path], dtype=dtype, order="C")
+            dataset.write(memory, space, block, mtype=mtype)
+        return written
+
+    def _plan(self, paths: tuple) -> tuple[list, list]:
+        """How :meth:`_put_records` writes ``paths``: (the records written one by one, [(packed array,
+        [(record, where in the array's rows)])] for the arrays whose every column they fill)."""
+        singles, packed = [], {}
+        for path in paths:
+            column = self._place.column(path)
+            if column is None:
+                singles.append(path)
+            else:
+                packed.setdefault(column.array, []).append((path, column))
+        arrays = []
+        for array, members in packed.items():
+            if sum(c.width for _, c in members) == self._id(array)[2][members[0][1].axis]:
+                arrays.append((array, [(path, column.index()) for path, column in members]))
+            else:
+                singles += [path for path, _ in members]
+        return singles, arrays
+
     def _get(self, path: str, rows: int | None = None) -> np.ndarray:
         """The case's array at ``path`` (through the writer's id), whole or its first ``rows`` rows."""
-        dataset, _, shape, space, _ = self._id(path)
-        return _part(dataset, self._place.prefix, None if rows is None else 0, rows, space, shape)
+        column = self._place.column(path)
+        dataset, _, shape, space, _ = self._id(column.array if column else path)
+        return _part(dataset, self._place.prefix, None if rows is None else 0, rows, space, shape, column)
 
     def _read(self, path: str, start: int | None = None, stop: int | None = None) -> np.ndarray:
         """The case's array at ``path``, whole or rows ``start:stop``, through a dataset opened for this
         read alone (an id kept open could serve later reads from HDF5's sieve buffer, blind to other
         processes' writes); h5py's ``Dataset`` costs ~0.1 ms to open and select, and classifying a
         case reads ~25 of them."""
-        return _part(self._place.open(path), self._place.prefix, start, stop)
+        return _part(self._place.open(path), self._place.prefix, start, stop, column=self._place.column(path))
+
+    def _read_records(self, paths, start: int | None = None, stop: int | None = None) -> dict:
+        """{path: :meth:`_read` of it}, each packed array read once for all of its records."""
+        out, packed = {}, {}
+        for path in paths:
+            column = self._place.column(path)
+            if column is None:
+                out[path] = self._read(path, start, stop)
+            else:
+                packed.setdefault(column.array, []).append((path, column))
+        for array, members in packed.items():
+            whole = _part(self._place.open(array), self._place.prefix, start, stop)
+            for path, column in members:
+                out[path] = np.ascontiguousarray(whole[column.index()])
+        return {path: out[path] for path in paths}
 
     def _length(self, group: str) -> int:
         """The valid rows of ``timeseries`` or ``snapshots``, as this writer last set them."""
@@ -672,21 +780,22 @@ class CaseStore:
         self._put(f"{group}/length", n)
         self._lengths[group] = n
 
-    def _append(self, path: str, values, start: int) -> None:
-        """Write the rows ``values`` of a record from row ``start`` on, and carry its running checksum
-        on where this writer wrote every row before ``start`` (else :meth:`_digest_of` reads it back).
+    def _append(self, records: dict, start: int) -> None:
+        """Write the rows of several records (path -> values) from row ``start`` on (:meth:`_put_records`),
+        and carry each one's running checksum on where this writer wrote every row before ``start``
+        (else :meth:`_digest_of` reads it back).
 
         The checksum is of the bytes handed to HDF5, not of a read-back: a write that stored other
         bytes is then caught by the checks, not blessed."""
-        values = self._put(path, values, start)
-        hashed, rows = self._running.get(path, (None, 0))
-        if start == 0:
-            hashed, rows = hashlib.blake2b(digest_size=8), 0
-        if hashed is not None and rows == start:
-            hashed.update(_digest_bytes(values))
-            self._running[path] = (hashed, start + len(values))
-        else:
-            self._running.pop(path, None)
+        for path, values in self._put_records(records, start).items():
+            hashed, rows = self._running.get(path, (None, 0))
+            if start == 0:
+                hashed, rows = hashlib.blake2b(digest_size=8), 0
+            if hashed is not None and rows == start:
+                hashed.update(values)          # C-ordered, in the dataset's dtype (little-endian): its bytes
+                self._running[path] = (hashed, start + len(values))
+            else:
+                self._running.pop(path, None)
 
     def _digest_of(self, path: str, rows: int) -> int:
         """:func:`digest` of a record's first ``rows`` rows: from its running checksum where this writer
@@ -704,7 +813,8 @@ class CaseStore:
     @property
     def width(self) -> int:
         """The nodes of its snapshots (stored_N of its case)."""
-        return int(self._place.open("snapshots/x").shape[-1])
+        column = self._place.column("snapshots/x")
+        return int(self._id(column.array if column else "snapshots/x")[2][-1])
 
     @property
     def n_snapshots(self) -> int:
@@ -716,8 +826,7 @@ class CaseStore:
         if not rows:
             return
         start = self._length("timeseries")
-        for name in self.series_names:
-            self._append(f"timeseries/{name}", [row[name] for row in rows], start)
+        self._append({f"timeseries/{name}": [row[name] for row in rows] for name in self.series_names}, start)
         self._set_length("timeseries", start + len(rows))
 
     @_writes
@@ -726,26 +835,27 @@ class CaseStore:
         if not snaps:
             return
         start = self._length("snapshots")
-        width = self._id("snapshots/x")[2][1]
-        for name in ("t", "shift"):
-            self._append(f"snapshots/{name}", [snap[name] for snap in snaps], start)
+        width = self.width
+        records = {f"snapshots/{name}": [snap[name] for snap in snaps] for name in ("t", "shift")}
         for name in SNAPSHOT_FIELDS:           # taken at the run's N, which may be below the width
-            self._append(f"snapshots/{name}", [resample(snap[name], width) for snap in snaps], start)
+            records[f"snapshots/{name}"] = [resample(snap[name], width) for snap in snaps]
+        self._append(records, start)
         self._set_length("snapshots", start + len(snaps))
 
     def timeseries(self) -> dict:
         """The valid part of every series (numpy arrays)."""
-        n = self.n_samples
-        return {name: self._read(f"timeseries/{name}", 0, n) for name in self.series_names}
+        found = self._read_records([f"timeseries/{name}" for name in self.series_names], 0, self.n_samples)
+        return {path.split("/", 1)[1]: values for path, values in found.items()}
 
     def snapshots(self) -> dict:
-        n = self.n_snapshots
-        return {name: self._read(f"snapshots/{name}", 0, n) for name in SNAPSHOT_RECORDS}
+        found = self._read_records([f"snapshots/{name}" for name in SNAPSHOT_RECORDS], 0, self.n_snapshots)
+        return {path.split("/", 1)[1]: values for path, values in found.items()}
 
     def last_snapshots(self, names, count: int) -> dict:
         """The last ``count`` valid snapshots of the fields ``names`` (fewer if there are fewer)."""
         n = self.n_snapshots
-        return {name: self._read(f"snapshots/{name}", max(0, n - count), n) for name in names}
+        found = self._read_records([f"snapshots/{name}" for name in names], max(0, n - count), n)
+        return {path.split("/", 1)[1]: values for path, values in found.items()}
 
     @_writes
     def truncate(self, n_samples: int, n_snapshots: int) -> None:
@@ -760,8 +870,10 @@ class CaseStore:
     def _records(self) -> list[tuple[str, np.ndarray]]:
         """(name, valid part) of every series, then of every snapshot record, in the order of their digests."""
         valid = {"timeseries": self.n_samples, "snapshots": self.n_snapshots}
-        return [(f"{group}/{name}", self._read(f"{group}/{name}", 0, valid[group]))
-                for group, names in self._record_names() for name in names]
+        out = []
+        for group, names in self._record_names():
+            out += self._read_records([f"{group}/{name}" for name in names], 0, valid[group]).items()
+        return out
 
     def data_damage(self) -> list[str]:
         """The series and snapshot records of an ended case whose valid part fails the checksum written
@@ -786,8 +898,8 @@ class CaseStore:
         g = f"checkpoint/{slot}"
         if not self._place.has(f"{g}/digest"):
             return []
-        values = [self._read(f"{g}/{name}") for name in self._arrays] + [self._read(f"{g}/scalars"),
-                                                                         self._read(f"{g}/meta")[1:]]
+        values = [*self._read_records([f"{g}/{name}" for name in self._arrays]).values(),
+                  self._read(f"{g}/scalars"), self._read(f"{g}/meta")[1:]]
         names = [*self._arrays, "scalars", "meta"]
         return [f"{g}/{name}" for name, v, d in zip(names, values, self._read(f"{g}/digest")) if digest(v) != int(d)]
 
@@ -832,15 +944,16 @@ class CaseStore:
         self._put(f"{g}/meta", [0], 0)
         flush()
         faults.point("checkpoint")
-        written = []
+        size, arrays = self.width, {}
         for name in self._arrays:
-            value, size = getattr(state, name), self._id(f"{g}/{name}")[2][0]
+            value = getattr(state, name)
             if value is None:
                 value = np.full(size, np.nan)
             elif value.size != size:               # N adapting: its N values first, then NaN
                 value = np.concatenate([value, np.full(size - value.size, np.nan)])
-            self._put(f"{g}/{name}", value)
-            written.append(value)
+            arrays[f"{g}/{name}"] = value
+        stored = self._put_records(arrays)
+        written = [stored[path] for path in arrays]
         written.append(_pack_scalars(state, self._scalars))
         self._put(f"{g}/scalars", written[-1])
         written.append(np.array((state.step, self._length("timeseries"), self._length("snapshots")), dtype=np.int64))
@@ -897,7 +1010,8 @@ class CaseStore:
         meta = self._read(f"{g}/meta")
         scalars = _unpack_scalars(self._read(f"{g}/scalars"), self._scalars)
         N = int(scalars.pop("N")) if "N" in scalars else stored_N(self.case)
-        arrays = {name: self._read(f"{g}/{name}", 0, N) for name in self._arrays}
+        found = self._read_records([f"{g}/{name}" for name in self._arrays])
+        arrays = {name: found[f"{g}/{name}"][:N] for name in self._arrays}
         step = int(meta[1])
         if self.version == 2:                 # a fixed-step run: its time and steps are implied
             dt = self.case.numerics.dt
@@ -926,22 +1040,27 @@ def _digest_bytes(values) -> np.ndarray:
     return data                        # hashlib reads a C-contiguous array's buffer: its bytes in C order
 
 
-def _slab(dataset, prefix: tuple, start: int | None, rows: int | None, space=None, shape=None) -> tuple:
+def _slab(dataset, prefix: tuple, start: int | None, rows: int | None, space=None, shape=None,
+          column: Column | None = None) -> tuple:
     """(shape, memory space, file space) of a case's part of ``dataset`` (a low-level id): its whole
-    array, or ``rows`` rows from row ``start`` on. ``prefix`` is the case's place in the dataset's
-    leading dimensions: () where the dataset is the case's own, (row,) in a block (run/blocks.py);
-    ``space``: the dataset's file space to select in (a writer keeps one a dataset), else a new one;
-    ``shape``: the case's array's, where the caller knows it (asking HDF5 costs ~3 us)."""
+    array, or ``rows`` rows from row ``start`` on; with ``column``, of that record of a packed array
+    (campaign format 3). ``prefix`` is the case's place in the dataset's leading dimensions: () where
+    the dataset is the case's own, (row,) in a block (run/blocks.py); ``space``: the dataset's file
+    space to select in (a writer keeps one a dataset), else a new one; ``shape``: the case's part of
+    the dataset, where the caller knows it (asking HDF5 costs ~3 us)."""
     if shape is None:
         shape = dataset.shape[len(prefix):]
+    if column is not None:
+        shape = column.shape(shape)
     if start is None:
         count, first = shape, (0,) * len(shape)
     else:
         count, first = (rows,) + shape[1:], (start,) + (0,) * (len(shape) - 1)
-    if not prefix and start is None:
+    if not prefix and start is None and column is None:
         return count, h5py.h5s.ALL, h5py.h5s.ALL
+    where, size = (first, count) if column is None else column.place(first, count)
     space = space or dataset.get_space()
-    space.select_hyperslab(prefix + first, (1,) * len(prefix) + count)
+    space.select_hyperslab(prefix + where, (1,) * len(prefix) + size)
     return count, _memory_space((1,) * len(prefix) + count), space
 
 
@@ -960,16 +1079,17 @@ def _memory_space(shape: tuple):
 
 
 def _part(dataset, prefix: tuple, start: int | None = None, stop: int | None = None, space=None,
-          shape=None) -> np.ndarray:
+          shape=None, column: Column | None = None) -> np.ndarray:
     """A case's array in ``dataset`` (a low-level id), whole or rows ``start:stop`` (clipped as a slice
-    is), through one hyperslab (in ``space`` and of the case's ``shape``, where given: :func:`_slab`)."""
+    is), through one hyperslab (in ``space``, of the case's ``shape`` and of ``column``'s record, where
+    given: :func:`_slab`)."""
     if shape is None:
         shape = dataset.shape[len(prefix):]
     rows = None
     if start is not None:
-        start, stop, _ = slice(start, stop).indices(shape[0])
+        start, stop, _ = slice(start, stop).indices((column.shape(shape) if column else shape)[0])
         rows = max(0, stop - start)
-    count, memory, space = _slab(dataset, prefix, start, rows, space, shape)
+    count, memory, space = _slab(dataset, prefix, start, rows, space, shape, column)
     dtype = dataset.dtype
     out = np.empty(count, dtype=dtype)
     if out.size:
