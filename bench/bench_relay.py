@@ -89,7 +89,11 @@ def run(cases: int, directory: Path) -> dict:
     for case in study.cases:
         start = time.thread_time()
         before = sum(comm.rank0.values())
-        result = run_one(remote, Task(case.case_id, resume=False), remote.flush, 1, lambda: False,
+        begin = time.thread_time()                 # rank 0 sends the case's stored text with its task
+        task = Task(case.case_id, resume=False, config=comm.relay.config(case.case_id))
+        task = pickle.loads(pickle.dumps(task, protocol=pickle.HIGHEST_PROTOCOL))
+        comm.rank0["task"] += time.thread_time() - begin
+        result = run_one(remote, task, remote.flush, 1, lambda: False,
                          lambda fraction: None, study.analysis)
         if result.status != FINISHED:
             raise SystemExit(f"case {case.case_id}: {result.message}")

@@ -48,7 +48,7 @@ import logging
 import threading
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -194,7 +194,7 @@ def run_one(campaign: CampaignFile, task: Task, flush: Callable[[], None], rank:
     """Run one case to its end (or to a stop request); an exception is recorded, never raised.
     ``classify`` (a staged study): an ended case's verdict comes with the result (:func:`_verdict`)."""
     case_id = task.case_id
-    store = campaign.store(case_id)
+    store = campaign.store(case_id) if task.config is None else campaign.store(case_id, task.config)
     t0 = time.perf_counter()
 
     def tick(t):
@@ -294,6 +294,8 @@ class Master:
                 task = None if self.stopping else self.queue.pop()
                 if task is None:
                     break
+                if self.relay is not None:
+                    task = replace(task, config=self.relay.config(task.case_id))
                 self.comm.send(task, dest=rank, tag=TAG_TASK)
                 self.waiting.discard(rank)
                 self.busy[rank] = task.case_id

@@ -35,12 +35,15 @@ def ranks_for(computing: int) -> int:
 @dataclass(frozen=True)
 class Task:
     """One case to run: continue from its checkpoint (``resume``), from which state (``start``), and
-    whether its end state is wanted back (``keep_end``: a case of the chain waits for it)."""
+    whether its end state is wanted back (``keep_end``: a case of the chain waits for it); ``config``:
+    the case's stored TOML text, sent with it under ``--io relay`` (rank 0 holds it; asking for it was a
+    round trip a case)."""
 
     case_id: str
     resume: bool
     start: tuple | None = None
     keep_end: bool = False
+    config: str | None = None
 
 
 class WorkQueue:

@@ -50,6 +50,10 @@ class Relay:
         #: took a tenth of rank 0's time at -n 16)
         self._replies = {}
 
+    def config(self, case_id: str) -> str:
+        """The stored TOML text of a case about to be handed out (sent with its task)."""
+        return self._store(case_id).config
+
     def _store(self, case_id: str):
         if case_id not in self._stores:
             self._stores[case_id] = self.campaign.store(case_id)
@@ -105,10 +109,12 @@ class Relay:
 class RemoteCaseStore:
     """A worker's view of one case: the CaseStore interface, served by rank 0."""
 
-    def __init__(self, campaign: "RemoteCampaign", case_id: str):
+    def __init__(self, campaign: "RemoteCampaign", case_id: str, config: str | None = None):
         self.campaign, self.comm, self.case_id = campaign, campaign.comm, case_id
         self._request_tag, self._reply_tag = campaign.tags
         self._wait = campaign.wait
+        #: the case's stored text, where rank 0 sent it with the task
+        self._config = config
 
     def _write(self, name: str, *args) -> None:
         self.campaign.pending.append((self.case_id, name, args))
@@ -126,7 +132,9 @@ class RemoteCaseStore:
     @property
     def case(self):
         """Parsed here: rank 0 sends the text (parsing costs ~ms, and rank 0 serves every rank)."""
-        return stored_case(self._read("config"), f"/cases/{self.case_id}")
+        if self._config is None:
+            self._config = self._read("config")
+        return stored_case(self._config, f"/cases/{self.case_id}")
 
     status = property(lambda self: self._read("status"))
     progress = property(lambda self: self._read("progress"))
@@ -186,8 +194,9 @@ class RemoteCampaign:
         #: until rank 0 takes it
         self._sent = []
 
-    def store(self, case_id: str) -> RemoteCaseStore:
-        return RemoteCaseStore(self, case_id)
+    def store(self, case_id: str, config: str | None = None) -> RemoteCaseStore:
+        """Case ``case_id``; ``config``: its stored text, where it came with the task."""
+        return RemoteCaseStore(self, case_id, config)
 
     def send_pending(self, flush: bool = False) -> None:
         """Send the pending writes to rank 0 as one message (and ask it to flush the file after them)."""

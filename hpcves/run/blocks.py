@@ -219,9 +219,9 @@ class RowPlace:
     group = None
 
     def __init__(self, block, row: int, attrs: RowAttrs, where: str, ids: dict, present: dict,
-                 columns: dict | None = None, plans: dict | None = None):
+                 columns: dict | None = None, plans: dict | None = None, filename: str | None = None):
         self.block, self.prefix, self.attrs, self.where = block, (row,), attrs, where
-        self.filename = block.file.filename
+        self.filename = filename or block.file.filename        # (h5py makes a File object to say it: ~30 us)
         #: the writer's ids and plans, shared by every row of the block (CaseStore._id, CaseStore._plan)
         self.ids, self.plans = ids, ({} if plans is None else plans)
         #: {path: whether the block holds it}, shared likewise (h5py's lookup costs ~25 us)
@@ -256,7 +256,7 @@ class Blocks:
         #: per block: the attributes its rows share, and the writer's ids and plans (kept until the block
         #: grows or shrinks: they hold its file spaces)
         self._attrs, self._ids, self._plans = {}, {}, {}
-        #: per block: (its group, its rows, which datasets it holds), until it grows or shrinks
+        #: per block: (its group, its rows, which datasets it holds, its file name), until it grows or shrinks
         self._open = {}
 
     @classmethod
@@ -347,13 +347,13 @@ class Blocks:
                                  "hpcves_version": a.get("hpcves_version", ""),
                                  "sample_capacity": shape[1], "snapshot_capacity": shape[2]}
         if name not in self._open:
-            self._open[name] = (self.group[name], self.rows(name), {})
-        group, rows, present = self._open[name]
+            self._open[name] = (self.group[name], self.rows(name), {}, self.group.file.filename)
+        group, rows, present, filename = self._open[name]
         if not 0 <= row < rows:
             raise FileFormatError(f"{where}: row {row} lies outside block {name}'s {rows}")
         attrs = RowAttrs(self._attrs[name], config, where, extra or {})
         return CaseStore(place=RowPlace(group, row, attrs, where, self._ids.setdefault(name, {}), present,
-                                        PACKING if self.packed else None, self._plans.setdefault(name, {})))
+                                        PACKING if self.packed else None, self._plans.setdefault(name, {}), filename))
 
 
 def find_case(h5, case_id: str, where: str) -> CaseStore:
