@@ -252,6 +252,7 @@ class Master:
         self.busy: dict[int, str] = {}           # rank -> case id
         self.fraction: dict[str, float] = {}     # case id -> fraction of its t_end reached
         self.waiting: set[int] = set()
+        self._task_sends = {}                    # rank -> the send of its latest task (_send_task)
         self.results: list[CaseResult] = []
         self.stopping = False
         self.not_written = ""                    # the first write the file system refused
@@ -296,7 +297,7 @@ class Master:
                     break
                 if self.relay is not None:
                     task = replace(task, config=self.relay.config(task.case_id))
-                self.comm.send(task, dest=rank, tag=TAG_TASK)
+                self._send_task(rank, task)
                 self.waiting.discard(rank)
                 self.busy[rank] = task.case_id
                 self.fraction[task.case_id] = 0.0
@@ -416,9 +417,23 @@ class Master:
                 backoff.sleep()
         if self.relay is not None:
             self.relay.drain()
+        if self._task_sends:
+            from mpi4py import MPI
+
+            MPI.Request.Waitall(list(self._task_sends.values()))
         for rank in range(1, self.size):
             self.comm.send(None, dest=rank, tag=TAG_TASK)
         return self.results
+
+    def _send_task(self, rank: int, task: Task) -> None:
+        """Send ``task`` without waiting for ``rank`` to take it: a task with its config (relay) passes
+        MPI's eager limit (4 KiB on shared memory), and a blocking send of it spun rank 0 until the
+        worker woke from its backoff to receive it (rank 0 used 24x a worker's CPU). The rank asks
+        again only after it took the one before, which is therefore complete."""
+        previous = self._task_sends.pop(rank, None)
+        if previous is not None:
+            previous.Wait()
+        self._task_sends[rank] = self.comm.isend(task, dest=rank, tag=TAG_TASK)
 
 
 # ---------------------------------------------------------------------- other ranks
