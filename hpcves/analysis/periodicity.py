@@ -45,6 +45,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lstsq
 from scipy.ndimage import maximum_filter1d, minimum_filter1d
 
 #: an autocorrelation peak counts as the period if it is this high relative to the highest one
@@ -116,11 +117,32 @@ def noise_level(x: np.ndarray) -> float:
 
 
 def detrend(x: np.ndarray) -> np.ndarray:
-    """x minus its least-squares straight line (scipy.signal.detrend: the hand-written polyfit
-    one agreed to 2e-16 and took 1.8x as long; BENCHMARKS.md)."""
-    import scipy.signal          # here, not at the top: it takes ~0.5 s to import, which `hpcves status` need not pay
+    """x minus its least-squares straight line, fitted over A = [(i + 1) / n, 1] by LAPACK's gelsd:
+    the arithmetic of ``scipy.signal.detrend(x, type="linear")`` step for step (bitwise its result:
+    tests/test_periodicity.py), without importing scipy.signal, which costs ~0.3-0.5 s a process
+    (every rank that classifies, every run that decides)."""
+    data = np.array(x, dtype=float).reshape(-1, 1)
+    n = data.shape[0]
+    A = np.ones((n, 2))
+    A[:, 0] = np.arange(1, n + 1, dtype=float) / n
+    coef = lstsq(A, data)[0]
+    return (data - A @ coef).reshape(-1)
 
-    return scipy.signal.detrend(np.asarray(x, dtype=float), type="linear")
+
+def local_maxima(x: np.ndarray) -> np.ndarray:
+    """Indices of the local maxima of x, a plateau by its middle ((first + last) // 2), never the ends:
+    what ``scipy.signal.find_peaks(x)[0]`` returns with no conditions (tests/test_periodicity.py),
+    without importing scipy.signal. A run of equal values is a maximum when the runs on both sides
+    are lower."""
+    x = np.asarray(x, dtype=float)
+    if x.size < 3:
+        return np.zeros(0, dtype=np.intp)
+    starts = np.concatenate(([0], np.flatnonzero(x[1:] != x[:-1]) + 1))
+    lasts = np.concatenate((starts[1:] - 1, [x.size - 1]))
+    values = x[starts]
+    inner = np.arange(1, starts.size - 1)
+    top = inner[(values[inner - 1] < values[inner]) & (values[inner + 1] < values[inner])]
+    return ((starts[top] + lasts[top]) // 2).astype(np.intp)
 
 
 def untilted(x: np.ndarray, lag: float) -> np.ndarray:
@@ -182,11 +204,9 @@ def acf_period(x: np.ndarray) -> tuple[float, float, float]:
     if negative.size == 0:
         return nan, nan, nan              # never decorrelates: no oscillation within half the record
     lo = negative[0] + 1
-    # local maxima at lags lo .. k_max - 2 (scipy.signal.find_peaks never returns the ends of the
-    # segment, which holds their neighbours), above zero
-    import scipy.signal
-
-    peaks = scipy.signal.find_peaks(r[lo - 1:k_max])[0] + lo - 1
+    # local maxima at lags lo .. k_max - 2 (never the ends of the segment, which holds their
+    # neighbours), above zero
+    peaks = local_maxima(r[lo - 1:k_max]) + lo - 1
     peaks = peaks[r[peaks] > 0]
     if peaks.size == 0:
         return nan, nan, nan
