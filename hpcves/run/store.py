@@ -724,9 +724,9 @@ class CaseStore:
             dataset.write(memory, space, block, mtype=mtype)
         return written
 
-    def _plan(self, paths: tuple) -> tuple[list, list]:
-        """How :meth:`_put_records` writes ``paths``: (the records written one by one, [(packed array,
-        [(record, where in the array's rows)])] for the arrays whose every column they fill)."""
+    def _grouped(self, paths) -> tuple[list, dict]:
+        """(the records of ``paths`` that are datasets of their own, {packed array: [(record, its
+        Column)]} for the others)."""
         singles, packed = [], {}
         for path in paths:
             column = self._place.column(path)
@@ -734,6 +734,12 @@ class CaseStore:
                 singles.append(path)
             else:
                 packed.setdefault(column.array, []).append((path, column))
+        return singles, packed
+
+    def _plan(self, paths: tuple) -> tuple[list, list]:
+        """How :meth:`_put_records` writes ``paths``: (the records written one by one, [(packed array,
+        [(record, where in the array's rows)])] for the arrays whose every column they fill)."""
+        singles, packed = self._grouped(paths)
         arrays = []
         for array, members in packed.items():
             if sum(c.width for _, c in members) == self._id(array)[2][members[0][1].axis]:
@@ -757,18 +763,18 @@ class CaseStore:
 
     def _read_records(self, paths, start: int | None = None, stop: int | None = None) -> dict:
         """{path: :meth:`_read` of it}, each packed array read once for all of its records."""
-        out, packed = {}, {}
-        for path in paths:
-            column = self._place.column(path)
-            if column is None:
-                out[path] = self._read(path, start, stop)
-            else:
-                packed.setdefault(column.array, []).append((path, column))
+        singles, packed = self._grouped(paths)
+        out = {path: self._read(path, start, stop) for path in singles}
         for array, members in packed.items():
             whole = _part(self._place.open(array), self._place.prefix, start, stop)
             for path, column in members:
                 out[path] = np.ascontiguousarray(whole[column.index()])
         return {path: out[path] for path in paths}
+
+    def _read_group(self, group: str, names, start: int | None = None, stop: int | None = None) -> dict:
+        """{name: :meth:`_read` of ``group/name``} (:meth:`_read_records`)."""
+        found = self._read_records([f"{group}/{name}" for name in names], start, stop)
+        return {name: found[f"{group}/{name}"] for name in names}
 
     def _length(self, group: str) -> int:
         """The valid rows of ``timeseries`` or ``snapshots``, as this writer last set them."""
@@ -844,18 +850,15 @@ class CaseStore:
 
     def timeseries(self) -> dict:
         """The valid part of every series (numpy arrays)."""
-        found = self._read_records([f"timeseries/{name}" for name in self.series_names], 0, self.n_samples)
-        return {path.split("/", 1)[1]: values for path, values in found.items()}
+        return self._read_group("timeseries", self.series_names, 0, self.n_samples)
 
     def snapshots(self) -> dict:
-        found = self._read_records([f"snapshots/{name}" for name in SNAPSHOT_RECORDS], 0, self.n_snapshots)
-        return {path.split("/", 1)[1]: values for path, values in found.items()}
+        return self._read_group("snapshots", SNAPSHOT_RECORDS, 0, self.n_snapshots)
 
     def last_snapshots(self, names, count: int) -> dict:
         """The last ``count`` valid snapshots of the fields ``names`` (fewer if there are fewer)."""
         n = self.n_snapshots
-        found = self._read_records([f"snapshots/{name}" for name in names], max(0, n - count), n)
-        return {path.split("/", 1)[1]: values for path, values in found.items()}
+        return self._read_group("snapshots", names, max(0, n - count), n)
 
     @_writes
     def truncate(self, n_samples: int, n_snapshots: int) -> None:
@@ -870,10 +873,8 @@ class CaseStore:
     def _records(self) -> list[tuple[str, np.ndarray]]:
         """(name, valid part) of every series, then of every snapshot record, in the order of their digests."""
         valid = {"timeseries": self.n_samples, "snapshots": self.n_snapshots}
-        out = []
-        for group, names in self._record_names():
-            out += self._read_records([f"{group}/{name}" for name in names], 0, valid[group]).items()
-        return out
+        return [(f"{group}/{name}", values) for group, names in self._record_names()
+                for name, values in self._read_group(group, names, 0, valid[group]).items()]
 
     def data_damage(self) -> list[str]:
         """The series and snapshot records of an ended case whose valid part fails the checksum written
@@ -898,8 +899,7 @@ class CaseStore:
         g = f"checkpoint/{slot}"
         if not self._place.has(f"{g}/digest"):
             return []
-        values = [*self._read_records([f"{g}/{name}" for name in self._arrays]).values(),
-                  self._read(f"{g}/scalars"), self._read(f"{g}/meta")[1:]]
+        values = [*self._read_group(g, self._arrays).values(), self._read(f"{g}/scalars"), self._read(f"{g}/meta")[1:]]
         names = [*self._arrays, "scalars", "meta"]
         return [f"{g}/{name}" for name, v, d in zip(names, values, self._read(f"{g}/digest")) if digest(v) != int(d)]
 
@@ -1010,8 +1010,7 @@ class CaseStore:
         meta = self._read(f"{g}/meta")
         scalars = _unpack_scalars(self._read(f"{g}/scalars"), self._scalars)
         N = int(scalars.pop("N")) if "N" in scalars else stored_N(self.case)
-        found = self._read_records([f"{g}/{name}" for name in self._arrays])
-        arrays = {name: found[f"{g}/{name}"][:N] for name in self._arrays}
+        arrays = {name: values[:N] for name, values in self._read_group(g, self._arrays).items()}
         step = int(meta[1])
         if self.version == 2:                 # a fixed-step run: its time and steps are implied
             dt = self.case.numerics.dt
