@@ -48,8 +48,10 @@ PACKED_SINCE = 3
 #: the columns of timeseries/series (format 3)
 QUANTITIES = tuple(q for name in SERIES for q in ((f"{name}_x", f"{name}_y") if name == "centroid" else (name,)))
 SLOTS = ("slot0", "slot1")
-#: the largest chunk of a packed array, in bytes (a case's rows split into chunks of at most this; a
-#: reader of one column reads whole chunks, through HDF5's 1 MiB chunk cache)
+#: the largest chunk of a packed array, in bytes (a case's rows split into chunks of at most this).
+#: hpcves opens files without a chunk cache (store.CHUNK_CACHE_BYTES): its reads and writes go to the
+#: selected bytes. Other readers (h5py, netCDF: a 1 MiB chunk cache by default) read whole chunks,
+#: which then fit their cache
 CHUNK_BYTES = 256 * 1024
 
 
