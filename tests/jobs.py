@@ -22,27 +22,17 @@ HANG = float(os.environ.get("HPCVES_TEST_HANG", 300.0))      # seconds: only a h
 
 
 @contextlib.contextmanager
-def writing_format_1():
-    """Campaign files written as hpcves wrote them before campaign format 2: a group per case, in HDF5's
-    earliest file formats (h5py's default libver)."""
+def writing_format(version):
+    """Campaign files written as an older hpcves wrote them: format 2 (blocks, a dataset a record) or
+    format 1 (a group per case, in HDF5's earliest file formats: h5py's default libver)."""
     saved = campaign_file.WRITES_VERSION, atomic.FILE_FORMAT
-    campaign_file.WRITES_VERSION, atomic.FILE_FORMAT = 1, ("earliest", "v110")
+    campaign_file.WRITES_VERSION = version
+    if version == 1:
+        atomic.FILE_FORMAT = ("earliest", "v110")
     try:
         yield
     finally:
         campaign_file.WRITES_VERSION, atomic.FILE_FORMAT = saved
-
-
-@contextlib.contextmanager
-def writing_format_2():
-    """Campaign files written as hpcves wrote them before campaign format 3: blocks with a dataset a
-    record (nothing packed)."""
-    saved = campaign_file.WRITES_VERSION
-    campaign_file.WRITES_VERSION = 2
-    try:
-        yield
-    finally:
-        campaign_file.WRITES_VERSION = saved
 
 
 def mpi_env(**extra):

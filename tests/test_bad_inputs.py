@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from jobs import case_view, writing_format_1, writing_format_2
+from jobs import case_view, writing_format
 
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.blocks import QUANTITIES
@@ -295,28 +295,28 @@ def sound(tmp_path_factory):
     return study_file, campaign, single
 
 
-@pytest.fixture(scope="module")
-def sound_v1(sound, tmp_path_factory):
-    """The campaign of ``sound`` in the older layout (format 1: a group per case)."""
+def older_layout(sound, tmp_path_factory, version, holds):
+    """The campaign of ``sound`` as an older hpcves wrote it (campaign format ``version``), which holds
+    ``holds``."""
     study_file, _, single = sound
-    campaign = tmp_path_factory.mktemp("sound_v1") / "campaign.h5"
-    with writing_format_1():
+    campaign = tmp_path_factory.mktemp(f"sound_v{version}") / "campaign.h5"
+    with writing_format(version):
         assert run_campaign(study_from_toml(study_file.read_text()), campaign).exit_status == 0
     with h5py.File(campaign, "r") as f:
-        assert f.attrs["format_version"] == 1 and "cases" in f
+        assert f.attrs["format_version"] == version and holds in f
     return study_file, campaign, single
+
+
+@pytest.fixture(scope="module")
+def sound_v1(sound, tmp_path_factory):
+    """Format 1: a group per case."""
+    return older_layout(sound, tmp_path_factory, 1, "cases")
 
 
 @pytest.fixture(scope="module")
 def sound_v2(sound, tmp_path_factory):
-    """The campaign of ``sound`` in campaign format 2 (blocks, a dataset a record)."""
-    study_file, _, single = sound
-    campaign = tmp_path_factory.mktemp("sound_v2") / "campaign.h5"
-    with writing_format_2():
-        assert run_campaign(study_from_toml(study_file.read_text()), campaign).exit_status == 0
-    with h5py.File(campaign, "r") as f:
-        assert f.attrs["format_version"] == 2 and "blocks/0/timeseries/theta" in f
-    return study_file, campaign, single
+    """Format 2: blocks, a dataset a record."""
+    return older_layout(sound, tmp_path_factory, 2, "blocks/0/timeseries/theta")
 
 
 def header_of(f, name):

@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 from jobs import (MPIRUN, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
-                  start_job, thaw, wait_until, writing_format_1)
+                  start_job, thaw, wait_until, writing_format)
 from test_campaign import TINY_RUN
 
 from hpcves.campaign import driver as campaign_module
@@ -420,7 +420,7 @@ def finished_v1(tmp_path_factory):
     """``finished`` in the older layout (campaign format 1: a group per case)."""
     directory = tmp_path_factory.mktemp("finished_v1")
     path, output = write_study(directory, t_end=0.05, checkpoint=0.02)
-    with writing_format_1():
+    with writing_format(1):
         assert run_campaign(study_from_toml(path.read_text()), output).exit_status == 0
     return path, output
 

@@ -21,7 +21,7 @@ from hpcves.reports.critical import CRITICAL_COLUMNS
 from hpcves.campaign.study import study_from_toml
 
 from jobs import (assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until,
-                  writing_format_1, writing_format_2)
+                  writing_format)
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
 SEARCH = """
@@ -271,7 +271,7 @@ def test_a_search_in_a_file_of_an_older_layout_continues_in_it(searched, tmp_pat
         return real_add(path, comm, cases, stage, source)
 
     monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
-    with pytest.raises(KeyboardInterrupt), (writing_format_1() if version == 1 else writing_format_2()):
+    with pytest.raises(KeyboardInterrupt), writing_format(version):
         run_campaign(study, output)
     monkeypatch.undo()
     with h5py.File(output, "r") as f:
