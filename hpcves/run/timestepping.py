@@ -86,12 +86,17 @@ import numpy as np
 
 from hpcves.model import continuation, geometry
 from hpcves.model import phasefield
-from hpcves.model.flow import Flow, MembraneFlow
+from hpcves.model.flow import Flow, MembraneFlow, TensionSolveError
 from hpcves.model.forces import bending_energy, phase_energy
 from hpcves.model.geometry import Shape
 from hpcves.model.params import Case, ConfigError
 from hpcves.numerics.spectral import Spectral, resample, spectral_tail
 
+
+#: how a solver computes its rates and SBDF2 steps (Solver's ``engine``)
+ENGINES = ("compiled", "numpy")
+_EMPTY = np.empty(0)
+_EMPTY_COMPLEX = np.empty(0, dtype=np.complex128)
 
 #: alpha of the exponential filter exp(-alpha (|m| / (N/2))^p), the publication's code's (4.5e-5 at m = N/2)
 FILTER_STRENGTH = 10.0
@@ -228,13 +233,24 @@ class Solver:
     """One vesicle: operators precomputed for a :class:`Case`; steps are pure functions of a State."""
 
     def __init__(self, case: Case, fft_backend: str = "fftw", start: tuple | None = None, N: int | None = None,
-                 reference: "Solver | None" = None, dealias: bool = True):
+                 reference: "Solver | None" = None, dealias: bool = True, engine: str | None = None):
         """``start``: (theta_tilde, psi) of another state to start from (continuation.carried_start),
         instead of the case's own initial shape and phase. ``N``: the nodes, when not numerics.N (N
         adapting: run/resolution.py); ``reference``: the solver the run started with, whose initial area
         (the area projection's target) and initial tails this one keeps. ``dealias`` False: rates on
-        the N nodes whatever numerics.dealias says (the padded grid's own solver)."""
+        the N nodes whatever numerics.dealias says (the padded grid's own solver). ``engine``: "compiled"
+        (run/compiled.py; the default with the FFTW backend) or "numpy" (this module's own arithmetic,
+        the reference; the default with the numpy backend)."""
         self.case = case
+        if engine is None:
+            engine = "compiled" if fft_backend == "fftw" else "numpy"
+        if engine not in ENGINES:
+            raise ValueError(f"unknown engine {engine!r} (use one of {ENGINES})")
+        self.engine = engine
+        #: B''(psi*) H^2 / 2 in the phase step's Jacobian (phasefield.LinearizedImplicit); False leaves it
+        #: explicit, only to show what it does (tests/test_solver.py)
+        self.phase_jacobian_bending = True
+        self._kernels: tuple | None = None            # the compiled engine's operators, once built
         self._given_start = start
         self._fft_backend = fft_backend
         phys, num = case.physics, case.numerics
@@ -274,7 +290,8 @@ class Solver:
 
     def at(self, N: int) -> "Solver":
         """This case's solver on N nodes, with this one's initial area and tails."""
-        return self if N == self.sp.N else Solver(self.case, self._fft_backend, self._given_start, N=N, reference=self)
+        return self if N == self.sp.N else Solver(self.case, self._fft_backend, self._given_start, N=N, reference=self,
+                                                  engine=self.engine)
 
     def resized(self, state: State, N: int) -> tuple["Solver", State]:
         """(a solver at N nodes, ``state`` on its nodes): every level and right-hand side of the
@@ -361,7 +378,8 @@ class Solver:
             rates = self._rates_on_nodes(state.theta, state.psi, state.center)
         else:
             if self._padded is None:
-                self._padded = Solver(self.case, self._fft_backend, N=self.padded_N, reference=self, dealias=False)
+                self._padded = Solver(self.case, self._fft_backend, N=self.padded_N, reference=self, dealias=False,
+                                      engine=self.engine)
             M = self.padded_N
             rates = self._truncated(self._padded._rates_on_nodes(resample(state.theta, M), resample(state.psi, M),
                                                                  state.center), state)
@@ -375,6 +393,8 @@ class Solver:
 
     def _rates_on_nodes(self, theta: np.ndarray, psi: np.ndarray, center: complex) -> Rates:
         """The right-hand side evaluated on this solver's nodes, products taken pointwise."""
+        if self.engine == "compiled":
+            return self._compiled_rates(theta, psi, center)
         sp, phys, fft = self.sp, self.case.physics, self.sp.fft
         shape = geometry.shape_from_angle(theta, center, sp)
         if phys.homogeneous:
@@ -415,6 +435,73 @@ class Solver:
                      shape=geometry.shape_from_angle(state.theta, state.center, sp), psi_s=psi_s, mu=mu,
                      psi_hat=psi_hat)
 
+    # ------------------------------------------------------------------ the compiled engine
+    def _operators(self) -> tuple:
+        """(ops, phys, step_ops, ch): what run/compiled.py's rates and sbdf2 take of this solver."""
+        if self._kernels is None:
+            sp, phys, flow, N = self.sp, self.case.physics, self.flow, self.sp.N
+            slp = flow.slp
+            ops = (sp.circle_angle, sp.ik, sp.k2, sp.ikc, sp._inv_ikc, slp._base_w, slp._E, slp._c_dir,
+                   slp._A_diag0, self._mobility_k2, flow._blocks)
+            physics = (float(phys.length), float(phys.B1), float(phys.B2), phys.bending_law == "saturating",
+                       float(phys.bending_width), float(phys.shear_rate), float(phys.a0), float(phys.epsilon),
+                       float(phys.mobility))
+            lam_psi = np.zeros_like(sp.k) if self.lam_psi is None else self.lam_psi
+            step_ops = (self.lam_theta, self._resolved, lam_psi, sp._im2pi, sp._m2pi_powers[0].copy(),
+                        max(1, int(0.125 * N)))
+            ch = self.cahn_hilliard
+            ch_ops = ((np.zeros_like(sp.k), sp.ik, np.zeros_like(sp.k), 0.0, 0.0, N + 1) if ch is None else
+                      (ch._bulk, ch._ik, ch._c2_k2, float(ch._bending_scale), float(ch.cutoff), ch._run_points))
+            self._kernels = (ops, physics, step_ops, ch_ops)
+        return self._kernels
+
+    def _compiled_rates(self, theta, psi, center) -> Rates:
+        from hpcves.run import compiled
+        ops, physics, _, _ = self._operators()
+        homogeneous = self.case.physics.homogeneous
+        psi_hat, psi_s, psi_ss, z, tangent, curvature, dB, f_b, r2 = compiled.shape_rates(
+            theta, psi, complex(center), homogeneous, ops, physics)
+        log_r2 = np.log(r2, out=r2)
+        try:
+            status, theta_t, psi_t, center_rate, V, velocity, tension, mu = compiled.flow_rates(
+                theta, psi, complex(center), homogeneous, ops, physics, log_r2, psi_hat, psi_s, psi_ss, z,
+                tangent, curvature, dB, f_b)
+        except np.linalg.LinAlgError:
+            raise TensionSolveError("the inextensibility system is not positive definite: the shape is no "
+                                    "longer resolved (reduce dt or increase N)") from None
+        if status == compiled.TENSION_UNRESOLVED:
+            raise TensionSolveError("the tension leaves a stretching above 1e-6 of what it cancels: the shape "
+                                    "is no longer resolved (reduce dt or increase N)")
+        return Rates(theta=theta_t, psi=psi_t, center=complex(center_rate), shift=V / self.sp.length,
+                     mean_tangential_velocity=V, flow=Flow(velocity=velocity, tension_eff=tension),
+                     shape=Shape(z=z, tangent=tangent, curvature=curvature), psi_s=psi_s,
+                     mu=None if homogeneous else mu, psi_hat=None if homogeneous else psi_hat)
+
+    def _compiled_sbdf2(self, state: State, rates: Rates, k: float, w: float):
+        from hpcves.run import compiled
+        ops, physics, step_ops, ch_ops = self._operators()
+        homogeneous = self.case.physics.homogeneous
+        quadratic = state.prev2_theta is not None
+        area0 = self.area0 if self.case.numerics.area_correction else float("nan")
+        history = (state.prev2_theta, state.prev2_psi, float(state.dt_prev2)) if quadratic else (_EMPTY, _EMPTY, 1.0)
+        try:
+            theta, before, theta_error, theta_scale, psi, psi_error, psi_scale, order = compiled.sbdf2(
+                state.theta, state.prev_theta, history[0], rates.theta, state.prev_rate_theta,
+                state.psi, state.prev_psi, history[1], rates.psi, state.prev_rate_psi,
+                _EMPTY_COMPLEX if rates.psi_hat is None else rates.psi_hat, rates.shape.curvature,
+                float(rates.shift), float(state.prev_rate_shift), float(k), float(w), float(state.dt_prev),
+                history[2], homogeneous, float(area0), self.phase_jacobian_bending, ops, step_ops, ch_ops, physics)
+        except np.linalg.LinAlgError:
+            raise ArithmeticError("Cahn-Hilliard step: singular linear system") from None
+        correction = 0.0 if before != before else (self.area0 - before) / self.area0
+        c = Coefficients.for_ratio(w)
+        center = c.explicit(state.center, state.prev_center, rates.center, state.prev_rate_center, k) \
+            * (k / c.implicit)
+        shift = c.explicit(state.shift, state.prev_shift, rates.shift, state.prev_rate_shift, k) \
+            * (k / c.implicit)
+        estimate = Estimate(theta_error, None if homogeneous else psi_error, theta_scale, psi_scale, order)
+        return theta, psi, center, shift, correction, estimate
+
     # ------------------------------------------------------------------ stepping
     def step(self, state: State, rates: Rates | None = None, k: float | None = None
              ) -> tuple[State, Rates, Estimate]:
@@ -449,6 +536,8 @@ class Solver:
         return new, rates, estimate
 
     def _sbdf2(self, state: State, rates: Rates, k: float, w: float):
+        if self.engine == "compiled":
+            return self._compiled_sbdf2(state, rates, k, w)
         fft = self.sp.fft
         c = Coefficients.for_ratio(w)
         explicit = c.explicit(state.theta, state.prev_theta, rates.theta, state.prev_rate_theta, k)
@@ -566,7 +655,10 @@ class Solver:
                      shift=state.shift + dt * rates.shift)
 
     def _bending_curvature(self, psi_star, curvature):
-        """B''(psi*) H^2 / 2, the bending law's part of d mu / d psi for the Jacobian (None where B'' = 0)."""
+        """B''(psi*) H^2 / 2, the bending law's part of d mu / d psi for the Jacobian (None where B'' = 0,
+        or where it is left out: ``phase_jacobian_bending``)."""
+        if not self.phase_jacobian_bending:
+            return None
         second = self.case.physics.bending_second(psi_star)
         return None if second is None else 0.5 * second * curvature * curvature
 

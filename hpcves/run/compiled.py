@@ -1,0 +1,620 @@
+"""The right-hand side and the SBDF2 step of :mod:`hpcves.run.timestepping`, compiled (numba).
+
+The same equations as the numpy path, in the same order, fused into two calls a step:
+:func:`rates` (the shape, the Stokes flow with its tension and its refinement, theta_t, mu and
+psi_t: geometry.shape_from_angle, flow.MembraneFlow.solve, quadrature.StokesSLP, forces,
+phasefield.chemical_potential, bending's saturating law) and :func:`sbdf2` (the theta step and its
+projection onto closed curves of the initial area, the phase step in the pattern frame with its
+linearly implicit Woodbury solve, or the stabilised Euler step where that is not applicable, and
+the error estimate: Solver._sbdf2 and what it calls). Their docstrings are there; this module
+only says where it differs:
+
+* transforms are pocketfft's (numpy.fft inside numba, through rocket-fft), the exponentials,
+  logarithms and erfc libm's, and reductions summed in order: results differ from the numpy
+  path by round-off (1e-15 relative a step), never by more;
+* the 3 x 3 Newton system of the area projection is solved by Gaussian elimination with partial
+  pivoting (LAPACK's dgesv in the numpy path), the tension's triangular solves by loops;
+* the tension's triangular solves are loops;
+* the logarithm of the single-layer kernel is numpy's (vectorised; libm's scalar one costs 6x
+  more), so :func:`rates` is two calls around it: :func:`shape_rates` and :func:`flow_rates`;
+* errors come back as a code (:data:`TENSION_UNRESOLVED`) or, from LAPACK (the tension's Cholesky
+  factorisation, the phase step's capacitance system), as numpy's LinAlgError, which the caller
+  turns into the numpy path's exceptions.
+
+Why compiled (docs/design.md, "The compiled step"): at N = 64 three quarters of a numpy step was
+the fixed cost of ~300 small array operations; fused, a step costs about its arithmetic.
+Functions are compiled on first use and cached on disk (numba's ``cache=True``), so a process
+pays the compilation once per machine and ~0.3 s to load it after.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import rocket_fft  # noqa: F401  (registers numpy.fft for numba)
+
+jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+OK = 0
+TENSION_UNRESOLVED = 1
+
+#: flow.MembraneFlow's refinement constants
+REFINEMENT_TOLERANCE = 1e-8
+MAX_REFINEMENTS = 8
+UNRESOLVED = 1e-6
+#: geometry.PROJECTION_REMAINDER
+PROJECTION_REMAINDER = 1e-12
+
+
+# ---------------------------------------------------------------- spectral calculus (spectral.py)
+@jit
+def _multiply(f, symbol, n):
+    """irfft(symbol rfft(f))."""
+    return np.fft.irfft(symbol * np.fft.rfft(f), n)
+
+
+@jit
+def _multiply_complex(f, symbol):
+    return np.fft.ifft(symbol * np.fft.fft(f))
+
+
+@jit
+def _antiderivative(w, inv_ikc, mean):
+    """spectral.antiderivative_complex: mode 0 set to mean N."""
+    spectrum = inv_ikc * np.fft.fft(w)
+    spectrum[0] = mean * w.size
+    return np.fft.ifft(spectrum)
+
+
+@jit
+def _largest_magnitude(x):
+    best = 0.0
+    for value in x:
+        size = abs(value)
+        if size > best or size != size:
+            best = size
+            if size != size:
+                return size
+    return best
+
+
+@jit
+def _shift_symbol(a, im2pi, N):
+    symbol = np.exp(-a * im2pi)
+    symbol[-1] = math.cos(math.pi * N * a)
+    return symbol
+
+
+# ---------------------------------------------------------------- bending law (bending.py)
+SHARPNESS = 2.0
+SATURATION = math.exp(0.25 / SHARPNESS**2)
+
+
+@jit
+def _law(p, saturating, width):
+    """(s, s', s'') of the bending law at one psi: B = B1 + (B2 - B1) s(psi)."""
+    if not saturating or (p >= 0.0 and p <= 1.0):
+        return p, 1.0, 0.0
+    above = p > 1.0
+    x = (p - 1.0) / width if above else -p / width
+    sign = 1.0 if above else -1.0
+    log_x = math.log(x)
+    a = SHARPNESS
+    G = 0.5 * math.exp(log_x) * math.erfc(a * log_x) + 0.5 * SATURATION * math.erfc(0.5 / a - a * log_x)
+    s = (1.0 if above else 0.0) + sign * width * G
+    prime = 0.5 * math.erfc(a * log_x)
+    second = sign * (-a / math.sqrt(math.pi) * math.exp(-(a * log_x) ** 2 - log_x)) / width
+    return s, prime, second
+
+
+# ---------------------------------------------------------------- single-layer potential (quadrature.py)
+@jit
+def _squared_distances(z, r2):
+    """r2_ij = |z_i - z_j|^2 off the diagonal, 1 on it (numpy takes its logarithm: vectorised there)."""
+    N = z.size
+    for i in range(N):
+        xi, yi = z[i].real, z[i].imag
+        row = r2[i]
+        for j in range(N):
+            dx = xi - z[j].real
+            dy = yi - z[j].imag
+            row[j] = dx * dx + dy * dy
+        row[i] = 1.0
+    return r2
+
+
+@jit
+def _assemble(z, tangent, log_r2, base_w, w, blocks):
+    """(M / w, P, Q / 2) of StokesSLP.assemble into ``blocks`` given log|r|^2 (0 on the diagonal);
+    returns w / |r|^2 (w on the diagonal)."""
+    N = z.size
+    inv = np.empty((N, N))
+    M, P, Q = blocks[0], blocks[1], blocks[2]
+    for i in range(N):
+        xi, yi = z[i].real, z[i].imag
+        for j in range(N):
+            dx = xi - z[j].real
+            dy = yi - z[j].imag
+            xx, yy = dx * dx, dy * dy
+            ir = w / (xx + yy)
+            M[i, j] = base_w[i, j] - log_r2[i, j]
+            P[i, j] = (xx - yy) * ir
+            Q[i, j] = (dx * dy) * ir
+            inv[i, j] = ir
+        t2 = tangent[i] * tangent[i]
+        P[i, i] = w * t2.real
+        Q[i, i] = (0.5 * w) * t2.imag
+        inv[i, i] = w
+    return inv
+
+
+@jit
+def _apply(blocks, f, w):
+    """u = G f (StokesSLP.apply): M f_a, P f_a, Q/2 f_a by one matrix product, then combined."""
+    N = f.size
+    density = np.empty((N, 2))
+    for j in range(N):
+        density[j, 0] = f[j].real
+        density[j, 1] = f[j].imag
+    products = np.dot(blocks.reshape(3 * N, N), density)
+    u = np.empty(N, dtype=np.complex128)
+    for i in range(N):
+        ux = w * products[i, 0] + products[N + i, 0] + 2.0 * products[2 * N + i, 1]
+        uy = w * products[i, 1] - products[N + i, 1] + 2.0 * products[2 * N + i, 0]
+        u[i] = complex(ux, uy)
+    return u
+
+
+@jit
+def _constraint_matrix(tangent, curvature, blocks, inv, E, w, A_diag0):
+    """A = B^T G B in closed form (StokesSLP.constraint_matrix)."""
+    N = tangent.size
+    A = np.empty((N, N))
+    P, Q_half = blocks[1], blocks[2]
+    c = tangent.real.copy()
+    s = tangent.imag.copy()
+    for i in range(N):
+        ci, si = c[i], s[i]
+        for j in range(N):
+            X = (2.0 / w) * (ci * c[j] - si * s[j]) * P[i, j] + (4.0 / w) * (si * c[j] + ci * s[j]) * Q_half[i, j]
+            A[i, j] = (2.0 - X * X) * inv[i, j] - (ci * c[j] + si * s[j]) * E[i, j]
+        A[i, i] = A_diag0 - (7.0 / 6.0) * w * curvature[i] ** 2
+    return A
+
+
+@jit
+def _cholesky_solve(L, b):
+    """x with L L^T x = b (L lower): L y = b by row dot products, then L^T x = y by row axpys."""
+    N = b.size
+    y = np.empty(N)
+    for i in range(N):
+        total = b[i]
+        row = L[i, :i]
+        for m in range(row.size):
+            total -= row[m] * y[m]
+        y[i] = total / L[i, i]
+    for i in range(N - 1, -1, -1):
+        y[i] /= L[i, i]
+        value = y[i]
+        row, target = L[i, :i], y[:i]
+        for m in range(row.size):
+            target[m] -= value * row[m]
+    return y
+
+
+@jit
+def _stretching(tangent, u, ikc):
+    """s . du/ds."""
+    du = _multiply_complex(u, ikc)
+    return tangent.real * du.real + tangent.imag * du.imag
+
+
+@jit
+def _tension_force(tension, tangent, ikc):
+    return _multiply_complex(tension * tangent, ikc)
+
+
+# ---------------------------------------------------------------- rates (Solver._rates_on_nodes)
+@jit
+def shape_rates(theta_tilde, psi, center, homogeneous, ops, phys):
+    """The first part of F at one level: the shape, psi's derivatives, the bending force and the squared
+    distances |z_i - z_j|^2 whose logarithm the single-layer kernel needs. ``ops``: the grid's operators
+    (Solver._operators); ``phys``: (length, B1, B2, saturating, width, shear_rate, a0, eps, mobility).
+    Returns (psi_hat, psi_s, psi_ss, z, tangent, curvature, B'(psi), f_b, r2)."""
+    (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks) = ops
+    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
+    N = theta_tilde.size
+    # shape (geometry.shape_from_angle)
+    theta = circle + theta_tilde
+    tangent = np.exp(1j * theta)
+    z = _antiderivative(tangent, inv_ikc, center)
+    curvature = 2.0 * math.pi / length + _multiply(theta_tilde, ik, N)
+    # phase derivatives and the bending law
+    B = np.empty(N)
+    dB = np.empty(N)
+    if homogeneous:
+        psi_hat = np.zeros(N // 2 + 1, dtype=np.complex128)
+        psi_s = np.zeros(N)
+        psi_ss = np.zeros(N)
+    else:
+        psi_hat = np.fft.rfft(psi)
+        psi_s = np.fft.irfft(ik * psi_hat, N)
+        psi_ss = np.fft.irfft(k2 * psi_hat, N)
+    for j in range(N):
+        s, prime, _ = _law(psi[j], saturating, width)
+        B[j] = B1 + (B2 - B1) * s
+        dB[j] = (B2 - B1) * prime
+    # bending force (forces.bending_force)
+    BH = B * curvature
+    normal_part = _multiply(BH, k2, N) + 0.5 * (BH * curvature) * curvature
+    f_b = np.empty(N, dtype=np.complex128)
+    for j in range(N):
+        f_b[j] = complex(curvature[j] * curvature[j] * (0.5 * dB[j] * psi_s[j]), -normal_part[j]) * tangent[j]
+    r2 = _squared_distances(z, np.empty((N, N)))
+    return psi_hat, psi_s, psi_ss, z, tangent, curvature, dB, f_b, r2
+
+
+@jit
+def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat, psi_s, psi_ss, z, tangent,
+               curvature, dB, f_b):
+    """The rest of F at one level, given log|r|^2 and what :func:`shape_rates` gave. Returns (status,
+    theta_t, psi_t, center rate, V, velocity, tension_eff, mu)."""
+    (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks) = ops
+    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
+    N = theta_tilde.size
+    # flow and tension (flow.MembraneFlow.solve)
+    inv = _assemble(z, tangent, log_r2, base_w, w, blocks)
+    u0 = _apply(blocks, f_b, w)
+    u0 += shear_rate * z.imag
+    rhs = _stretching(tangent, u0, ikc)
+    A = _constraint_matrix(tangent, curvature, blocks, inv, E, w, A_diag0)
+    empty = np.empty(0)
+    A = np.linalg.cholesky(A)            # LAPACK's dpotrf (LinAlgError: not positive definite)
+    tension = _cholesky_solve(A, rhs)
+    u = u0 + _apply(blocks, _tension_force(tension, tangent, ikc), w)
+    scale = _largest_magnitude(rhs)
+    previous = np.inf
+    size = 0.0
+    for refinements in range(MAX_REFINEMENTS + 1):
+        residual = _stretching(tangent, u, ikc)
+        size = _largest_magnitude(residual)
+        if size <= REFINEMENT_TOLERANCE * scale or size > 0.5 * previous or refinements == MAX_REFINEMENTS:
+            break
+        previous = size
+        correction = _cholesky_solve(A, residual)
+        tension += correction
+        u += _apply(blocks, _tension_force(correction, tangent, ikc), w)
+    status = TENSION_UNRESOLVED if size > UNRESOLVED * scale else OK
+    # theta_t = -n . d(u - V s)/ds
+    V = 0.0
+    for j in range(N):
+        V += tangent[j].real * u[j].real + tangent[j].imag * u[j].imag
+    V /= N
+    node_velocity_s = _multiply_complex(u - V * tangent, ikc)
+    theta_t = tangent.real * node_velocity_s.imag - tangent.imag * node_velocity_s.real
+    center_rate = u.sum() / N
+    if homogeneous:
+        return status, theta_t, np.zeros(N), center_rate, V, u, tension, empty
+    # chemical potential (phasefield.chemical_potential) and psi_t = nu mu_ss
+    mu = np.empty(N)
+    for j in range(N):
+        p = psi[j] - 0.5
+        mu[j] = ((p * p - 0.25) * p * (a0 / eps) + (0.5 * dB[j]) * (curvature[j] * curvature[j])
+                 - (a0 * eps) * psi_ss[j])
+    psi_t = _multiply(mu, mobility_k2, N)
+    return status, theta_t, psi_t, center_rate, V, u, tension, mu
+
+
+# ---------------------------------------------------------------- projection (geometry.project_closed)
+@jit
+def _closure_step(theta, e):
+    n = theta.size
+    c, s = e.real, e.imag
+    defect = e.sum() / n
+    ss = cs = cc = 0.0
+    for j in range(n):
+        ss += s[j] * s[j]
+        cs += c[j] * s[j]
+        cc += c[j] * c[j]
+    ss, cs, cc = ss / n, cs / n, cc / n
+    det = ss * cc - cs * cs
+    p = -(cc * defect.real + cs * defect.imag) / det
+    q = -(cs * defect.real + ss * defect.imag) / det
+    return theta + (q * c - p * s)
+
+
+@jit
+def _area(e, z, length):
+    N = e.size
+    total = 0.0
+    for j in range(N):
+        total += e[j].real * z[j].imag - e[j].imag * z[j].real
+    return -0.5 * length * total / N
+
+
+@jit
+def _solve3(a, b):
+    """x with a x = b (3 x 3, Gaussian elimination with partial pivoting); ok False if singular."""
+    a = a.copy()
+    b = b.copy()
+    for col in range(3):
+        pivot = col
+        for row in range(col + 1, 3):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if a[pivot, col] == 0.0:
+            return b, False
+        if pivot != col:
+            for k in range(3):
+                a[col, k], a[pivot, k] = a[pivot, k], a[col, k]
+            b[col], b[pivot] = b[pivot], b[col]
+        for row in range(col + 1, 3):
+            factor = a[row, col] / a[col, col]
+            for k in range(col, 3):
+                a[row, k] -= factor * a[col, k]
+            b[row] -= factor * b[col]
+    x = np.empty(3)
+    for row in range(2, -1, -1):
+        s = b[row]
+        for k in range(row + 1, 3):
+            s -= a[row, k] * x[k]
+        x[row] = s / a[row, row]
+    return x, True
+
+
+@jit
+def _project_closed(theta, circle, inv_ikc, length, area):
+    """(theta, area before) on closed curves of ``area`` (NaN: closure only; area before NaN)."""
+    N = theta.size
+    e = np.exp(1j * theta)
+    if area != area:
+        return _closure_step(theta, e), np.nan
+    rows = np.empty((4, N))
+    for j in range(N):
+        rows[0, j] = theta[j] - circle[j]
+    rows[0] -= rows[0].sum() / N
+    z = _antiderivative(e, inv_ikc, 0.0)
+    A = before = _area(e, z, length)
+    for j in range(N):
+        rows[1, j] = -e[j].imag
+        rows[2, j] = e[j].real
+        rows[3, j] = (e[j].real * z[j].real + e[j].imag * z[j].imag) * (length / N)
+    jacobian = np.dot(rows[1:], rows[:3].T)
+    if abs(jacobian[2, 0]) <= 1e-12 * area:
+        return _closure_step(theta, e), before
+    first = -1.0
+    for _ in range(6):
+        defect = e.sum()
+        if abs(A - area) <= 1e-13 * area and abs(defect) <= 1e-15 * N:
+            break
+        lam, ok = _solve3(jacobian, np.array([-defect.real, -defect.imag, area - A]))
+        if not ok:
+            return _closure_step(theta, e), before
+        correction = lam[0] * rows[0] + lam[1] * rows[1] + lam[2] * rows[2]
+        theta = theta + correction
+        size = _largest_magnitude(correction)
+        if first < 0.0:
+            first = size
+        if size * first <= PROJECTION_REMAINDER:
+            break
+        e = np.exp(1j * theta)
+        z = _antiderivative(e, inv_ikc, 0.0)
+        A = _area(e, z, length)
+    return theta, before
+
+
+# ---------------------------------------------------------------- phase step (phasefield.py, Solver._sbdf2_phase)
+SPINODAL_HALF_WIDTH = math.sqrt(3.0) / 6.0
+PLAUSIBLE = (-0.1, 1.1)
+
+
+@jit
+def _applicable(psi, run_points):
+    """phasefield.LinearizedImplicit.applicable."""
+    N = psi.size
+    largest = 0.0
+    for value in psi:
+        d = abs(value - 0.5)
+        if not d <= largest:
+            largest = d
+            if d != d:
+                return False
+    if not largest <= 0.55:
+        return False
+    if run_points > N:
+        return True
+    run = 0
+    for j in range(N + run_points - 1):
+        if abs(psi[j % N] - 0.5) < SPINODAL_HALF_WIDTH:
+            run += 1
+            if run >= run_points:
+                return False
+        else:
+            run = 0
+    return True
+
+
+@jit
+def _plausible(psi):
+    for value in psi:
+        if not (PLAUSIBLE[0] <= value and value <= PLAUSIBLE[1]):
+            return False
+    return True
+
+
+@jit
+def _displacement(f_hat, g_hat, N, im2pi, m2pi, reach):
+    """spectral.Spectral.displacement with window reach / N, of the spectra f_hat, g_hat."""
+    q = f_hat * np.conj(g_hat)
+    q[0] = 0.0
+    q[-1] = 0.0
+    R = np.fft.irfft(q, N)
+    best_lag = -reach
+    best_value = -np.inf
+    for lag in range(-reach, reach + 1):
+        value = R[lag % N]
+        if value > best_value:
+            best_value, best_lag = value, lag
+    a = a_grid = best_lag / N
+    j = best_lag % N
+    before, peak, after = R[j - 1], R[j], R[(j + 1) % N]
+    if peak == 0.0:
+        variation = False
+        for value in q:
+            if value != 0.0:
+                variation = True
+        if not variation:
+            return 0.0
+    if before - 2.0 * peak + after < 0.0:
+        a += 0.5 * (before - after) / (before - 2.0 * peak + after) / N
+    for _ in range(20):
+        wave = q * np.exp(a * im2pi)
+        slope = 0.0
+        curvature = 0.0
+        for m in range(wave.size):
+            slope += m2pi[m] * wave[m].imag
+            curvature += m2pi[m] * m2pi[m] * wave[m].real
+        if curvature <= 0.0:
+            break
+        step = slope / curvature
+        a -= step
+        if abs(step) < 1e-5:
+            break
+    if not abs(a - a_grid) <= 1.0 / N:
+        return a_grid
+    return a
+
+
+@jit
+def _solve_spectral(psi_star, psi_star_hat, c, explicit_hat, advection, bending, ch):
+    """phasefield.LinearizedImplicit.solve_spectral; ``bending`` (B'' H^2 / 2) of length 0 if none."""
+    bulk, ik, c2_k2, bending_scale, cutoff, run_points = ch
+    N = psi_star.size
+    e = 3.0 * psi_star * (psi_star - 1.0)
+    if bending.size:
+        e += bending_scale * bending
+    count = 0
+    for j in range(N):
+        if abs(e[j]) > cutoff:
+            count += 1
+    P = np.empty(count, dtype=np.int64)
+    count = 0
+    for j in range(N):
+        if abs(e[j]) > cutoff:
+            P[count] = j
+            count += 1
+    rhs_hat = explicit_hat + bulk * psi_star_hat
+    kappa = (c + bulk) + advection * ik
+    if count == 0:
+        return np.fft.irfft(rhs_hat / kappa, N)
+    w = np.zeros(N)
+    for a in range(count):
+        w[P[a]] = e[P[a]] * psi_star[P[a]]
+    rhs_hat -= c2_k2 * np.fft.rfft(w)
+    z = np.fft.irfft(rhs_hat / kappa, N)
+    Q_symbol = c2_k2 / kappa
+    minus_q = np.fft.irfft(-Q_symbol, N)
+    capacitance = np.empty((count, count))
+    right = np.empty(count)
+    for a in range(count):
+        for b in range(count):
+            capacitance[a, b] = minus_q[(P[a] - P[b]) % N]
+        capacitance[a, a] += 1.0 / e[P[a]]
+        right[a] = z[P[a]]
+    y = np.linalg.solve(capacitance, right)          # LAPACK's dgesv (LinAlgError: singular)
+    w[:] = 0.0
+    for a in range(count):
+        w[P[a]] = y[a]
+    return z + np.fft.irfft(Q_symbol * np.fft.rfft(w), N)
+
+
+@jit
+def _stabilized_euler(psi, rate, dt, advection, lam_psi, ik, N):
+    damping = 1.0 + dt * (lam_psi + advection * ik)
+    return np.fft.irfft(np.fft.rfft(psi + dt * rate) / damping + np.fft.rfft(psi) * (dt * lam_psi / damping), N)
+
+
+# ---------------------------------------------------------------- the step (Solver._sbdf2)
+@jit
+def sbdf2(theta, prev_theta, prev2_theta, rate_theta, prev_rate_theta,
+          psi, prev_psi, prev2_psi, rate_psi, prev_rate_psi, psi_hat, curvature,
+          shift_rate, prev_rate_shift, k, w, dt_prev, dt_prev2, homogeneous, area0, jacobian_bending, ops, step_ops,
+          ch, phys):
+    """One variable-step SBDF2 step of theta_tilde and psi (Solver._sbdf2 and _sbdf2_phase).
+    ``prev2_*`` of length 0 before step 2. Returns (theta, area before, theta error, theta scale, psi,
+    psi error, psi scale, order)."""
+    circle, ik = ops[0], ops[1]
+    inv_ikc = ops[4]
+    lam_theta, resolved, lam_psi, im2pi, m2pi, reach = step_ops
+    length, B1, B2, saturating, width = phys[0], phys[1], phys[2], phys[3], phys[4]
+    N = theta.size
+    implicit, current, previous = (1.0 + 2.0 * w) / (1.0 + w), 1.0 + w, w * w / (1.0 + w)
+    # theta: SBDF2 with the implicit bending symbol, projected
+    explicit = (current * theta - previous * prev_theta) / k + current * rate_theta - w * prev_rate_theta
+    theta_star = current * theta - w * prev_theta
+    theta_hat = (np.fft.rfft(explicit) + lam_theta * np.fft.rfft(theta_star)) * (1.0 / (implicit / k + lam_theta))
+    full = np.fft.irfft(resolved * theta_hat, N) + circle
+    full, before = _project_closed(full, circle, inv_ikc, length, area0)
+    new_theta = full - circle
+    quadratic = prev2_theta.size > 0
+    l0 = l1 = l2 = 0.0
+    if quadratic:
+        k1, k2_ = dt_prev, dt_prev2
+        l0 = (k + k1) * (k + k1 + k2_) / (k1 * (k1 + k2_))
+        l1 = -k * (k + k1 + k2_) / (k1 * k2_)
+        l2 = k * (k + k1) / (k2_ * (k1 + k2_))
+        theta_error = new_theta - (l0 * theta + l1 * prev_theta + l2 * prev2_theta)
+    else:
+        theta_error = new_theta - theta_star
+    theta_scale = max(_largest_magnitude(new_theta), _largest_magnitude(theta))
+    order = 3 if quadratic else 2
+    if homogeneous:
+        return new_theta, before, theta_error, theta_scale, psi, np.empty(0), 0.0, order
+    # psi: SBDF2 in the pattern frame
+    prev_hat = np.fft.rfft(prev_psi)
+    moved = _displacement(psi_hat, prev_hat, N, im2pi, m2pi, reach)
+    W = length * moved / dt_prev
+    if w == 1.0:
+        to_n = _shift_symbol(moved, im2pi, N)
+        to_prev = to_n * to_n
+        to_prev[-1] = math.cos(2.0 * math.pi * N * moved)
+    else:
+        to_n, to_prev = _shift_symbol(w * moved, im2pi, N), _shift_symbol((1.0 + w) * moved, im2pi, N)
+    star_hat = current * (psi_hat * to_n) - w * (prev_hat * to_prev)
+    psi_star = np.fft.irfft(star_hat, N)
+    V_star = length * (current * shift_rate - w * prev_rate_shift)
+    run_points = ch[5]
+    new_psi = psi_star
+    fell_back = True
+    if _applicable(psi_star, run_points) and _applicable(psi, run_points) and _applicable(prev_psi, run_points):
+        explicit_hat = (((current / k) * psi_hat + current * np.fft.rfft(rate_psi)) * to_n
+                        - ((previous / k) * prev_hat + w * np.fft.rfft(prev_rate_psi)) * to_prev)
+        bending = np.empty(0)
+        if saturating and jacobian_bending:
+            outside = False
+            for value in psi_star:
+                if not (value >= 0.0 and value <= 1.0):
+                    outside = True
+            if outside:
+                bending = np.empty(N)
+                for j in range(N):
+                    _, _, second = _law(psi_star[j], saturating, width)
+                    bending[j] = 0.5 * ((B2 - B1) * second) * curvature[j] * curvature[j]
+        new_psi = _solve_spectral(psi_star, star_hat, implicit / k, explicit_hat, V_star - W, bending, ch)
+        if _plausible(new_psi):
+            fell_back = False
+    if fell_back:
+        new_psi = _stabilized_euler(psi, rate_psi, k, V_star, lam_psi, ik, N)
+    new_psi = new_psi + (psi.sum() - new_psi.sum()) / N
+    if quadratic:
+        to_prev2 = _shift_symbol(moved * (k + dt_prev + dt_prev2) / dt_prev, im2pi, N)
+        predicted = np.fft.irfft((l0 * to_n) * psi_hat + (l1 * to_prev) * prev_hat
+                                 + (l2 * to_prev2) * np.fft.rfft(prev2_psi), N)
+    else:
+        predicted = psi_star
+    psi_error = new_psi - predicted
+    if fell_back:
+        psi_error = np.fft.irfft(np.fft.rfft(psi_error) * np.where(k * lam_psi <= 1.0, 1.0, 0.0), N)
+    psi_scale = max(_largest_magnitude(new_psi), _largest_magnitude(psi))
+    return new_theta, before, theta_error, theta_scale, new_psi, psi_error, psi_scale, order
