@@ -59,7 +59,13 @@ fi
 
 # 4. hpcves and the rest of its dependencies --------------------------------
 stamp="$VENV/.hpcves-installed"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || ! "$VPY" -c "import hpcves" 2>/dev/null; then
+# (again where the editable install points at another clone: scripts run from bench/ or analysis/
+# would import that clone's hpcves)
+here="$(pwd -P)"
+case "$VPY" in /*) vpy_abs="$VPY" ;; *) vpy_abs="$here/$VPY" ;; esac
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || ! (cd / && "$vpy_abs" -c \
+        "import hpcves, os, sys; sys.exit(0 if os.path.realpath(hpcves.__file__).startswith('$here/') else 1)") \
+        2>/dev/null; then
     say "installing hpcves (editable) and its dependencies"
     pipq -e ".[test]"
     touch "$stamp"

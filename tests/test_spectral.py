@@ -75,3 +75,20 @@ def test_displacement_finds_a_subgrid_shift():
     assert sp.displacement(np.ones(128), np.ones(128)) == 0.0
     # beyond the window the best shift inside it is returned, not a far one
     assert abs(sp.displacement(pattern(sp.alpha - 0.4), pattern(sp.alpha), window=0.125)) <= 0.125
+
+
+@pytest.mark.parametrize("n", [16, 48, 64, 96, 128, 512])
+def test_resample_is_bitwise_scipy_signal_resample_without_importing_it(n):
+    from scipy import signal
+
+    from hpcves.numerics.spectral import resample
+
+    rng = np.random.default_rng(n)
+    fields = rng.standard_normal((7, n))
+    for N in {16, 32, 48, 64, 96, 128, 256, 384, 512, 1024} - {n}:        # the same size: a copy
+        expected = np.array([signal.resample(row, N) for row in fields])
+        assert np.array_equal(resample(fields, N), expected), (n, N)              # a stack, along its last axis
+        assert np.array_equal(resample(fields[3], N), expected[3]), (n, N)
+    z = fields[0] + 1j * fields[1]
+    assert np.array_equal(resample(z, 2 * n), signal.resample(z.real, 2 * n) + 1j * signal.resample(z.imag, 2 * n))
+    assert np.array_equal(resample(fields, n), fields) and resample(fields, n) is not fields

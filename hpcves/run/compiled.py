@@ -618,3 +618,192 @@ def sbdf2(theta, prev_theta, prev2_theta, rate_theta, prev_rate_theta,
         psi_error = np.fft.irfft(np.fft.rfft(psi_error) * np.where(k * lam_psi <= 1.0, 1.0, 0.0), N)
     psi_scale = max(_largest_magnitude(new_psi), _largest_magnitude(psi))
     return new_theta, before, theta_error, theta_scale, new_psi, psi_error, psi_scale, order
+
+
+# ---------------------------------------------------------------- a sample (diagnostics.sample)
+#: the values :func:`sample_values` returns, in order
+SAMPLE = ("theta", "area", "length", "E_bending", "E_phase", "centroid_x", "centroid_y", "tension_min",
+          "tension_mean", "tension_max", "V_psi", "V_L", "phase_position", "psi_min", "psi_max", "stretching",
+          "tail_theta", "tail_psi")
+
+
+@jit
+def _tail(f_hat, N):
+    """spectral.spectral_tail."""
+    total = 0.0
+    for m in range(1, f_hat.size):
+        total += f_hat[m].real ** 2 + f_hat[m].imag ** 2
+    if total <= 0.0:
+        return 0.0
+    top = 0.0
+    for m in range(int(math.ceil(N / 3.0)), f_hat.size):
+        top += f_hat[m].real ** 2 + f_hat[m].imag ** 2
+    return math.sqrt(top / total)
+
+
+@jit
+def _interpolate(spectrum, alpha, N):
+    """The trigonometric interpolant at alpha of the samples whose fft / N is ``spectrum``
+    (spectral.Spectral.interpolate: the Nyquist mode real, cos(pi N alpha))."""
+    value = 0j
+    for m in range(N):
+        if m == N // 2:
+            value += spectrum[m] * math.cos(math.pi * N * alpha)
+        else:
+            mode = m if m < N // 2 else m - N
+            angle = 2.0 * math.pi * mode * alpha
+            value += spectrum[m] * complex(math.cos(angle), math.sin(angle))
+    return value
+
+
+@jit
+def _axis_point(z, tangent, centroid, inclination, length):
+    """diagnostics.axis_point: alpha where the ray centroid + r e^{i theta} meets the membrane."""
+    N = z.size
+    rot = complex(math.cos(inclination), -math.sin(inclination))
+    w = (z - centroid) * rot
+    found = -1
+    for j in range(N):
+        after = (j + 1) % N
+        if w[j].real > 0 and w[after].real > 0 and w[j].imag <= 0.0 < w[after].imag:
+            found = j
+            break
+    if found < 0:
+        best, j_best = -np.inf, 0
+        for j in range(N):
+            value = w[j].real - 10 * abs(w[j].imag)
+            if value > best:
+                best, j_best = value, j
+        return j_best / N
+    j = found
+    g0, g1 = w[j].imag, w[(j + 1) % N].imag
+    alpha = (j + g0 / (g0 - g1)) / N
+    z_hat = np.fft.fft(z) / N
+    dz_hat = np.fft.fft(tangent * length) / N
+    for _ in range(8):
+        value = ((_interpolate(z_hat, alpha, N) - centroid) * rot).imag
+        slope = (_interpolate(dz_hat, alpha, N) * rot).imag
+        step = value / slope
+        alpha -= step
+        if abs(step) < 1e-14:
+            break
+    return alpha % 1.0
+
+
+@jit
+def sample_values(theta_tilde, psi, shift, z, tangent, curvature, velocity, tension_eff, psi_s, psi_t, psi_hat, V,
+                  homogeneous, ikc, phys):
+    """diagnostics.sample's numbers of a state from its rates, in the order of :data:`SAMPLE` (area and
+    length as they are: the caller makes them errors)."""
+    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
+    N = z.size
+    out = np.empty(len(SAMPLE))
+    # moments of the enclosed region (geometry.moments), n = -i s
+    origin = z.sum() / N
+    sums = np.zeros(6)
+    for j in range(N):
+        x, y = z[j].real - origin.real, z[j].imag - origin.imag
+        nx, ny = tangent[j].imag, -tangent[j].real
+        sums[0] += 0.5 * (x * nx + y * ny)
+        sums[1] += 0.5 * x * x * nx
+        sums[2] += 0.5 * y * y * ny
+        sums[3] += x ** 3 / 3.0 * nx
+        sums[4] += 0.5 * x * x * y * nx
+        sums[5] += y ** 3 / 3.0 * ny
+    A, Sx, Sy, Sxx, Sxy, Syy = sums / N * length
+    cx, cy = Sx / A, Sy / A
+    centroid = origin + complex(cx, cy)
+    Ixx, Ixy, Iyy = Sxx - A * cx * cx, Sxy - A * cx * cy, Syy - A * cy * cy
+    inclination = 0.5 * math.atan2(2.0 * Ixy, Ixx - Iyy)
+    # length (geometry.length_of)
+    dz = _multiply_complex(z, ikc) * length
+    perimeter = np.abs(dz).sum() / N
+    # tension Lambda = Lambda~ - sigma, energies, psi's range
+    lam_min, lam_max, lam_sum, bending, line = np.inf, -np.inf, 0.0, 0.0, 0.0
+    psi_min, psi_max = np.inf, -np.inf
+    for j in range(N):
+        p = psi[j]
+        well = 0.25 * p * p * (1.0 - p) ** 2
+        lam = tension_eff[j] - (a0 / eps) * (well - 0.5 * eps * eps * psi_s[j] ** 2)
+        lam_min, lam_max, lam_sum = min(lam_min, lam), max(lam_max, lam), lam_sum + lam
+        s, _, _ = _law(p, saturating, width)
+        bending += (B1 + (B2 - B1) * s) * curvature[j] ** 2
+        line += well + 0.5 * eps * eps * psi_s[j] ** 2
+        psi_min, psi_max = min(psi_min, p), max(psi_max, p)
+    # the phase pattern relative to the material: sum psi_j e^{2 pi i j / N}
+    Z, dZ = 0j, 0j
+    for j in range(N):
+        phase = complex(math.cos(2.0 * math.pi * j / N), math.sin(2.0 * math.pi * j / N))
+        Z += psi[j] * phase
+        dZ += psi_t[j] * phase
+    if abs(Z) > 1e-12 * N:
+        position = (math.atan2(Z.imag, Z.real) / (2 * math.pi) - shift) % 1.0
+        V_psi = length * (dZ / Z).imag / (2 * math.pi)
+    else:
+        position, V_psi = np.nan, np.nan
+    # the material point alpha = 0 relative to the long axis (geometry.moment_rates, diagnostics.axis_point)
+    rates = np.zeros(6)
+    for j in range(N):
+        x, y = z[j].real - origin.real, z[j].imag - origin.imag
+        u_n = tangent[j].imag * velocity[j].real - tangent[j].real * velocity[j].imag      # u . n
+        w = u_n * length / N
+        rates[0] += w
+        rates[1] += x * w
+        rates[2] += y * w
+        rates[3] += x * x * w
+        rates[4] += x * y * w
+        rates[5] += y * y * w
+    dA, dSx, dSy, dSxx, dSxy, dSyy = rates
+    dcx, dcy = (dSx - cx * dA) / A, (dSy - cy * dA) / A
+    dIxx = dSxx - dA * cx * cx - 2 * A * cx * dcx
+    dIxy = dSxy - dA * cx * cy - A * (dcx * cy + cx * dcy)
+    dIyy = dSyy - dA * cy * cy - 2 * A * cy * dcy
+    a_axis = _axis_point(z, tangent, centroid, inclination, length)
+    dphi = ((Ixx - Iyy) * dIxy - Ixy * (dIxx - dIyy)) / ((Ixx - Iyy) ** 2 + 4 * Ixy ** 2)
+    z_a = _interpolate(np.fft.fft(z) / N, a_axis, N)
+    dz_a = _interpolate(np.fft.fft(tangent * length) / N, a_axis, N)
+    w_a = _interpolate(np.fft.fft(velocity - V * tangent) / N, a_axis, N)
+    rot = complex(math.cos(inclination), -math.sin(inclination))
+    da_axis = -((w_a - complex(dcx, dcy) - 1j * dphi * (z_a - centroid)) * rot).imag / (dz_a * rot).imag
+    out[0], out[1], out[2] = inclination, A, perimeter
+    out[3] = 0.5 * length * bending / N
+    out[4] = length * (a0 / eps) * line / N
+    out[5], out[6] = centroid.real, centroid.imag
+    out[7], out[8], out[9] = lam_min, lam_sum / N, lam_max
+    out[10], out[11], out[12] = V_psi, V - length * da_axis, position
+    out[13], out[14] = psi_min, psi_max
+    out[15] = _largest_magnitude(_stretching(tangent, velocity, ikc))
+    out[16] = _tail(np.fft.rfft(theta_tilde), N)
+    out[17] = 0.0 if homogeneous else _tail(psi_hat, N)
+    return out
+
+
+@jit
+def _finite(values):
+    for value in values:
+        if not math.isfinite(value):
+            return False
+    return True
+
+
+@jit
+def soundness(theta, psi, rate_theta, rate_psi):
+    """(the first of the four arrays with a non-finite value, -1 if none; min psi; max psi): the
+    per-step part of diagnostics.health. ``rate_*`` of length 0 where there is none."""
+    if not _finite(theta):
+        return 0, np.nan, np.nan
+    if not _finite(psi):
+        return 1, np.nan, np.nan
+    if not _finite(rate_theta):
+        return 2, np.nan, np.nan
+    if not _finite(rate_psi):
+        return 3, np.nan, np.nan
+    return -1, psi.min(), psi.max()
+
+
+@jit
+def spectral_tails(theta_tilde, psi):
+    """(tail of theta_tilde, tail of psi) as :func:`sample_values` measures them (the initial tails
+    the health check compares the samples' against: the same arithmetic, so equal at t = 0)."""
+    N = theta_tilde.size
+    return _tail(np.fft.rfft(theta_tilde), N), _tail(np.fft.rfft(psi), N)

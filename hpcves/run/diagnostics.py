@@ -136,7 +136,10 @@ def axis_point(solver: Solver, shape, moments: geometry.Moments) -> float:
 
 
 def sample(solver: Solver, state: State, rates: Rates) -> dict:
-    """One row of every time series (see :data:`SERIES`)."""
+    """One row of every time series (see :data:`SERIES`); with the compiled engine its numbers come
+    from one kernel (compiled.sample_values, the same formulas), else from the numpy ones below."""
+    if solver.engine == "compiled":
+        return _compiled_sample(solver, state, rates)
     sp, phys = solver.sp, solver.case.physics
     shape, flow = rates.shape, rates.flow
     m = geometry.moments(shape.z, shape.normal, sp.length)
@@ -191,6 +194,47 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "N": float(sp.N),
         "step": float(state.step),
     }
+
+
+def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
+    from hpcves.run import compiled
+
+    sp, phys = solver.sp, solver.case.physics
+    ops, physics, _, _ = solver._operators()
+    shape, flow = rates.shape, rates.flow
+    psi_hat = _EMPTY_SPECTRUM if rates.psi_hat is None else rates.psi_hat
+    values = dict(zip(compiled.SAMPLE, compiled.sample_values(
+        state.theta, state.psi, float(state.shift), shape.z, shape.tangent, shape.curvature, flow.velocity,
+        flow.tension_eff, rates.psi_s, rates.psi, psi_hat, float(rates.mean_tangential_velocity), phys.homogeneous,
+        ops[3], physics).tolist()))
+    return {
+        "t": solver.time(state),
+        "theta": values["theta"],
+        "area_error": (values["area"] - solver.area0) / solver.area0,
+        "length_error": (values["length"] - sp.length) / sp.length,
+        "E_bending": values["E_bending"],
+        "E_phase": values["E_phase"],
+        "centroid": (values["centroid_x"], values["centroid_y"]),
+        "tension_min": values["tension_min"],
+        "tension_mean": values["tension_mean"],
+        "tension_max": values["tension_max"],
+        "V_psi": values["V_psi"],
+        "V_L": values["V_L"],
+        "phase_position": values["phase_position"],
+        "psi_min": values["psi_min"],
+        "psi_max": values["psi_max"],
+        "area_correction": state.area_correction,
+        "tank_treading_velocity": rates.mean_tangential_velocity,
+        "stretching": values["stretching"],
+        "tail_theta": values["tail_theta"],
+        "tail_psi": values["tail_psi"],
+        "N": float(sp.N),
+        "step": float(state.step),
+    }
+
+
+_EMPTY_SPECTRUM = np.empty(0, dtype=np.complex128)
+_EMPTY_SERIES = np.empty(0)
 
 
 def snapshot(solver: Solver, state: State, rates: Rates) -> dict:
@@ -249,17 +293,28 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
     """Is the run still sane? NaN, area/length error, psi range (RunControl bounds)."""
     run = solver.case.run
     # prev_theta / prev_psi are the previous state's arrays, checked one step earlier
-    for name in ("theta", "psi", "prev_rate_theta", "prev_rate_psi"):
-        value = getattr(state, name)
-        if value is not None and not np.all(np.isfinite(value)):
-            return Health(False, f"non-finite values in {name} at t = {solver.time(state):.6g}")
+    names = ("theta", "psi", "prev_rate_theta", "prev_rate_psi")
+    if solver.engine == "compiled":
+        from hpcves.run import compiled
+
+        empty = _EMPTY_SERIES
+        rate_theta, rate_psi = state.prev_rate_theta, state.prev_rate_psi
+        which, lo, hi = compiled.soundness(state.theta, state.psi, empty if rate_theta is None else rate_theta,
+                                           empty if rate_psi is None else rate_psi)
+        if which >= 0:
+            return Health(False, f"non-finite values in {names[which]} at t = {solver.time(state):.6g}")
+    else:
+        for name in names:
+            value = getattr(state, name)
+            if value is not None and not np.all(np.isfinite(value)):
+                return Health(False, f"non-finite values in {name} at t = {solver.time(state):.6g}")
+        lo, hi = float(state.psi.min()), float(state.psi.max())
     if not (np.isfinite(state.center) and np.isfinite(state.shift)):
         return Health(False, f"non-finite position at t = {solver.time(state):.6g}")
     if abs(last_correction) > run.max_area_correction:
         return Health(False, f"one step changed the area by {last_correction:.3g} (relative; "
                              f"run.max_area_correction = {run.max_area_correction:g}) at "
                              f"t = {solver.time(state):.6g}: the time step is too large for this case")
-    lo, hi = float(state.psi.min()), float(state.psi.max())
     if lo < run.psi_min or hi > run.psi_max:
         return Health(False, f"psi left [{run.psi_min}, {run.psi_max}] (range [{lo:.4g}, {hi:.4g}]) at "
                              f"t = {solver.time(state):.6g}" + _overshoot_context(solver, state))

@@ -843,8 +843,9 @@ class CaseStore:
         start = self._length("snapshots")
         width = self.width
         records = {f"snapshots/{name}": [snap[name] for snap in snaps] for name in ("t", "shift")}
-        for name in SNAPSHOT_FIELDS:           # taken at the run's N, which may be below the width
-            records[f"snapshots/{name}"] = [resample(snap[name], width) for snap in snaps]
+        fields = [resample(np.stack([snap[name] for name in SNAPSHOT_FIELDS]), width) for snap in snaps]
+        for i, name in enumerate(SNAPSHOT_FIELDS):   # taken at the run's N, which may be below the width
+            records[f"snapshots/{name}"] = [field[i] for field in fields]
         self._append(records, start)
         self._set_length("snapshots", start + len(snaps))
 

@@ -285,8 +285,12 @@ class Solver:
         #: the spectral tails of the initial data (theta, psi): the ellipse's own, which its fast
         #: relaxation forgets (diagnostics.health measures the dynamics against the larger of these
         #: and run.max_spectral_tail)
-        self.initial_tails = (spectral_tail(self.sp.fft.rfft(start.theta), self.sp.N),
-                              spectral_tail(self.sp.fft.rfft(start.psi), self.sp.N))
+        if self.engine == "compiled":     # as its samples measure them (diagnostics.sample)
+            from hpcves.run import compiled
+            self.initial_tails = compiled.spectral_tails(start.theta, start.psi)
+        else:
+            self.initial_tails = (spectral_tail(self.sp.fft.rfft(start.theta), self.sp.N),
+                                  spectral_tail(self.sp.fft.rfft(start.psi), self.sp.N))
 
     def at(self, N: int) -> "Solver":
         """This case's solver on N nodes, with this one's initial area and tails."""
