@@ -1,15 +1,18 @@
 """The run loop around the step -> BENCHMARKS.md (``make bench``).
 
 A case of the reproduction's slowest study (jobs/reproduce/psi048_delta_S.toml: Delta = 0.415,
-S = 1.352, N = 128, rtol = 1e-3, a sample every 0.02 and a snapshot every 0.05, run until decided)
-for its first STEPS steps, on one core, two ways:
+S = 1.352, rtol = 1e-3, a sample every 0.02 and a snapshot every 0.05, run until decided) on N = 96
+held (the study's N adapts, and this case grows from 64 to 96 at t = 32.5: the solver alone would
+not follow), for its first STEPS and its first 2 STEPS steps, on one core, two ways:
 
 * ``run_case``: the whole run loop into an HDF5 file -- samples (diagnostics.sample), the health
   check of every step, snapshots, checkpoints, the decision every run.decision_samples samples;
 * the same steps taken by the solver alone (rates, then the clock's step: the same step sequence,
   since the adaptive clock stops at every sample time either way).
 
-The difference is what recording costs. Until 2026-12-04 the loop parsed the stored TOML at every
+The difference is what recording costs: over the first STEPS steps with the file's creation and its
+first checkpoints, and over the next STEPS (the difference of the two lengths) what a long run pays
+per sample. Until 2026-12-04 the loop parsed the stored TOML at every
 sample (~10 ms) instead of holding the case it runs, and wrote each snapshot by itself, one write a
 field (~10 ms), instead of in blocks; this case then took 1.8 times as long (9.2 and 10.7 s against
 5.6 and 5.4 s, measured by hand in turn).
@@ -17,6 +20,7 @@ field (~10 ms), instead of in blocks; this case then took 1.8 times as long (9.2
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import statistics
 import sys
@@ -42,28 +46,34 @@ REPEATS = 3
 HEADING = "The run loop around the step"
 
 
+#: the grid the bench holds: the study's N adapts (64 to 512) and this case grows to 96 at t = 32.5;
+#: the solver alone would stay on its start's grid, so both take the steps of one fixed N
+GRID = 96
+
+
 def the_case():
-    return load_study(STUDY).refine_case(0, SHEAR_RATE, EXCESS_LENGTH, "bench").case
+    case = load_study(STUDY).refine_case(0, SHEAR_RATE, EXCESS_LENGTH, "bench").case
+    return dataclasses.replace(case, numerics=dataclasses.replace(case.numerics, N=GRID, N_max=0))
 
 
-def with_recording(case, folder: Path) -> tuple[float, float]:
-    """(seconds, t reached) of run_case for STEPS steps into a new file."""
+def with_recording(case, folder: Path, steps: int = STEPS) -> tuple[float, float]:
+    """(seconds, t reached) of run_case for ``steps`` steps into a new file."""
     path = folder / f"run{time.monotonic_ns()}.h5"
     start = time.perf_counter()
-    outcome = run_case(case, path, max_steps=STEPS)
+    outcome = run_case(case, path, max_steps=steps)
     seconds = time.perf_counter() - start
     path.unlink()
     return seconds, outcome.t
 
 
-def solver_alone(case) -> tuple[float, float]:
-    """(seconds, t reached) of the same STEPS steps without recording anything."""
+def solver_alone(case, steps: int = STEPS) -> tuple[float, float]:
+    """(seconds, t reached) of the same ``steps`` steps without recording anything."""
     with one_thread():
         start = time.perf_counter()
         solver = Solver(case)
         clock = schedule.clock(case)
         state = solver.initial_state()
-        for _ in range(STEPS):
+        for _ in range(steps):
             state, _ = clock.take_step(solver, state, solver.rates(state))
         return time.perf_counter() - start, solver.time(state)
 
@@ -74,29 +84,41 @@ def main(argv=None):
     args = parser.parse_args(argv)
     start = time.time()
     case = the_case()
-    runs, alone = [], []
-    print(f"run loop: {REPEATS} x 2 runs of {STEPS} steps ...", file=sys.stderr)
+    runs, alone, longer, longer_alone = [], [], [], []
+    print(f"run loop: {REPEATS} x 4 runs of {STEPS} and {2 * STEPS} steps ...", file=sys.stderr)
     with tempfile.TemporaryDirectory() as folder:
-        for _ in range(REPEATS):                      # in turn, so that a load change hits both
+        for _ in range(REPEATS):                      # in turn, so that a load change hits all
             runs.append(with_recording(case, Path(folder)))
             alone.append(solver_alone(case))
-    t_run, t_alone = runs[0][1], alone[0][1]
+            longer.append(with_recording(case, Path(folder), 2 * STEPS))
+            longer_alone.append(solver_alone(case, 2 * STEPS))
+    t_run, t_alone, t_longer = runs[0][1], alone[0][1], longer[0][1]
     recorded, bare = statistics.median(s for s, _ in runs), statistics.median(s for s, _ in alone)
+    recorded2, bare2 = statistics.median(s for s, _ in longer), statistics.median(s for s, _ in longer_alone)
     run = case.run
     samples, snapshots = t_run / run.sample_interval, t_run / run.snapshot_interval
+    later_samples = (t_longer - t_run) / run.sample_interval
+    steady = (recorded2 - recorded) / (bare2 - bare) - 1          # the second STEPS steps: no start-up
     lines = [f"## {HEADING}", "",
              f"Run {datetime.datetime.now():%Y-%m-%d %H:%M} by `bench/bench_run_loop.py` ({time.time() - start:.0f} s) "
              f"on: {machine()}.", "",
              f"A case of jobs/reproduce/psi048_delta_S.toml (Delta = {EXCESS_LENGTH}, S = {SHEAR_RATE}, "
-             f"N = {case.numerics.N}, rtol = {case.numerics.rtol:g}, a sample every {run.sample_interval:g}, "
+             f"N = {case.numerics.N} held (the study's N adapts; this case runs on 96 from t = 32.5), "
+             f"rtol = {case.numerics.rtol:g}, a sample every {run.sample_interval:g}, "
              f"a snapshot every {run.snapshot_interval:g}), its first {STEPS} steps (to t = {t_run:.4g}: "
-             f"~{samples:.0f} samples, ~{snapshots:.0f} snapshots), on one core; medians of {REPEATS}.", "",
+             f"~{samples:.0f} samples, ~{snapshots:.0f} snapshots) and its first {2 * STEPS} (to t = {t_longer:.4g}), "
+             f"on one core; medians of {REPEATS}.", "",
              "| run | seconds | per step (ms) |", "| --- | ---: | ---: |",
              f"| run_case: samples, health checks, snapshots, checkpoints, decisions into HDF5 | {recorded:.2f} | "
              f"{1e3 * recorded / STEPS:.3f} |",
-             f"| the solver alone, the same steps (to t = {t_alone:.4g}) | {bare:.2f} | {1e3 * bare / STEPS:.3f} |", "",
-             f"Recording costs **{recorded / bare - 1:.0%}** on top of the steps "
-             f"({1e3 * (recorded - bare) / samples:.2f} ms a sample, snapshots included)."]
+             f"| the solver alone, the same steps (to t = {t_alone:.4g}) | {bare:.2f} | {1e3 * bare / STEPS:.3f} |",
+             f"| run_case, {2 * STEPS} steps | {recorded2:.2f} | {1e3 * recorded2 / (2 * STEPS):.3f} |",
+             f"| the solver alone, {2 * STEPS} steps | {bare2:.2f} | {1e3 * bare2 / (2 * STEPS):.3f} |", "",
+             f"Recording costs **{recorded / bare - 1:.0%}** on top of the first {STEPS} steps "
+             f"({1e3 * (recorded - bare) / samples:.2f} ms a sample, snapshots, the file's creation and its "
+             f"first checkpoints included), and **{steady:.0%}** on top of the next {STEPS} "
+             f"({1e3 * ((recorded2 - recorded) - (bare2 - bare)) / later_samples:.2f} ms a sample: what a long "
+             "run pays)."]
     replace_section(args.out, HEADING, "\n".join(lines) + "\n")
     print("\n".join(lines))
 

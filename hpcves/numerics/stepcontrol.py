@@ -45,7 +45,7 @@ estimate asks for them, not by a special rule.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -169,5 +169,14 @@ def advance(solver, state, rates, k: float, control: StepControl, t_event: float
     if rejections:
         proposal = min(proposal, step)
     if lands:
-        new = replace(new, t=t_event)
-    return Taken(replace(new, error=err, dt_next=proposal), err, rejections)
+        return Taken(_replaced(new, t=t_event, error=err, dt_next=proposal), err, rejections)
+    return Taken(_replaced(new, error=err, dt_next=proposal), err, rejections)
+
+
+def _replaced(state, **changes):
+    """dataclasses.replace(state, **changes) for a dataclass without __post_init__ or slots (the
+    solver's State): its attributes copied, ``changes`` set -- 1.5 us against 15 a step."""
+    new = object.__new__(type(state))
+    vars(new).update(vars(state))
+    vars(new).update(changes)
+    return new

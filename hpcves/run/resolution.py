@@ -40,6 +40,7 @@ GROW_MARGIN = 4.0
 SHRINK_MARGIN = 10.0
 
 
+@functools.lru_cache(maxsize=256)
 def sizes(case: Case) -> tuple[int, ...]:
     """The sizes N may take: numerics.N, the FFT-friendly sizes above it below N_max, and N_max."""
     num = case.numerics

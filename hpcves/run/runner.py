@@ -17,6 +17,7 @@ the uninterrupted one bit for bit.
 from __future__ import annotations
 
 import dataclasses
+import math
 import logging
 import time
 from dataclasses import dataclass
@@ -276,7 +277,8 @@ def _resolve(solver: Solver, state: State, rates, row: dict):
         N, quiet_since = resolution.decide(solver.case, theta_hat, rates.psi_hat, state.N, state.quiet_since,
                                            state.t)
         if N == state.N:
-            return solver, dataclasses.replace(state, quiet_since=quiet_since), rates, row
+            unchanged = quiet_since == state.quiet_since or (math.isnan(quiet_since) and math.isnan(state.quiet_since))
+            return solver, state if unchanged else dataclasses.replace(state, quiet_since=quiet_since), rates, row
         solver, state = solver.resized(state, N)            # (decide gives NaN after a resize; so does resized)
         rates = solver.rates(state)
         row = diagnostics.sample(solver, state, rates)
