@@ -237,6 +237,13 @@ _EMPTY_SPECTRUM = np.empty(0, dtype=np.complex128)
 _EMPTY_SERIES = np.empty(0)
 
 
+def inclination(solver: Solver, state: State, rates: Rates) -> float:
+    """The sample's ``theta`` (bitwise what :func:`sample` records, by either engine)."""
+    if solver.engine == "compiled":
+        return _compiled_sample(solver, state, rates)["theta"]
+    return geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length).inclination
+
+
 def snapshot(solver: Solver, state: State, rates: Rates) -> dict:
     """Fields at the nodes (see :data:`SNAPSHOT_FIELDS`), plus t and the material shift a."""
     shape, u = rates.shape, rates.flow.velocity
@@ -372,7 +379,7 @@ def inclination_record(case, start: State | None = None) -> InclinationRecord:
         rates = solver.rates(state)
         if clock.sample_due(state):
             times.append(state.t)
-            theta.append(geometry.moments(rates.shape.z, rates.shape.normal, solver.sp.length).inclination)
+            theta.append(inclination(solver, state, rates))
             low, high = min(low, float(state.psi.min())), max(high, float(state.psi.max()))
         if clock.done(state):
             return InclinationRecord(np.array(times), np.array(theta), steps, rejected, state, (low, high))
