@@ -136,7 +136,8 @@ def test_status_says_a_file_is_being_created(tmp_path):
 @needs_mpi
 def test_a_second_campaign_is_refused_through_every_other_name_of_the_file(tmp_path):
     a, b = tmp_path / "A", tmp_path / "B"
-    path, output = write_study(a, t_end=1.0, checkpoint=0.1)   # frozen once two cases run: t_end = 1 is long enough
+    # frozen once two cases run: cases of t_end = 5 (~0.5 s each on the compiled step) leave time to see it
+    path, output = write_study(a, t_end=5.0, checkpoint=0.1)
     job = start_job(2, "campaign", path, "--quiet")
     frozen = freeze_when(job, lambda: len(running_cases(output)) == 2, "two cases run")
     try:
@@ -184,7 +185,8 @@ def test_a_rank_that_outlives_rank_0_still_holds_the_lock(tmp_path):
     rank 0 killed. A resume is refused while rank 1 lives, and works once it is gone."""
     from jobs import alive, job_pids
 
-    path, output = write_study(tmp_path / "job", t_end=1.0, checkpoint=0.1)
+    # cases long enough (~0.5 s each on the compiled step) that two run checkpointed for a while
+    path, output = write_study(tmp_path / "job", t_end=5.0, checkpoint=0.1)
     job = start_job(2, "campaign", path, "--quiet", "--io", "mpio")
     ranks = freeze_when(job, lambda: len(running_cases(output, checkpointed=True)) == 2, "two cases checkpoint")
     os.kill(job.pid, signal.SIGSTOP)                       # mpirun must not notice rank 0's death yet

@@ -206,7 +206,7 @@ def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
     values = dict(zip(compiled.SAMPLE, compiled.sample_values(
         state.theta, state.psi, float(state.shift), shape.z, shape.tangent, shape.curvature, flow.velocity,
         flow.tension_eff, rates.psi_s, rates.psi, psi_hat, float(rates.mean_tangential_velocity), phys.homogeneous,
-        ops[3], physics).tolist()))
+        ops[3], solver.node_phase, physics).tolist()))
     return {
         "t": solver.time(state),
         "theta": values["theta"],
@@ -362,16 +362,16 @@ class InclinationRecord:
     psi_range: tuple[float, float] = (np.nan, np.nan)   # min and max of psi over the samples
 
 
-def inclination_record(case, start: State | None = None) -> InclinationRecord:
+def inclination_record(case, start: State | None = None, engine: str | None = None) -> InclinationRecord:
     """Run ``case`` in memory to its t_end (from ``start``, default its initial state), keeping only
-    theta at its sample times (no file, no checks).
+    theta at its sample times (no file, no checks); ``engine`` as Solver takes it.
 
     For benchmarks and measurements of the time stepping (bench/, analysis/error_rule.py); ``hpcves
     run`` (runner.py) records every series and watches the run's health.
     """
     from hpcves.run import schedule
 
-    solver, clock = Solver(case), schedule.clock(case)
+    solver, clock = Solver(case, engine=engine), schedule.clock(case)
     state = solver.initial_state() if start is None else start
     times, theta, steps, rejected = [], [], 0, 0
     low, high = np.inf, -np.inf

@@ -276,6 +276,8 @@ class Solver:
                                                       num.phase_stabilization)
             self.cahn_hilliard = phasefield.LinearizedImplicit(self.sp, phys.mobility, phys.a0, phys.epsilon)
         self._applicable_memo: tuple = ()
+        #: e^{2 pi i j / N} at the nodes (the compiled sample's phase position)
+        self.node_phase = np.exp(2j * np.pi * np.arange(self.sp.N) / self.sp.N)
         self._start_shape = None               # (theta_tilde, ellipse parameters t) of the start
         if reference is not None:
             self.area0, self.initial_tails = reference.area0, reference.initial_tails
