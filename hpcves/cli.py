@@ -480,6 +480,7 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
                f"a job of {_duration(ask)}" + (" (capped by --max-time; the job resubmits itself)"
                                                 if ask < _job_seconds(wall) else ""))
     click.echo(_overhead_text(basis, ranks))
+    click.echo(_load_text())
     size = file_bytes(study)
     free = free_bytes(path)
     click.echo(f"output: {path} ({size_text(size)} for the {len(study.cases)} cases it starts with, every sample and "
@@ -535,6 +536,17 @@ def _overhead_text(basis, ranks: int) -> str:
     return (text + f"\n{shown} cases a rank at the suggestion{schedules}, fewer than {CASES_PER_RANK}: the cases are few "
             f"for their length -- {fewer} rank{'s' * (fewer != 1)} ({CASES_PER_RANK} cases each) would take "
             f"{_duration(basis.wall(fewer))} instead of {_duration(basis.wall(ranks))}")
+
+
+def _load_text() -> str:
+    """What the wall times assume about the machine: a core per rank, as fast as when the step was timed."""
+    import os
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"the wall times assume a core for every rank, each as fast as when the step was timed here (load "
+            f"average {load:.1f} on {cores} core{'s' * (cores != 1)} then); where the ranks share cores with other "
+            "jobs they stretch with the load (a campaign on a shared 2-core machine took 2.9x its plan)")
 
 
 def _job_seconds(wall: float) -> float:
