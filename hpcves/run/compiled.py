@@ -1,22 +1,25 @@
-"""The right-hand side and the SBDF2 step of :mod:`hpcves.run.timestepping`, compiled (numba).
+"""The right-hand side, the SBDF2 step, a sample and the health check of :mod:`hpcves.run.timestepping`
+and :mod:`hpcves.run.diagnostics`, compiled (numba).
 
-The same equations as the numpy path, in the same order, fused into two calls a step:
-:func:`rates` (the shape, the Stokes flow with its tension and its refinement, theta_t, mu and
-psi_t: geometry.shape_from_angle, flow.MembraneFlow.solve, quadrature.StokesSLP, forces,
-phasefield.chemical_potential, bending's saturating law) and :func:`sbdf2` (the theta step and its
-projection onto closed curves of the initial area, the phase step in the pattern frame with its
-linearly implicit Woodbury solve, or the stabilised Euler step where that is not applicable, and
-the error estimate: Solver._sbdf2 and what it calls). Their docstrings are there; this module
+The same equations as the numpy path, in the same order, fused into three calls a step:
+:func:`shape_rates` and :func:`flow_rates` (the right-hand side: the shape, the bending force, the
+Stokes flow with its tension and refinement, theta_t, mu and psi_t -- geometry.shape_from_angle,
+forces, quadrature.StokesSLP, flow.MembraneFlow.solve, phasefield.chemical_potential, bending's
+saturating law) and :func:`sbdf2` (the theta step and its projection onto closed curves of the
+initial area, the phase step in the pattern frame with its linearly implicit Woodbury solve, or the
+stabilised Euler step where that is not applicable, and the error estimate: Solver._sbdf2 and what
+it calls); and one call a sample (:func:`sample_values`: diagnostics.sample) and a step
+(:func:`soundness`: diagnostics.health's per-step part). Their docstrings are there; this module
 only says where it differs:
 
 * transforms are pocketfft's (numpy.fft inside numba, through rocket-fft), the exponentials,
   logarithms and erfc libm's, and reductions summed in order: results differ from the numpy
   path by round-off (1e-15 relative a step), never by more;
-* the 3 x 3 Newton system of the area projection is solved by Gaussian elimination with partial
-  pivoting (LAPACK's dgesv in the numpy path), the tension's triangular solves by loops;
-* the tension's triangular solves are loops;
 * the logarithm of the single-layer kernel is numpy's (vectorised; libm's scalar one costs 6x
-  more), so :func:`rates` is two calls around it: :func:`shape_rates` and :func:`flow_rates`;
+  more), so the rates are two calls around it;
+* the 3 x 3 Newton system of the area projection is solved by Gaussian elimination with partial
+  pivoting (LAPACK's dgesv in the numpy path), the tension's triangular solves by loops, the
+  interpolant of a sample by powers of e^{2 pi i alpha};
 * errors come back as a code (:data:`TENSION_UNRESOLVED`) or, from LAPACK (the tension's Cholesky
   factorisation, the phase step's capacitance system), as numpy's LinAlgError, which the caller
   turns into the numpy path's exceptions.
@@ -24,7 +27,7 @@ only says where it differs:
 Why compiled (docs/design.md, "The compiled step"): at N = 64 three quarters of a numpy step was
 the fixed cost of ~300 small array operations; fused, a step costs about its arithmetic.
 Functions are compiled on first use and cached on disk (numba's ``cache=True``), so a process
-pays the compilation once per machine and ~0.3 s to load it after.
+pays the compilation once per machine (~20 s) and ~0.3 s to load it after.
 """
 from __future__ import annotations
 
