@@ -241,7 +241,7 @@ def test_a_failed_case_stops_its_chain_and_a_retry_runs_it_on(tmp_path, monkeypa
 
 @needs_mpi
 def test_a_chain_killed_mid_case_then_resumed_is_bitwise_the_run_without_a_stop(tmp_path):
-    path, output = write_chain(tmp_path, t_end=0.5)
+    path, output = write_chain(tmp_path, t_end=1.2)    # long enough to be seen running on the compiled step
     job = start_job(2, "campaign", path, "--quiet")
     links = {c.case_id: c.after for c in study_from_toml(path.read_text()).cases}
 
@@ -258,7 +258,7 @@ def test_a_chain_killed_mid_case_then_resumed_is_bitwise_the_run_without_a_stop(
     assert "from a checkpoint" in result.stderr
     assert set(case_statuses(output).values()) == {FINISHED}
     (tmp_path / "fresh").mkdir()
-    fresh_path, fresh_output = write_chain(tmp_path / "fresh", t_end=0.5)
+    fresh_path, fresh_output = write_chain(tmp_path / "fresh", t_end=1.2)
     assert run_campaign(study_from_toml(fresh_path.read_text()), fresh_output).exit_status == 0
     assert_same_results(output, fresh_output, attrs=False)
 
