@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
+from hpcves.numerics.reductions import largest_magnitude
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ def error_norm(estimate, control: StepControl) -> float:
         if not weight > 0:
             weight = control.rtol            # a field identically zero: measure absolutely
         weight *= root
-        value = float(np.abs(difference).max()) / weight
+        value = float(largest_magnitude(difference)) / weight
         if not math.isfinite(value):
             return math.inf
         worst = max(worst, value)

@@ -28,6 +28,7 @@ All rates are instantaneous (from the velocity field), not differences of sample
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +37,7 @@ from hpcves.model import geometry
 from hpcves.model import phasefield
 from hpcves.numerics.spectral import resolution_needed, spectral_tail
 from hpcves.model.forces import bending_energy, phase_energy
-from hpcves.run.timestepping import Rates, Solver, State
+from hpcves.run.timestepping import Rates, Solver, State, compiled_kernels
 
 #: Names of the scalar time series, in file order; ``centroid`` has two columns.
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",
@@ -197,8 +198,7 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
 
 
 def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
-    from hpcves.run import compiled
-
+    compiled = compiled_kernels()
     sp, phys = solver.sp, solver.case.physics
     ops, physics, _, _ = solver._operators()
     shape, flow = rates.shape, rates.flow
@@ -302,11 +302,9 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
     # prev_theta / prev_psi are the previous state's arrays, checked one step earlier
     names = ("theta", "psi", "prev_rate_theta", "prev_rate_psi")
     if solver.engine == "compiled":
-        from hpcves.run import compiled
-
         empty = _EMPTY_SERIES
         rate_theta, rate_psi = state.prev_rate_theta, state.prev_rate_psi
-        which, lo, hi = compiled.soundness(state.theta, state.psi, empty if rate_theta is None else rate_theta,
+        which, lo, hi = compiled_kernels().soundness(state.theta, state.psi, empty if rate_theta is None else rate_theta,
                                            empty if rate_psi is None else rate_psi)
         if which >= 0:
             return Health(False, f"non-finite values in {names[which]} at t = {solver.time(state):.6g}")
@@ -316,7 +314,8 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
             if value is not None and not np.all(np.isfinite(value)):
                 return Health(False, f"non-finite values in {name} at t = {solver.time(state):.6g}")
         lo, hi = float(state.psi.min()), float(state.psi.max())
-    if not (np.isfinite(state.center) and np.isfinite(state.shift)):
+    center = complex(state.center)
+    if not (math.isfinite(center.real) and math.isfinite(center.imag) and math.isfinite(state.shift)):
         return Health(False, f"non-finite position at t = {solver.time(state):.6g}")
     if abs(last_correction) > run.max_area_correction:
         return Health(False, f"one step changed the area by {last_correction:.3g} (relative; "

@@ -95,6 +95,17 @@ from hpcves.numerics.spectral import Spectral, resample, spectral_tail
 
 #: how a solver computes its rates and SBDF2 steps (Solver's ``engine``)
 ENGINES = ("compiled", "numpy")
+_COMPILED = None
+
+
+def compiled_kernels():
+    """run/compiled.py, imported on first use (it imports numba: ~0.15 s, and loads the kernels);
+    a global afterwards, since an import statement costs ~1 us on every call of a step."""
+    global _COMPILED
+    if _COMPILED is None:
+        from hpcves.run import compiled
+        _COMPILED = compiled
+    return _COMPILED
 _EMPTY = np.empty(0)
 _EMPTY_COMPLEX = np.empty(0, dtype=np.complex128)
 
@@ -288,8 +299,7 @@ class Solver:
         #: relaxation forgets (diagnostics.health measures the dynamics against the larger of these
         #: and run.max_spectral_tail)
         if self.engine == "compiled":     # as its samples measure them (diagnostics.sample)
-            from hpcves.run import compiled
-            self.initial_tails = compiled.spectral_tails(start.theta, start.psi)
+            self.initial_tails = compiled_kernels().spectral_tails(start.theta, start.psi)
         else:
             self.initial_tails = (spectral_tail(self.sp.fft.rfft(start.theta), self.sp.N),
                                   spectral_tail(self.sp.fft.rfft(start.psi), self.sp.N))
@@ -462,7 +472,7 @@ class Solver:
         return self._kernels
 
     def _compiled_rates(self, theta, psi, center) -> Rates:
-        from hpcves.run import compiled
+        compiled = compiled_kernels()
         ops, physics, _, _ = self._operators()
         homogeneous = self.case.physics.homogeneous
         psi_hat, psi_s, psi_ss, z, tangent, curvature, dB, f_b, r2 = compiled.shape_rates(
@@ -484,7 +494,7 @@ class Solver:
                      mu=None if homogeneous else mu, psi_hat=None if homogeneous else psi_hat)
 
     def _compiled_sbdf2(self, state: State, rates: Rates, k: float, w: float):
-        from hpcves.run import compiled
+        compiled = compiled_kernels()
         ops, physics, step_ops, ch_ops = self._operators()
         homogeneous = self.case.physics.homogeneous
         quadratic = state.prev2_theta is not None
