@@ -90,9 +90,7 @@ class MembraneFlow:
         # order LAPACK wants (no copy), and LAPACK's lower Cholesky is the faster one there
         factor, info = lapack.dpotrf(A.T, lower=1, overwrite_a=1, clean=0)
         if info != 0:
-            raise TensionSolveError(
-                "the inextensibility system is not positive definite: the shape is no longer "
-                "resolved (reduce dt or increase N)")
+            raise TensionSolveError.not_definite()
         tension = cholesky_solve(factor, rhs)
         u = u0 + slp.apply(blocks, tension_force(tension, tangent, sp))
         scale = largest_magnitude(rhs)
@@ -108,9 +106,7 @@ class MembraneFlow:
             tension += correction
             u += slp.apply(blocks, tension_force(correction, tangent, sp))
         if size > self.UNRESOLVED * scale:
-            raise TensionSolveError(
-                f"the tension leaves a stretching of {size / scale:.1e} of what it cancels: "
-                "the shape is no longer resolved (reduce dt or increase N)")
+            raise TensionSolveError.unresolved(size / scale)
         return Flow(velocity=u, tension_eff=tension)
 
 
@@ -122,3 +118,14 @@ def cholesky_solve(factor, b):
 
 class TensionSolveError(ArithmeticError):
     """The tension system could not be solved (the computation is diverging)."""
+
+    @classmethod
+    def not_definite(cls) -> "TensionSolveError":
+        return cls("the inextensibility system is not positive definite: the shape is no longer "
+                   "resolved (reduce dt or increase N)")
+
+    @classmethod
+    def unresolved(cls, stretching: float) -> "TensionSolveError":
+        """``stretching``: what the tension leaves of the stretching it cancels (relative)."""
+        return cls(f"the tension leaves a stretching of {stretching:.1e} of what it cancels: "
+                   "the shape is no longer resolved (reduce dt or increase N)")

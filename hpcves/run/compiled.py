@@ -20,9 +20,9 @@ only says where it differs:
 * the 3 x 3 Newton system of the area projection is solved by Gaussian elimination with partial
   pivoting (LAPACK's dgesv in the numpy path), the tension's triangular solves by loops, the
   interpolant of a sample by powers of e^{2 pi i alpha};
-* errors come back as a code (:data:`TENSION_UNRESOLVED`) or, from LAPACK (the tension's Cholesky
-  factorisation, the phase step's capacitance system), as numpy's LinAlgError, which the caller
-  turns into the numpy path's exceptions.
+* errors come back as numbers (the stretching the tension leaves) or, from LAPACK (the tension's
+  Cholesky factorisation, the phase step's capacitance system), as numpy's LinAlgError, which the
+  caller turns into the numpy path's exceptions.
 
 Why compiled (docs/design.md, "The compiled step"): at N = 64 three quarters of a numpy step was
 the fixed cost of ~300 small array operations; fused, a step costs about its arithmetic.
@@ -37,17 +37,17 @@ import numba
 import numpy as np
 import rocket_fft  # noqa: F401  (registers numpy.fft for numba)
 
+from hpcves.model import bending, geometry, phasefield
+from hpcves.model.flow import MembraneFlow
+
 jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
-OK = 0
-TENSION_UNRESOLVED = 1
 
-#: flow.MembraneFlow's refinement constants
-REFINEMENT_TOLERANCE = 1e-8
-MAX_REFINEMENTS = 8
-UNRESOLVED = 1e-6
-#: geometry.PROJECTION_REMAINDER
-PROJECTION_REMAINDER = 1e-12
+#: the numpy path's constants, the same objects (frozen into the kernels when they compile)
+REFINEMENT_TOLERANCE = MembraneFlow.REFINEMENT_TOLERANCE
+MAX_REFINEMENTS = MembraneFlow.MAX_REFINEMENTS
+SHARPNESS, SATURATION = bending.SHARPNESS, bending.SATURATION
+SPINODAL_HALF_WIDTH, PLAUSIBLE = float(phasefield.SPINODAL_HALF_WIDTH), phasefield.PLAUSIBLE
 
 
 # ---------------------------------------------------------------- spectral calculus (spectral.py)
@@ -90,10 +90,6 @@ def _shift_symbol(a, im2pi, N):
 
 
 # ---------------------------------------------------------------- bending law (bending.py)
-SHARPNESS = 2.0
-SATURATION = math.exp(0.25 / SHARPNESS**2)
-
-
 @jit
 def _law(p, saturating, width):
     """(s, s', s'') of the bending law at one psi: B = B1 + (B2 - B1) s(psi)."""
@@ -261,8 +257,9 @@ def shape_rates(theta_tilde, psi, center, homogeneous, ops, phys):
 @jit
 def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat, psi_s, psi_ss, z, tangent,
                curvature, dB, f_b):
-    """The rest of F at one level, given log|r|^2 and what :func:`shape_rates` gave. Returns (status,
-    theta_t, psi_t, center rate, V, velocity, tension_eff, mu)."""
+    """The rest of F at one level, given log|r|^2 and what :func:`shape_rates` gave. Returns (the
+    stretching left after refining, the one the tension cancels -- their ratio the caller checks as
+    flow.MembraneFlow.solve does --, theta_t, psi_t, center rate, V, velocity, tension_eff, mu)."""
     (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks) = ops
     length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
     N = theta_tilde.size
@@ -288,7 +285,7 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
         correction = _cholesky_solve(A, residual)
         tension += correction
         u += _apply(blocks, _tension_force(correction, tangent, ikc), w)
-    status = TENSION_UNRESOLVED if size > UNRESOLVED * scale else OK
+
     # theta_t = -n . d(u - V s)/ds
     V = 0.0
     for j in range(N):
@@ -298,7 +295,7 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
     theta_t = tangent.real * node_velocity_s.imag - tangent.imag * node_velocity_s.real
     center_rate = u.sum() / N
     if homogeneous:
-        return status, theta_t, np.zeros(N), center_rate, V, u, tension, empty
+        return size, scale, theta_t, np.zeros(N), center_rate, V, u, tension, empty
     # chemical potential (phasefield.chemical_potential) and psi_t = nu mu_ss
     mu = np.empty(N)
     for j in range(N):
@@ -306,7 +303,7 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
         mu[j] = ((p * p - 0.25) * p * (a0 / eps) + (0.5 * dB[j]) * (curvature[j] * curvature[j])
                  - (a0 * eps) * psi_ss[j])
     psi_t = _multiply(mu, mobility_k2, N)
-    return status, theta_t, psi_t, center_rate, V, u, tension, mu
+    return size, scale, theta_t, psi_t, center_rate, V, u, tension, mu
 
 
 # ---------------------------------------------------------------- projection (geometry.project_closed)
@@ -399,7 +396,7 @@ def _project_closed(theta, circle, inv_ikc, length, area):
         size = _largest_magnitude(correction)
         if first < 0.0:
             first = size
-        if size * first <= PROJECTION_REMAINDER:
+        if size * first <= geometry.PROJECTION_REMAINDER:
             break
         e = np.exp(1j * theta)
         z = _antiderivative(e, inv_ikc, 0.0)
@@ -408,10 +405,6 @@ def _project_closed(theta, circle, inv_ikc, length, area):
 
 
 # ---------------------------------------------------------------- phase step (phasefield.py, Solver._sbdf2_phase)
-SPINODAL_HALF_WIDTH = math.sqrt(3.0) / 6.0
-PLAUSIBLE = (-0.1, 1.1)
-
-
 @jit
 def _applicable(psi, run_points):
     """phasefield.LinearizedImplicit.applicable."""

@@ -37,7 +37,7 @@ from hpcves.model import geometry
 from hpcves.model import phasefield
 from hpcves.numerics.spectral import resolution_needed, spectral_tail
 from hpcves.model.forces import bending_energy, phase_energy
-from hpcves.run.timestepping import Rates, Solver, State, compiled_kernels
+from hpcves.run.timestepping import EMPTY, EMPTY_SPECTRUM, Rates, Solver, State, compiled_kernels
 
 #: Names of the scalar time series, in file order; ``centroid`` has two columns.
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",
@@ -202,7 +202,7 @@ def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
     sp, phys = solver.sp, solver.case.physics
     ops, physics, _, _ = solver._operators()
     shape, flow = rates.shape, rates.flow
-    psi_hat = _EMPTY_SPECTRUM if rates.psi_hat is None else rates.psi_hat
+    psi_hat = EMPTY_SPECTRUM if rates.psi_hat is None else rates.psi_hat
     values = dict(zip(compiled.SAMPLE, compiled.sample_values(
         state.theta, state.psi, float(state.shift), shape.z, shape.tangent, shape.curvature, flow.velocity,
         flow.tension_eff, rates.psi_s, rates.psi, psi_hat, float(rates.mean_tangential_velocity), phys.homogeneous,
@@ -231,10 +231,6 @@ def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
         "N": float(sp.N),
         "step": float(state.step),
     }
-
-
-_EMPTY_SPECTRUM = np.empty(0, dtype=np.complex128)
-_EMPTY_SERIES = np.empty(0)
 
 
 def inclination(solver: Solver, state: State, rates: Rates) -> float:
@@ -302,7 +298,7 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
     # prev_theta / prev_psi are the previous state's arrays, checked one step earlier
     names = ("theta", "psi", "prev_rate_theta", "prev_rate_psi")
     if solver.engine == "compiled":
-        empty = _EMPTY_SERIES
+        empty = EMPTY
         rate_theta, rate_psi = state.prev_rate_theta, state.prev_rate_psi
         which, lo, hi = compiled_kernels().soundness(state.theta, state.psi, empty if rate_theta is None else rate_theta,
                                            empty if rate_psi is None else rate_psi)

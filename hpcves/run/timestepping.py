@@ -106,8 +106,12 @@ def compiled_kernels():
         from hpcves.run import compiled
         _COMPILED = compiled
     return _COMPILED
-_EMPTY = np.empty(0)
-_EMPTY_COMPLEX = np.empty(0, dtype=np.complex128)
+
+
+#: arguments of length 0 where a compiled kernel's array is absent (None in the numpy path)
+EMPTY = np.empty(0)
+EMPTY_SPECTRUM = np.empty(0, dtype=np.complex128)
+
 
 #: alpha of the exponential filter exp(-alpha (|m| / (N/2))^p), the publication's code's (4.5e-5 at m = N/2)
 FILTER_STRENGTH = 10.0
@@ -479,15 +483,13 @@ class Solver:
             theta, psi, complex(center), homogeneous, ops, physics)
         log_r2 = np.log(r2, out=r2)
         try:
-            status, theta_t, psi_t, center_rate, V, velocity, tension, mu = compiled.flow_rates(
+            left, cancelled, theta_t, psi_t, center_rate, V, velocity, tension, mu = compiled.flow_rates(
                 theta, psi, complex(center), homogeneous, ops, physics, log_r2, psi_hat, psi_s, psi_ss, z,
                 tangent, curvature, dB, f_b)
         except np.linalg.LinAlgError:
-            raise TensionSolveError("the inextensibility system is not positive definite: the shape is no "
-                                    "longer resolved (reduce dt or increase N)") from None
-        if status == compiled.TENSION_UNRESOLVED:
-            raise TensionSolveError("the tension leaves a stretching above 1e-6 of what it cancels: the shape "
-                                    "is no longer resolved (reduce dt or increase N)")
+            raise TensionSolveError.not_definite() from None
+        if left > MembraneFlow.UNRESOLVED * cancelled:
+            raise TensionSolveError.unresolved(left / cancelled)
         return Rates(theta=theta_t, psi=psi_t, center=complex(center_rate), shift=V / self.sp.length,
                      mean_tangential_velocity=V, flow=Flow(velocity=velocity, tension_eff=tension),
                      shape=Shape(z=z, tangent=tangent, curvature=curvature), psi_s=psi_s,
@@ -499,12 +501,12 @@ class Solver:
         homogeneous = self.case.physics.homogeneous
         quadratic = state.prev2_theta is not None
         area0 = self.area0 if self.case.numerics.area_correction else float("nan")
-        history = (state.prev2_theta, state.prev2_psi, float(state.dt_prev2)) if quadratic else (_EMPTY, _EMPTY, 1.0)
+        history = (state.prev2_theta, state.prev2_psi, float(state.dt_prev2)) if quadratic else (EMPTY, EMPTY, 1.0)
         try:
             theta, before, theta_error, theta_scale, psi, psi_error, psi_scale, order = compiled.sbdf2(
                 state.theta, state.prev_theta, history[0], rates.theta, state.prev_rate_theta,
                 state.psi, state.prev_psi, history[1], rates.psi, state.prev_rate_psi,
-                _EMPTY_COMPLEX if rates.psi_hat is None else rates.psi_hat, rates.shape.curvature,
+                EMPTY_SPECTRUM if rates.psi_hat is None else rates.psi_hat, rates.shape.curvature,
                 float(rates.shift), float(state.prev_rate_shift), float(k), float(w), float(state.dt_prev),
                 history[2], homogeneous, float(area0), self.phase_jacobian_bending, ops, step_ops, ch_ops, physics)
         except np.linalg.LinAlgError:
