@@ -13,7 +13,10 @@ other load counts less), two ways:
 
 The difference is what recording costs: over the first STEPS steps with the file's creation and its
 first checkpoints, and over the next STEPS (the difference of the two lengths) what a long run pays
-per sample. Until 2026-12-04 the loop parsed the stored TOML at every
+per sample; each repeat's own ratios, then their median. A last run of 2 STEPS steps times the parts
+of the loop in place (:func:`where_it_goes`), which says where recording's time goes; in place a
+part costs more than alone (the steps between evict its data from the caches: a snapshot 5.5 us
+alone, ~20 in the loop). Until 2026-12-04 the loop parsed the stored TOML at every
 sample (~10 ms) instead of holding the case it runs, and wrote each snapshot by itself, one write a
 field (~10 ms), instead of in blocks; this case then took 1.8 times as long (9.2 and 10.7 s against
 5.6 and 5.4 s, measured by hand in turn).
@@ -43,7 +46,7 @@ from hpcves.run.timestepping import Solver  # noqa: E402
 STUDY = Path(__file__).resolve().parents[1] / "jobs" / "reproduce" / "psi048_delta_S.toml"
 SHEAR_RATE, EXCESS_LENGTH = 1.352, 0.415
 STEPS = 6000
-REPEATS = 5
+REPEATS = 7
 HEADING = "The run loop around the step"
 
 
@@ -79,6 +82,53 @@ def solver_alone(case, steps: int = STEPS) -> tuple[float, float]:
         return time.process_time() - start, solver.time(state)
 
 
+#: the parts of the run loop timed in place (:func:`where_it_goes`): (owner, attribute, label)
+PARTS = (("Solver", "rates", "steps"), ("AdaptiveClock", "take_step", "steps"),
+         ("diagnostics", "sample", "samples (the kernel and the row)"),
+         ("Decisions", "decided", "decisions (the history and the classification every 100 samples)"),
+         ("_Record", "write_rows", "samples and snapshots written (HDF5, checksums)"),
+         ("CaseStore", "write_checkpoint", "checkpoints (HDF5, three flushes each)"),
+         ("diagnostics", "snapshot", "snapshots (the fields copied)"),
+         ("diagnostics", "health", "the health check of every step"),
+         ("AdaptiveClock", "events", "the clock's cadence tests of every step"))
+
+
+def where_it_goes(case, folder: Path, steps: int = 2 * STEPS) -> tuple[float, dict]:
+    """(seconds of the steps, {part: seconds}) of one run_case of ``steps`` steps, each part timed in
+    place (wall clock, one process: a load change hits the steps and the parts alike); "the rest" is
+    the loop itself, the cadences' bookkeeping, the file's creation and the timers' own calls."""
+    from hpcves.run import diagnostics, runner
+    from hpcves.run.store import CaseStore
+    owners = {"Solver": Solver, "AdaptiveClock": schedule.AdaptiveClock, "diagnostics": diagnostics,
+              "Decisions": runner.Decisions, "_Record": runner._Record, "CaseStore": CaseStore}
+    spent: dict[str, float] = {label: 0.0 for _, _, label in PARTS}
+    originals = []
+    for owner, name, label in PARTS:
+        target = owners[owner]
+        original = getattr(target, name, None)
+        if original is None:                 # an older tree (--compare) without this part
+            continue
+        originals.append((target, name, original))
+
+        def timed(*args, _original=original, _label=label, **kwargs):
+            start = time.perf_counter()
+            try:
+                return _original(*args, **kwargs)
+            finally:
+                spent[_label] += time.perf_counter() - start
+        setattr(target, name, timed)
+    try:
+        start = time.perf_counter()
+        run_case(case, folder / "parts.h5", max_steps=steps)
+        total = time.perf_counter() - start
+    finally:
+        for target, name, original in originals:
+            setattr(target, name, original)
+    step = spent.pop("steps")
+    spent["the rest"] = total - step - sum(spent.values())
+    return step, spent
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--out", default="BENCHMARKS.md")
@@ -93,13 +143,18 @@ def main(argv=None):
             alone.append(solver_alone(case))
             longer.append(with_recording(case, Path(folder), 2 * STEPS))
             longer_alone.append(solver_alone(case, 2 * STEPS))
+        step_seconds, parts = where_it_goes(case, Path(folder))
     t_run, t_alone, t_longer = runs[0][1], alone[0][1], longer[0][1]
     recorded, bare = statistics.median(s for s, _ in runs), statistics.median(s for s, _ in alone)
     recorded2, bare2 = statistics.median(s for s, _ in longer), statistics.median(s for s, _ in longer_alone)
+    # the shares from each repeat's four runs (taken one after the other), then their median: a load
+    # change between repeats cancels in a repeat's ratios
+    first = statistics.median(r[0] / a[0] - 1 for r, a in zip(runs, alone))
+    steady = statistics.median((r2[0] - r[0]) / (a2[0] - a[0]) - 1
+                               for r, a, r2, a2 in zip(runs, alone, longer, longer_alone))
     run = case.run
     samples, snapshots = t_run / run.sample_interval, t_run / run.snapshot_interval
     later_samples = (t_longer - t_run) / run.sample_interval
-    steady = (recorded2 - recorded) / (bare2 - bare) - 1          # the second STEPS steps: no start-up
     lines = [f"## {HEADING}", "",
              f"Run {datetime.datetime.now():%Y-%m-%d %H:%M} by `bench/bench_run_loop.py` ({time.time() - start:.0f} s) "
              f"on: {machine()}.", "",
@@ -108,18 +163,23 @@ def main(argv=None):
              f"rtol = {case.numerics.rtol:g}, a sample every {run.sample_interval:g}, "
              f"a snapshot every {run.snapshot_interval:g}), its first {STEPS} steps (to t = {t_run:.4g}: "
              f"~{samples:.0f} samples, ~{snapshots:.0f} snapshots) and its first {2 * STEPS} (to t = {t_longer:.4g}), "
-             f"on one core; medians of {REPEATS}.", "",
+             f"on one core; medians of {REPEATS} (the shares: medians of each repeat's own).", "",
              "| run | CPU s | per step (ms) |", "| --- | ---: | ---: |",
              f"| run_case: samples, health checks, snapshots, checkpoints, decisions into HDF5 | {recorded:.2f} | "
              f"{1e3 * recorded / STEPS:.3f} |",
              f"| the solver alone, the same steps (to t = {t_alone:.4g}) | {bare:.2f} | {1e3 * bare / STEPS:.3f} |",
              f"| run_case, {2 * STEPS} steps | {recorded2:.2f} | {1e3 * recorded2 / (2 * STEPS):.3f} |",
              f"| the solver alone, {2 * STEPS} steps | {bare2:.2f} | {1e3 * bare2 / (2 * STEPS):.3f} |", "",
-             f"Recording costs **{recorded / bare - 1:.0%}** on top of the first {STEPS} steps "
+             f"Recording costs **{first:.0%}** on top of the first {STEPS} steps "
              f"({1e3 * (recorded - bare) / samples:.2f} ms a sample, snapshots, the file's creation and its "
              f"first checkpoints included), and **{steady:.0%}** on top of the next {STEPS} "
              f"({1e3 * ((recorded2 - recorded) - (bare2 - bare)) / later_samples:.2f} ms a sample: what a long "
-             "run pays)."]
+             "run pays).", "",
+             f"Where it goes: one run_case of {2 * STEPS} steps, each part timed in place (wall clock), against the "
+             f"steps' own {step_seconds:.2f} s in the same run ({sum(parts.values()) / step_seconds:.0%} in all):", "",
+             "| part | share of the steps' time |", "| --- | ---: |"]
+    lines += [f"| {label} | {seconds / step_seconds:.1%} |"
+              for label, seconds in sorted(parts.items(), key=lambda item: -item[1])]
     replace_section(args.out, HEADING, "\n".join(lines) + "\n")
     print("\n".join(lines))
 

@@ -417,3 +417,29 @@ def test_a_state_a_tiny_step_after_a_grid_time_is_not_that_time_again():
     again = dataclasses.replace(state, step=101, t=23.260000000164045, dt_prev=1.64045e-10)
     from_before = dataclasses.replace(state, step=101, t=23.260000000164045, dt_prev=0.01)
     assert clock.sample_due(landed) and not clock.sample_due(again) and clock.sample_due(from_before)
+
+
+@pytest.mark.parametrize("adaptive", [True, False])
+def test_events_in_one_call_are_the_three_cadence_tests(adaptive):
+    """clock.events (the run loop's one call a step) gives what sample_due, snapshot_due and
+    checkpoint_due give, for either clock and the legacy coincidence rule, on states on, near (within
+    and beyond the slack) and far from the grids, after long and tiny steps."""
+    numerics = Numerics(N=32, rtol=1e-3) if adaptive else Numerics(N=32, dt=1e-3)
+    case = Case(Physics(shear_rate=28.0), numerics,
+                RunControl(t_end=35.7142857143, sample_interval=0.00357142857143, snapshot_interval=0.02,
+                           checkpoint_interval=2.0))
+    state = Solver(case).initial_state()
+    rng = np.random.default_rng(7)
+    grid = np.concatenate([np.arange(0, 10001) * 0.00357142857143, np.arange(0, 1786) * 0.02, [0.1, 9.0, 35.7142857143]])
+    times = np.concatenate([grid, grid * (1 + 1e-14), grid * (1 - 3e-12), grid + 1e-10, grid + 2e-9,
+                            rng.uniform(0, 36, 2000), [1e-12, 1e-10, 3e-9]])
+    clocks = [schedule.clock(case), schedule.clock(case).legacy()]
+    due_on = 0
+    for i, t in enumerate(times):
+        for dt_prev in (0.003, 1.6e-10):
+            s = dataclasses.replace(state, t=float(t), step=1 + i % 5000, dt_prev=dt_prev)
+            for clock in clocks:
+                expected = (clock.sample_due(s), clock.snapshot_due(s), clock.checkpoint_due(s))
+                assert clock.events(s) == expected, (t, dt_prev)
+                due_on += any(expected)
+    assert due_on > 1000                          # the grids were hit, not only missed

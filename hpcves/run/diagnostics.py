@@ -99,6 +99,11 @@ class Health:
     under_resolved: bool = False     # the failure is the resolution, not the dynamics
 
 
+HEALTHY = Health(True)
+#: the arrays the per-step check finds non-finite values in, in the order soundness tests them
+_SOUND = ("theta", "psi", "prev_rate_theta", "prev_rate_psi")
+
+
 def tension(state: State, rates: Rates, solver: Solver) -> np.ndarray:
     """Lambda = Lambda~ - sigma at the nodes."""
     phys = solver.case.physics
@@ -198,37 +203,38 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
 
 
 def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
-    compiled = compiled_kernels()
-    sp, phys = solver.sp, solver.case.physics
     ops, physics, _, _ = solver._operators()
     shape, flow = rates.shape, rates.flow
-    psi_hat = EMPTY_SPECTRUM if rates.psi_hat is None else rates.psi_hat
-    values = dict(zip(compiled.SAMPLE, compiled.sample_values(
-        state.theta, state.psi, float(state.shift), shape.z, shape.tangent, shape.curvature, flow.velocity,
-        flow.tension_eff, rates.psi_s, rates.psi, psi_hat, float(rates.mean_tangential_velocity), phys.homogeneous,
-        ops[3], solver.node_phase, physics).tolist()))
+    (theta, area, length, E_bending, E_phase, centroid_x, centroid_y, tension_min, tension_mean, tension_max,
+     V_psi, V_L, phase_position, psi_min, psi_max, stretching, tail_theta, tail_psi) = \
+        compiled_kernels().sample_values(
+            state.theta, state.psi, float(state.shift), shape.z, shape.tangent, shape.curvature, flow.velocity,
+            flow.tension_eff, rates.psi_s, rates.psi, EMPTY_SPECTRUM if rates.psi_hat is None else rates.psi_hat,
+            float(rates.mean_tangential_velocity), solver.case.physics.homogeneous, ops[3], solver.node_phase,
+            physics).tolist()                                   # in the order of compiled.SAMPLE
+    area0, length0 = solver.area0, solver.sp.length
     return {
         "t": solver.time(state),
-        "theta": values["theta"],
-        "area_error": (values["area"] - solver.area0) / solver.area0,
-        "length_error": (values["length"] - sp.length) / sp.length,
-        "E_bending": values["E_bending"],
-        "E_phase": values["E_phase"],
-        "centroid": (values["centroid_x"], values["centroid_y"]),
-        "tension_min": values["tension_min"],
-        "tension_mean": values["tension_mean"],
-        "tension_max": values["tension_max"],
-        "V_psi": values["V_psi"],
-        "V_L": values["V_L"],
-        "phase_position": values["phase_position"],
-        "psi_min": values["psi_min"],
-        "psi_max": values["psi_max"],
+        "theta": theta,
+        "area_error": (area - area0) / area0,
+        "length_error": (length - length0) / length0,
+        "E_bending": E_bending,
+        "E_phase": E_phase,
+        "centroid": (centroid_x, centroid_y),
+        "tension_min": tension_min,
+        "tension_mean": tension_mean,
+        "tension_max": tension_max,
+        "V_psi": V_psi,
+        "V_L": V_L,
+        "phase_position": phase_position,
+        "psi_min": psi_min,
+        "psi_max": psi_max,
         "area_correction": state.area_correction,
         "tank_treading_velocity": rates.mean_tangential_velocity,
-        "stretching": values["stretching"],
-        "tail_theta": values["tail_theta"],
-        "tail_psi": values["tail_psi"],
-        "N": float(sp.N),
+        "stretching": stretching,
+        "tail_theta": tail_theta,
+        "tail_psi": tail_psi,
+        "N": float(solver.sp.N),
         "step": float(state.step),
     }
 
@@ -296,12 +302,11 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
     """Is the run still sane? NaN, area/length error, psi range (RunControl bounds)."""
     run = solver.case.run
     # prev_theta / prev_psi are the previous state's arrays, checked one step earlier
-    names = ("theta", "psi", "prev_rate_theta", "prev_rate_psi")
+    names = _SOUND
     if solver.engine == "compiled":
-        empty = EMPTY
         rate_theta, rate_psi = state.prev_rate_theta, state.prev_rate_psi
-        which, lo, hi = compiled_kernels().soundness(state.theta, state.psi, empty if rate_theta is None else rate_theta,
-                                           empty if rate_psi is None else rate_psi)
+        which, lo, hi = compiled_kernels().soundness(state.theta, state.psi, EMPTY if rate_theta is None else rate_theta,
+                                                     EMPTY if rate_psi is None else rate_psi)
         if which >= 0:
             return Health(False, f"non-finite values in {names[which]} at t = {solver.time(state):.6g}")
     else:
@@ -310,7 +315,7 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
             if value is not None and not np.all(np.isfinite(value)):
                 return Health(False, f"non-finite values in {name} at t = {solver.time(state):.6g}")
         lo, hi = float(state.psi.min()), float(state.psi.max())
-    center = complex(state.center)
+    center = state.center
     if not (math.isfinite(center.real) and math.isfinite(center.imag) and math.isfinite(state.shift)):
         return Health(False, f"non-finite position at t = {solver.time(state):.6g}")
     if abs(last_correction) > run.max_area_correction:
@@ -342,7 +347,7 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
         if abs(row["length_error"]) > run.max_length_error:
             return Health(False, f"relative length error {row['length_error']:.3g} exceeds "
                                  f"run.max_length_error = {run.max_length_error} at t = {row['t']:.6g}")
-    return Health(True)
+    return HEALTHY
 
 
 @dataclass(frozen=True)

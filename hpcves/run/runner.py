@@ -5,7 +5,9 @@ its health; then hand the state to a list of **cadences** in order -- each a
 small object with ``due(moment)`` and a call that may end the run (as Dedalus's
 evaluator runs its handlers): Checkpoints, Interruption, Samples, Snapshots,
 Decisions (run.until_decided), End, SampleFlush, Ticks (the progress display);
-then step.
+then step. Most states are on no cadence's grid: the clock says so in one call
+(``events``) and, with no stop asked for and no cadence's wall timer up
+(``wake``), the cadences are not asked.
 
 Everything here is deterministic in the state -- samples, snapshots and
 checkpoints when the clock (schedule.py: whole steps for a fixed dt, simulated
@@ -21,7 +23,7 @@ import math
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import numpy as np
 from threadpoolctl import threadpool_limits
@@ -92,19 +94,25 @@ STALLED = "stalled"
 STALL_MIN_INTERVAL = 0.1
 
 
-def stalled(case, state: State, since: tuple[float, int]) -> str:
-    """Why the run stalls ("" while it does not): more steps since the sample ``since`` = (t, step)
-    than run.max_steps_per_shear_time allows for a whole sample interval, t and steps in shear times
-    (time units below S = 1), the interval counted as at least STALL_MIN_INTERVAL. Only for an
-    adaptive step (a fixed one cannot collapse)."""
+def stall_allowance(case) -> float:
+    """The steps a run may take from one sample to the next: run.max_steps_per_shear_time for a whole
+    sample interval, t and steps in shear times (time units below S = 1), the interval counted as at
+    least STALL_MIN_INTERVAL; inf for a fixed step (it cannot collapse) or no limit."""
     limit = case.run.max_steps_per_shear_time
     if not limit or not case.numerics.adaptive:
-        return ""
+        return math.inf
     S = max(case.physics.shear_rate, 1.0)
-    allowed = limit * max(case.run.sample_interval * S, STALL_MIN_INTERVAL)
+    return limit * max(case.run.sample_interval * S, STALL_MIN_INTERVAL)
+
+
+def stalled(case, state: State, since: tuple[float, int]) -> str:
+    """Why the run stalls ("" while it does not): more steps since the sample ``since`` = (t, step)
+    than :func:`stall_allowance` allows."""
     taken = state.step - since[1]
-    if taken <= allowed:
+    if taken <= stall_allowance(case):
         return ""
+    limit = case.run.max_steps_per_shear_time
+    S = max(case.physics.shear_rate, 1.0)
     return (f"the time step collapsed: {taken} steps from the sample at t = {since[0]:.6g} to t = {state.t:.6g} "
             f"({(state.t - since[0]) * S:.3g} shear times), more than run.max_steps_per_shear_time = {limit:g} "
             f"allows for a sample interval; the last step {state.dt_prev:.2g} at N = {state.N} (where measured, "
@@ -198,8 +206,8 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
     record = _Record(store, flush, solver, state.step, wall_before)
     samples = Samples(record)
     decisions = Decisions(record, analysis) if case.run.until_decided else None
-    cadences = [Checkpoints(record, clock, case.run.checkpoint_wall, decisions), Interruption(record), samples,
-                Snapshots(record, clock)]
+    cadences = [Checkpoints(record, case.run.checkpoint_wall, decisions), Interruption(record), samples,
+                Snapshots(record)]
     if decisions is not None:
         cadences.append(decisions)
     store.set_decision(*checkpoint_module.NOT_DECIDED)
@@ -208,7 +216,10 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         cadences.append(Ticks(record, clock, progress, state, samples))
     store.set_status(RUNNING, note, "")
     flush()
+    timers = [cadence for cadence in cadences if type(cadence).wake is not Cadence.wake]
     last_correction = 0.0          # relative area correction made by the last step
+    wake = -math.inf               # the wall time at which a cadence's timer may next be due
+    allowance = stall_allowance(case)
     try:
         while True:
             try:
@@ -223,7 +234,8 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
                 solver, state = solver.resized(state, larger)
                 record.solver = solver
                 continue
-            row = diagnostics.sample(solver, state, rates) if clock.sample_due(state) else None
+            sample_due, snapshot_due, checkpoint_due = clock.events(state)
+            row = diagnostics.sample(solver, state, rates) if sample_due else None
             if row is not None and case.numerics.adaptive_N:
                 solver, state, rates, row = _resolve(solver, state, rates, row)
                 record.solver = solver
@@ -234,14 +246,18 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
                 if row is not None:
                     record.rows.append(row)
                 raise (UnderResolved if verdict.under_resolved else Diverged)(verdict.reason)
-            # State n is sound: the cadences act on it, in order, until one ends the run.
-            moment = Moment(state, rates, row, time.perf_counter(), clock.done(state),
-                            stop_requested() or (max_steps is not None and state.step - record.start_step >= max_steps))
-            for cadence in cadences:
-                if cadence.due(moment) and (ended := cadence(moment)) is not None:
-                    return ended
-            if why := stalled(case, state, last_sample):
-                raise Stalled(why)
+            # State n is sound: the cadences act on it, in order, until one ends the run -- unless
+            # nothing is due: no sample, snapshot, checkpoint, end or stop, and no cadence's wall timer.
+            wall, done = time.perf_counter(), clock.done(state)
+            stop = stop_requested() or (max_steps is not None and state.step - record.start_step >= max_steps)
+            if row is not None or snapshot_due or checkpoint_due or done or stop or wall >= wake:
+                moment = Moment(state, rates, row, wall, done, stop, snapshot_due, checkpoint_due)
+                for cadence in cadences:
+                    if cadence.due(moment) and (ended := cadence(moment)) is not None:
+                        return ended
+                wake = min(cadence.wake() for cadence in timers)
+            if state.step - last_sample[1] > allowance:
+                raise Stalled(stalled(case, state, last_sample))
             before = state.area_correction
             state, _ = clock.take_step(solver, state, rates)
             last_correction = state.area_correction - before
@@ -285,9 +301,9 @@ def _resolve(solver: Solver, state: State, rates, row: dict):
 
 
 # ---------------------------------------------------------------------- the cadences
-@dataclass(frozen=True)
-class Moment:
-    """What the cadences read about state n, once it is known to be sound."""
+class Moment(NamedTuple):
+    """What the cadences read about state n, once it is known to be sound (a NamedTuple: made at
+    every sample, where a frozen dataclass's __init__ cost ~1.5 us)."""
 
     state: State
     rates: object              # the solver's rates at the state (its snapshot reads them)
@@ -295,6 +311,23 @@ class Moment:
     wall: float                # time.perf_counter() then
     done: bool                 # the end time is reached
     stop: bool                 # a stop was asked for (a signal, or max_steps in this call)
+    snapshot: bool = False     # the state is on the clock's snapshot grid
+    checkpoint: bool = False   # ... on its checkpoint grid
+
+
+class Cadence:
+    """What the run loop asks of a cadence: ``due(moment)``, a call that may end the run (an Outcome)
+    or not (None), and ``wake()``: the wall time (time.perf_counter) before which it cannot be due at
+    a moment without a sample, snapshot, checkpoint, end or stop (the loop skips such moments)."""
+
+    def due(self, m: Moment) -> bool:
+        raise NotImplementedError
+
+    def __call__(self, m: Moment) -> "Outcome | None":
+        raise NotImplementedError
+
+    def wake(self) -> float:
+        return math.inf
 
 
 class _Record:
@@ -339,22 +372,25 @@ class _Record:
                        now - self.start_wall, end)
 
 
-class Checkpoints:
+class Checkpoints(Cadence):
     """State n written whole on the clock's checkpoint grid, every run.checkpoint_wall seconds, at a
     stop and at the end (the end time, or the state a run is decided at: a chain's next case starts
     from it) -- never the state a call starts from (it is on file). A checkpoint of state n counts only
     what was recorded *before* it, so a run resumed from it records state n again, once."""
 
-    def __init__(self, record: _Record, clock, wall_interval: float, decisions: "Decisions | None" = None):
-        self.record, self.clock, self.wall_interval = record, clock, wall_interval
+    def __init__(self, record: _Record, wall_interval: float, decisions: "Decisions | None" = None):
+        self.record, self.wall_interval = record, wall_interval
         self.decisions = decisions
         self.last_wall = record.start_wall
 
     def due(self, m: Moment) -> bool:
         return m.state.step > self.record.start_step and (
-            m.stop or m.done or self.clock.checkpoint_due(m.state)
+            m.stop or m.done or m.checkpoint
             or (self.wall_interval > 0 and m.wall - self.last_wall >= self.wall_interval)
             or (self.decisions is not None and self.decisions.decided(m) is not None))
+
+    def wake(self) -> float:
+        return self.last_wall + self.wall_interval if self.wall_interval > 0 else math.inf
 
     def __call__(self, m: Moment):
         self.record.write_rows(m.state)
@@ -362,7 +398,7 @@ class Checkpoints:
         self.last_wall = time.perf_counter()
 
 
-class Interruption:
+class Interruption(Cadence):
     """A stop before the end: INTERRUPTED, to be resumed (Checkpoints has just written the state)."""
 
     def __init__(self, record: _Record):
@@ -376,7 +412,7 @@ class Interruption:
         return self.record.finish(INTERRUPTED, f"stopped at t = {t:.6g}; resume to continue", m.state)
 
 
-class Samples:
+class Samples(Cadence):
     """The state's sample into the buffer (SampleFlush writes it out)."""
 
     def __init__(self, record: _Record):
@@ -391,20 +427,20 @@ class Samples:
         self.theta = m.row["theta"]
 
 
-class Snapshots:
+class Snapshots(Cadence):
     """The state's fields on the clock's snapshot grid, into the buffer (SampleFlush writes it out)."""
 
-    def __init__(self, record: _Record, clock):
-        self.record, self.clock = record, clock
+    def __init__(self, record: _Record):
+        self.record = record
 
     def due(self, m: Moment) -> bool:
-        return self.clock.snapshot_due(m.state)
+        return m.snapshot
 
     def __call__(self, m: Moment):
         self.record.snapshots.append(diagnostics.snapshot(self.record.solver, m.state, m.rates))
 
 
-class Decisions:
+class Decisions(Cadence):
     """run.until_decided: every run.decision_samples samples, classify the whole record so far
     (decision.py, thresholds ``analysis``) and end the run FINISHED once it is decided. It reads
     every sample from the start, on file or new: the same numbers after a resume."""
@@ -413,7 +449,7 @@ class Decisions:
         self.record, self.analysis = record, analysis
         self.case = record.solver.case     # not store.case: that parses the stored TOML (~10 ms a call)
         recorded = record.store.timeseries()
-        self.history = {name: list(recorded[name]) for name in decision.SERIES}
+        self.history = _History({name: recorded[name] for name in decision.SERIES})
         self._step, self._decided = None, None
 
     def decided(self, m: Moment):
@@ -423,12 +459,10 @@ class Decisions:
             return None
         if self._step != m.state.step:
             self._step = m.state.step
-            for name in decision.SERIES:
-                self.history[name].append(m.row[name])
+            self.history.append(m.row)
             case = self.case
-            self._decided = None if len(self.history["t"]) % case.run.decision_samples else decision.decide(
-                {name: np.asarray(v) for name, v in self.history.items()}, case.physics.shear_rate, case.run,
-                self.analysis)
+            self._decided = None if len(self.history) % case.run.decision_samples else decision.decide(
+                self.history.values(), case.physics.shear_rate, case.run, self.analysis)
         return self._decided
 
     def due(self, m: Moment) -> bool:
@@ -441,7 +475,44 @@ class Decisions:
         return self.record.finish(FINISHED, decided.message(), m.state)
 
 
-class End:
+class _History:
+    """Series that grow by a sample at a time, read as arrays of the values so far: one row of a
+    (series, capacity) array each, doubled when full (lists turned into arrays at every decision cost
+    0.1-0.7 ms at 500-5000 samples)."""
+
+    def __init__(self, recorded: dict):
+        self.names = tuple(recorded)
+        size = len(recorded[self.names[0]]) if self.names else 0
+        self._data = np.empty((len(self.names), max(2 * size, 1024)))
+        for row, name in zip(self._data, self.names):
+            row[:size] = recorded[name]
+        self._size = size
+        self._rows = list(zip(self.names, self._data))
+
+    def __len__(self) -> int:
+        return self._size
+
+    def append(self, sample: dict) -> None:
+        """Add a sample's values (a row of diagnostics.sample)."""
+        n = self._size
+        if n == self._data.shape[1]:
+            self._data = np.concatenate([self._data, np.empty_like(self._data)], axis=1)
+            self._rows = list(zip(self.names, self._data))
+        for name, row in self._rows:
+            row[n] = sample[name]
+        self._size = n + 1
+
+    def values(self) -> dict:
+        """{name: the values so far} (read-only views: later appends write beyond them, never into them)."""
+        out = {}
+        for name, row in self._rows:
+            view = row[:self._size]
+            view.flags.writeable = False
+            out[name] = view
+        return out
+
+
+class End(Cadence):
     """The end time: the last samples out, FINISHED."""
 
     def __init__(self, record: _Record):
@@ -455,7 +526,7 @@ class End:
         return self.record.finish(FINISHED, "", m.state)
 
 
-class SampleFlush:
+class SampleFlush(Cadence):
     """The buffered samples, snapshots and the progress to the file when SAMPLE_BUFFER_ROWS samples
     or SNAPSHOT_BUFFER snapshots have gathered or SAMPLE_FLUSH_SECONDS have passed, so that a
     running case can be watched."""
@@ -467,12 +538,15 @@ class SampleFlush:
         return (len(self.record.rows) >= SAMPLE_BUFFER_ROWS or len(self.record.snapshots) >= SNAPSHOT_BUFFER
                 or m.wall - self.record.last_flush_wall >= SAMPLE_FLUSH_SECONDS)
 
+    def wake(self) -> float:
+        return self.record.last_flush_wall + SAMPLE_FLUSH_SECONDS
+
     def __call__(self, m: Moment):
         self.record.write_rows(m.state)
         self.record.flush()
 
 
-class Ticks:
+class Ticks(Cadence):
     """A Tick for the progress display every half second of wall time."""
 
     def __init__(self, record: _Record, clock, progress: Callable[[Tick], None], start: State, samples: Samples):
@@ -482,6 +556,9 @@ class Ticks:
 
     def due(self, m: Moment) -> bool:
         return m.wall - self.last >= 0.5
+
+    def wake(self) -> float:
+        return self.last + 0.5
 
     def __call__(self, m: Moment):
         self.last = m.wall

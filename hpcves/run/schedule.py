@@ -38,6 +38,10 @@ ROUNDOFF = 1e-13
 RELATIVE = 1e-11
 
 
+#: events() of a state on no grid
+NONE_DUE = (False, False, False)
+
+
 def _slack(x: float) -> float:
     """How far x = t / interval may lie from a whole number j and still be j (in intervals)."""
     return max(ROUNDOFF, RELATIVE * abs(x))
@@ -90,6 +94,12 @@ class FixedClock:
 
     def checkpoint_due(self, state) -> bool:
         return state.step % self.checkpoint_every == 0
+
+    def events(self, state) -> tuple[bool, bool, bool]:
+        """(sample_due, snapshot_due, checkpoint_due) of ``state``."""
+        step = state.step
+        return (step % self.sample_every == 0, step % self.snapshot_every == 0,
+                step % self.checkpoint_every == 0)
 
     def done(self, state) -> bool:
         return state.step >= self.n_steps
@@ -187,6 +197,20 @@ class AdaptiveClock:
 
     def checkpoint_due(self, state) -> bool:
         return self._due(state, self.intervals[2])
+
+    def events(self, state) -> tuple[bool, bool, bool]:
+        """(sample_due, snapshot_due, checkpoint_due) of ``state``, in one call a step: a time farther
+        than either rule's slack (at most 1e-9 + 1e-11 x) from every multiple of an interval (most
+        states) is on none of the grids."""
+        t = state.t
+        a, b, c = self.intervals
+        x, y, z = t / a, t / b, t / c
+        near_a = abs(x - round(x)) <= 1e-9 + 1e-11 * abs(x)
+        near_b = abs(y - round(y)) <= 1e-9 + 1e-11 * abs(y)
+        near_c = abs(z - round(z)) <= 1e-9 + 1e-11 * abs(z)
+        if not (near_a or near_b or near_c):
+            return NONE_DUE
+        return (near_a and self._due(state, a), near_b and self._due(state, b), near_c and self._due(state, c))
 
     def done(self, state) -> bool:
         return state.t >= self.t_end * (1 - COINCIDENT)
