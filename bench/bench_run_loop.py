@@ -3,20 +3,20 @@
 A case of the reproduction's slowest study (jobs/reproduce/psi048_delta_S.toml: Delta = 0.415,
 S = 1.352, rtol = 1e-3, a sample every 0.02 and a snapshot every 0.05, run until decided) on N = 96
 held (the study's N adapts, and this case grows from 64 to 96 at t = 32.5: the solver alone would
-not follow), for its first STEPS and its first 2 STEPS steps, on one core (CPU seconds of the process, so that
-other load counts less), two ways:
+not follow), on one core, two ways:
 
-* ``run_case``: the whole run loop into an HDF5 file -- samples (diagnostics.sample), the health
-  check of every step, snapshots, checkpoints, the decision every run.decision_samples samples;
-* the same steps taken by the solver alone (rates, then the clock's step: the same step sequence,
-  since the adaptive clock stops at every sample time either way).
+* its first STEPS steps by ``run_case`` -- the whole run loop into an HDF5 file: samples
+  (diagnostics.sample), the health check of every step, snapshots, checkpoints, the decision every
+  run.decision_samples samples -- against the same steps taken by the solver alone (rates, then the
+  clock's step: the same step sequence, since the adaptive clock stops at every sample time either
+  way), CPU seconds of the process, in turn; each repeat's own ratio, then their median;
+* in place (:func:`where_it_goes`): runs of STEPS and of 2 STEPS steps with each part of the loop
+  timed where it runs, against the steps of the same run. The difference of the two lengths is
+  what a long run pays per step; the first way cannot give it (the difference of two differences of
+  noisy seconds: 17 % to 51 % in runs of the same tree). In place a part costs more than alone (the
+  steps between evict its data from the caches: a snapshot 5.5 us alone, ~20 in the loop).
 
-The difference is what recording costs: over the first STEPS steps with the file's creation and its
-first checkpoints, and over the next STEPS (the difference of the two lengths) what a long run pays
-per sample; each repeat's own ratios, then their median. A last run of 2 STEPS steps times the parts
-of the loop in place (:func:`where_it_goes`), which says where recording's time goes; in place a
-part costs more than alone (the steps between evict its data from the caches: a snapshot 5.5 us
-alone, ~20 in the loop). Until 2026-12-04 the loop parsed the stored TOML at every
+Until 2026-12-04 the loop parsed the stored TOML at every
 sample (~10 ms) instead of holding the case it runs, and wrote each snapshot by itself, one write a
 field (~10 ms), instead of in blocks; this case then took 1.8 times as long (9.2 and 10.7 s against
 5.6 and 5.4 s, measured by hand in turn).
@@ -47,6 +47,7 @@ STUDY = Path(__file__).resolve().parents[1] / "jobs" / "reproduce" / "psi048_del
 SHEAR_RATE, EXCESS_LENGTH = 1.352, 0.415
 STEPS = 6000
 REPEATS = 7
+REPEATS_IN_PLACE = 3
 HEADING = "The run loop around the step"
 
 
@@ -93,7 +94,7 @@ PARTS = (("Solver", "rates", "steps"), ("AdaptiveClock", "take_step", "steps"),
          ("AdaptiveClock", "events", "the clock's cadence tests of every step"))
 
 
-def where_it_goes(case, folder: Path, steps: int = 2 * STEPS) -> tuple[float, dict]:
+def where_it_goes(case, folder: Path, steps: int) -> tuple[float, dict]:
     """(seconds of the steps, {part: seconds}) of one run_case of ``steps`` steps, each part timed in
     place (wall clock, one process: a load change hits the steps and the parts alike); "the rest" is
     the loop itself, the cadences' bookkeeping, the file's creation and the timers' own calls."""
@@ -119,7 +120,7 @@ def where_it_goes(case, folder: Path, steps: int = 2 * STEPS) -> tuple[float, di
         setattr(target, name, timed)
     try:
         start = time.perf_counter()
-        run_case(case, folder / "parts.h5", max_steps=steps)
+        run_case(case, folder / f"parts{time.monotonic_ns()}.h5", max_steps=steps)
         total = time.perf_counter() - start
     finally:
         for target, name, original in originals:
@@ -135,26 +136,29 @@ def main(argv=None):
     args = parser.parse_args(argv)
     start = time.time()
     case = the_case()
-    runs, alone, longer, longer_alone = [], [], [], []
-    print(f"run loop: {REPEATS} x 4 runs of {STEPS} and {2 * STEPS} steps ...", file=sys.stderr)
+    runs, alone, placed = [], [], []
+    print(f"run loop: {REPEATS} x 2 runs of {STEPS} steps, then {REPEATS_IN_PLACE} x 2 timed in place ...",
+          file=sys.stderr)
     with tempfile.TemporaryDirectory() as folder:
-        for _ in range(REPEATS):                      # in turn, so that a load change hits all
+        for _ in range(REPEATS):                      # in turn, so that a load change hits both
             runs.append(with_recording(case, Path(folder)))
             alone.append(solver_alone(case))
-            longer.append(with_recording(case, Path(folder), 2 * STEPS))
-            longer_alone.append(solver_alone(case, 2 * STEPS))
-        step_seconds, parts = where_it_goes(case, Path(folder))
-    t_run, t_alone, t_longer = runs[0][1], alone[0][1], longer[0][1]
+        for _ in range(REPEATS_IN_PLACE):
+            placed.append((where_it_goes(case, Path(folder), STEPS), where_it_goes(case, Path(folder), 2 * STEPS)))
+    t_run, t_alone = runs[0][1], alone[0][1]
     recorded, bare = statistics.median(s for s, _ in runs), statistics.median(s for s, _ in alone)
-    recorded2, bare2 = statistics.median(s for s, _ in longer), statistics.median(s for s, _ in longer_alone)
-    # the shares from each repeat's four runs (taken one after the other), then their median: a load
-    # change between repeats cancels in a repeat's ratios
+    # each repeat's own ratio, then their median: a load change between repeats cancels in a ratio
     first = statistics.median(r[0] / a[0] - 1 for r, a in zip(runs, alone))
-    steady = statistics.median((r2[0] - r[0]) / (a2[0] - a[0]) - 1
-                               for r, a, r2, a2 in zip(runs, alone, longer, longer_alone))
+
+    def share(step, parts):
+        return sum(parts.values()) / step
+
+    in_place_first = statistics.median(share(*short) for short, _ in placed)
+    in_place_next = statistics.median((sum(long[1].values()) - sum(short[1].values())) / (long[0] - short[0])
+                                      for short, long in placed)
+    step_seconds, parts = sorted((long for _, long in placed), key=lambda p: share(*p))[len(placed) // 2]
     run = case.run
     samples, snapshots = t_run / run.sample_interval, t_run / run.snapshot_interval
-    later_samples = (t_longer - t_run) / run.sample_interval
     lines = [f"## {HEADING}", "",
              f"Run {datetime.datetime.now():%Y-%m-%d %H:%M} by `bench/bench_run_loop.py` ({time.time() - start:.0f} s) "
              f"on: {machine()}.", "",
@@ -162,21 +166,20 @@ def main(argv=None):
              f"N = {case.numerics.N} held (the study's N adapts; this case runs on 96 from t = 32.5), "
              f"rtol = {case.numerics.rtol:g}, a sample every {run.sample_interval:g}, "
              f"a snapshot every {run.snapshot_interval:g}), its first {STEPS} steps (to t = {t_run:.4g}: "
-             f"~{samples:.0f} samples, ~{snapshots:.0f} snapshots) and its first {2 * STEPS} (to t = {t_longer:.4g}), "
-             f"on one core; medians of {REPEATS} (the shares: medians of each repeat's own).", "",
+             f"~{samples:.0f} samples, ~{snapshots:.0f} snapshots), on one core; medians of {REPEATS} "
+             "(the share: the median of each repeat's own).", "",
              "| run | CPU s | per step (ms) |", "| --- | ---: | ---: |",
              f"| run_case: samples, health checks, snapshots, checkpoints, decisions into HDF5 | {recorded:.2f} | "
              f"{1e3 * recorded / STEPS:.3f} |",
-             f"| the solver alone, the same steps (to t = {t_alone:.4g}) | {bare:.2f} | {1e3 * bare / STEPS:.3f} |",
-             f"| run_case, {2 * STEPS} steps | {recorded2:.2f} | {1e3 * recorded2 / (2 * STEPS):.3f} |",
-             f"| the solver alone, {2 * STEPS} steps | {bare2:.2f} | {1e3 * bare2 / (2 * STEPS):.3f} |", "",
-             f"Recording costs **{first:.0%}** on top of the first {STEPS} steps "
-             f"({1e3 * (recorded - bare) / samples:.2f} ms a sample, snapshots, the file's creation and its "
-             f"first checkpoints included), and **{steady:.0%}** on top of the next {STEPS} "
-             f"({1e3 * ((recorded2 - recorded) - (bare2 - bare)) / later_samples:.2f} ms a sample: what a long "
-             "run pays).", "",
-             f"Where it goes: one run_case of {2 * STEPS} steps, each part timed in place (wall clock), against the "
-             f"steps' own {step_seconds:.2f} s in the same run ({sum(parts.values()) / step_seconds:.0%} in all):", "",
+             f"| the solver alone, the same steps (to t = {t_alone:.4g}) | {bare:.2f} | {1e3 * bare / STEPS:.3f} |", "",
+             f"Recording costs **{first:.0%}** on top of the first {STEPS} steps (the file's creation and its "
+             "first checkpoints included).", "",
+             f"Timed in place ({REPEATS_IN_PLACE} runs of {STEPS} and of {2 * STEPS} steps, each part of the loop "
+             "timed where it runs, against the steps in the same run: wall clock, one process, so a load change "
+             f"hits both; medians): **{in_place_first:.0%}** on top of the first {STEPS} steps and "
+             f"**{in_place_next:.0%}** on top of the next {STEPS} (what a long run pays; the decisions' share grows "
+             f"with the record). Where it goes over {2 * STEPS} steps (the run of median share, {share(step_seconds, parts):.0%} "
+             f"in all; the steps {step_seconds:.2f} s):", "",
              "| part | share of the steps' time |", "| --- | ---: |"]
     lines += [f"| {label} | {seconds / step_seconds:.1%} |"
               for label, seconds in sorted(parts.items(), key=lambda item: -item[1])]
