@@ -271,30 +271,31 @@ def test_sigkill_of_the_whole_job_then_resume_is_bitwise_identical(tmp_path, n, 
 
 
 @needs_mpi
-def test_series_longer_than_a_chunk_are_written_alike_by_every_mode_and_resume_bitwise(tmp_path):
+@pytest.mark.parametrize("io", ["relay", pytest.param("mpio", marks=more)])
+def test_series_longer_than_a_chunk_are_written_alike_by_every_mode_and_resume_bitwise(tmp_path, io):
     """Campaign format 3 splits a case's packed series into chunks of whole rows (at most 256 KiB: 1424
-    samples): a kill under relay and the resume, and a run under mpio, write what one process writes."""
+    samples): a kill under relay and the resume, and a run under mpio (`make faults`), write what one
+    process writes."""
     # t_end = 6: cases long enough (~1 s on the compiled step) that the kill finds both running
     path, serial = write_study(tmp_path, t_end=6.0, checkpoint=0.4, shear="[40]", sample=0.001)
     assert run_campaign(study_from_toml(path.read_text()), serial).exit_status == 0
     with h5py.File(serial, "r") as f:
         series = f["blocks/0/timeseries/series"]
         assert series.shape[1] > 1600 and series.chunks[1] < 1600      # two chunks a case
-    for io in ("relay", "mpio"):
-        (tmp_path / io).mkdir()
-        study, output = write_study(tmp_path / io, t_end=6.0, checkpoint=0.4, shear="[40]", sample=0.001)
-        if io == "relay":
-            job = start_job(3, "campaign", study, "--quiet", "--io", io)
-            wait_for_checkpoints(output, job, count=2)
-            for pid in job_pids(job.pid):
-                os.kill(pid, signal.SIGKILL)
-            job.communicate()
-            assert 1 in statuses(output).values()
-        result = hpcves("campaign", study, "--quiet", "--io", io, *(("--resume",) if io == "relay" else ()), n=3)
-        assert result.returncode == 0, result.stderr
-        assert_same_results(output, serial)
-        check = hpcves("status", "--check", output)
-        assert check.returncode == 0, check.stdout + check.stderr
+    (tmp_path / io).mkdir()
+    study, output = write_study(tmp_path / io, t_end=6.0, checkpoint=0.4, shear="[40]", sample=0.001)
+    if io == "relay":
+        job = start_job(3, "campaign", study, "--quiet", "--io", io)
+        wait_for_checkpoints(output, job, count=2)
+        for pid in job_pids(job.pid):
+            os.kill(pid, signal.SIGKILL)
+        job.communicate()
+        assert 1 in statuses(output).values()
+    result = hpcves("campaign", study, "--quiet", "--io", io, *(("--resume",) if io == "relay" else ()), n=3)
+    assert result.returncode == 0, result.stderr
+    assert_same_results(output, serial)
+    check = hpcves("status", "--check", output)
+    assert check.returncode == 0, check.stdout + check.stderr
 
 
 @needs_mpi
