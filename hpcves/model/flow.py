@@ -33,17 +33,24 @@ two (N = 64). A residual still above UNRESOLVED = 1e-6 of it means the closed fo
 far from B^T G B, i.e. the shape is not resolved, and stops the run like a
 divergence. (Forming D_s G D_s by a 2-D FFT of the blocks
 instead cost 3x more at N = 128; docs/numerics.md.)
+
+With a viscosity contrast (physics.viscosity_ratio = lambda != 1) the velocity
+solves ((1 + lambda)/2) u - D[u] = u_inf + SLP[...] instead, D the double layer
+(numerics/double_layer.py); that system is not symmetric and is solved densely
+(:meth:`MembraneFlow._solve_with_contrast`; docs/numerics.md, "Viscosity contrast").
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 from scipy.linalg import blas, lapack
 
 from hpcves.model.forces import bending_force, tension_force
 from hpcves.model.geometry import Shape
 from hpcves.model.params import Physics
+from hpcves.numerics.double_layer import double_layer_matrix
 from hpcves.numerics.quadrature import StokesSLP
 from hpcves.numerics.reductions import largest_magnitude
 from hpcves.numerics.spectral import Spectral
@@ -77,6 +84,8 @@ class MembraneFlow:
 
     def solve(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
         """Velocity of the membrane and its effective tension."""
+        if self.physics.viscosity_ratio != 1.0:
+            return self._solve_with_contrast(shape, psi, psi_s)
         sp, phys, slp = self.sp, self.physics, self.slp
         tangent = shape.tangent
         conj_tangent = np.conj(tangent)
@@ -108,6 +117,49 @@ class MembraneFlow:
         if size > self.UNRESOLVED * scale:
             raise TensionSolveError.unresolved(size / scale)
         return Flow(velocity=u, tension_eff=tension)
+
+
+    def _solve_with_contrast(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
+        """The same with lambda = physics.viscosity_ratio != 1 (numerics/double_layer.py):
+
+            A u = u_inf + G (f_b + B Lambda~),   s . D_s u = 0,   A = ((1 + lambda)/2) I - D,
+
+        solved densely: A factorised (LU), W = A^{-1} [G B, u_inf + G f_b], the tension from the
+        N x N system (s . D_s) W[:, :N] Lambda~ = -(s . D_s) W[:, N], then u = W[:, N] + W[:, :N] Lambda~.
+        O(N^3) with a larger constant than the Cholesky of equal viscosities (BENCHMARKS.md)."""
+        sp, phys, slp, N = self.sp, self.physics, self.slp, self.sp.N
+        tangent = shape.tangent
+        blocks = slp.assemble(shape.z, tangent, out=self._blocks)
+        f_b = bending_force(shape.curvature, psi, psi_s, tangent, phys, sp)
+        u0 = slp.apply(blocks, f_b)
+        u0 += phys.shear_rate * shape.z.imag
+        A = double_layer_matrix(shape.z, tangent, shape.curvature, sp.length / N, phys.viscosity_ratio)
+        A *= -1.0
+        A[np.diag_indices(2 * N)] += 0.5 * (1.0 + phys.viscosity_ratio)
+        derivative = self._derivative_matrix()
+        columns = derivative * tangent[None, :]            # B: column j is d(e_j s)/ds
+        right = np.empty((2 * N, N + 1))
+        right[:, :N] = slp.matrix(blocks) @ np.concatenate([columns.real, columns.imag])
+        right[:N, N], right[N:, N] = u0.real, u0.imag
+        W = linalg.lu_solve(linalg.lu_factor(A, overwrite_a=True, check_finite=False), right, check_finite=False)
+        constrained = tangent.real[:, None] * (derivative @ W[:N]) + tangent.imag[:, None] * (derivative @ W[N:])
+        try:
+            tension = np.linalg.solve(constrained[:, :N], -constrained[:, N])
+        except np.linalg.LinAlgError:
+            raise TensionSolveError.not_definite() from None
+        w = W[:, N] + W[:, :N] @ tension
+        u = w[:N] + 1j * w[N:]
+        scale = largest_magnitude(constrained[:, N])
+        size = largest_magnitude((np.conj(tangent) * sp.ds_complex(u)).real)
+        if size > self.UNRESOLVED * scale:
+            raise TensionSolveError.unresolved(size / scale)
+        return Flow(velocity=u, tension_eff=tension)
+
+    def _derivative_matrix(self) -> np.ndarray:
+        """D_s as an N x N matrix (Spectral.ds of the unit vectors), once a solver."""
+        if getattr(self, "_D_s", None) is None:
+            self._D_s = np.column_stack([np.array(self.sp.ds(e)) for e in np.eye(self.sp.N)])
+        return self._D_s
 
 
 def cholesky_solve(factor, b):

@@ -202,7 +202,11 @@ def _resample(samples: np.ndarray, n: int) -> np.ndarray:
 def around_snapshot(snapshot: dict, physics: Physics, targets) -> np.ndarray:
     """u (lab frame) at ``targets`` for one snapshot: its nodes ``x``, ``y`` and ``psi``,
     ``tension``, ``curvature`` and membrane velocity ``velocity_x``, ``velocity_y`` there
-    (diagnostics.snapshot), under the case's ``physics``."""
+    (diagnostics.snapshot), under the case's ``physics``. Equal viscosities only: with a contrast the
+    flow off the membrane has a double layer too (issue #42, not yet here)."""
+    if physics.viscosity_ratio != 1.0:
+        raise ValueError(f"the flow off the membrane at physics.viscosity_ratio = {physics.viscosity_ratio:g} needs "
+                         "the double layer, which flowfield.py does not have yet (equal viscosities only)")
     z = np.asarray(snapshot["x"]) + 1j * np.asarray(snapshot["y"])
     force = traction(z, snapshot["psi"], snapshot["tension"], snapshot["curvature"], physics)
     membrane = np.asarray(snapshot["velocity_x"]) + 1j * np.asarray(snapshot["velocity_y"])

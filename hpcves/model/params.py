@@ -103,6 +103,9 @@ class Physics:
     sharp tip draw the soft phase past 1 (Delta = 2.3); ``"saturating"`` (the
     default), the same on [0, 1] with B' fading to zero over ``bending_width``
     outside it, so that B stays positive (docs/numerics.md, "Bending law").
+    ``viscosity_ratio`` is lambda = eta_in / eta_out (1: the publication's equal viscosities); other
+    values add the double layer to the membrane's flow (flow.py; docs/numerics.md, "Viscosity
+    contrast") and run on the numpy engine.
     """
 
     shear_rate: float = 10.0
@@ -126,9 +129,12 @@ class Physics:
     phase_seed: int = 0
     bending_law: Literal["linear", "saturating"] = "saturating"
     bending_width: float = 0.05
+    viscosity_ratio: float = 1.0
 
     def __post_init__(self) -> None:
         _finite(self)
+        _require(self.viscosity_ratio > 0, f"physics.viscosity_ratio = {self.viscosity_ratio}: the inner over the outer "
+                                           "viscosity must be > 0")
         _require(self.shear_rate >= 0, f"physics.shear_rate = {self.shear_rate}: must be >= 0")
         _require(self.shear_rate <= MAX_SHEAR_RATE,
                  f"physics.shear_rate = {self.shear_rate:g}: at most {MAX_SHEAR_RATE:g} (bending, the unit of the "
@@ -494,6 +500,8 @@ class Case:
             del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
         if self.run.max_steps_per_shear_time == RunControl.max_steps_per_shear_time or not self.numerics.adaptive:
             del out["run"]["max_steps_per_shear_time"]    # likewise (and a fixed step cannot stall)
+        if self.physics.viscosity_ratio == 1.0:       # equal viscosities: as files from before the option
+            del out["physics"]["viscosity_ratio"]
         if self.physics.bending_law == "linear":      # the law of files from before the option
             del out["physics"]["bending_law"], out["physics"]["bending_width"]
         if self.physics.initial_shape == "ellipse":   # the start of files from before the option

@@ -257,10 +257,14 @@ class Solver:
         (run/compiled.py; the default with the FFTW backend) or "numpy" (this module's own arithmetic,
         the reference; the default with the numpy backend)."""
         self.case = case
+        contrast = case.physics.viscosity_ratio != 1.0
         if engine is None:
-            engine = "compiled" if fft_backend == "fftw" else "numpy"
+            engine = "compiled" if fft_backend == "fftw" and not contrast else "numpy"
         if engine not in ENGINES:
             raise ValueError(f"unknown engine {engine!r} (use one of {ENGINES})")
+        if engine == "compiled" and contrast:
+            raise ValueError("physics.viscosity_ratio != 1 runs on the numpy engine (the compiled kernels solve the "
+                             "equal-viscosity tension system only)")
         self.engine = engine
         #: B''(psi*) H^2 / 2 in the phase step's Jacobian (phasefield.LinearizedImplicit); False leaves it
         #: explicit, only to show what it does (tests/test_solver.py)
@@ -276,6 +280,9 @@ class Solver:
         self._resolved = np.ones_like(k)
         self._resolved[-2:] = 0.0                    # modes N/2 - 1 and N/2 of theta_tilde
         self.lam_theta = num.bending_stabilization * max(phys.B1, phys.B2) * k**3 / 4.0
+        if phys.viscosity_ratio != 1.0:
+            # the double layer is smooth: the high modes feel the contrast only through (1 + lambda) / 2
+            self.lam_theta = self.lam_theta * (2.0 / (1.0 + phys.viscosity_ratio))
         #: the exponential filter of theta's explicit part (None: numerics.filter_order = 0)
         self._theta_filter = (np.exp(-FILTER_STRENGTH * (np.abs(k) / abs(k[-1])) ** num.filter_order)
                               if num.filter_order else None)
