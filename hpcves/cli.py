@@ -110,9 +110,20 @@ def _duration(seconds: float) -> str:
     return f"{seconds // 3600} h {(seconds % 3600) // 60:02d} min"
 
 
-def _exit_on_sigterm(signum, frame):
-    """SIGTERM as an exit (status 128 + 15), so that context managers clean up on the way out."""
-    raise SystemExit(128 + signum)
+class _SigtermSeen:
+    """A SIGTERM handler that only notes the signal; the work polls it and ends at a point of its own
+    choosing. (Raising SystemExit in the handler, where the signal landed, was lost when that was a
+    finalizer -- a weakref callback during garbage collection: Python printed it and went on, and
+    `--plan` finished with status 0.)"""
+
+    def __init__(self):
+        self.signum = None
+
+    def __call__(self, signum, frame):
+        self.signum = signum
+
+    def seen(self) -> bool:
+        return self.signum is not None
 
 
 class StopFlag:
@@ -463,13 +474,17 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
         if not Path(slurm_file).absolute().parent.is_dir():        # say so before the timing, not after
             _fail(f"{slurm_file}: its directory {Path(slurm_file).absolute().parent} does not exist")
     # a step is timed in a scratch directory, removed when the timing ends; SIGTERM (a batch system,
-    # `timeout`) would kill the process before that: made an exit, which removes it too
-    previous = signal.signal(signal.SIGTERM, _exit_on_sigterm)
+    # `timeout`) would kill the process before that: noted instead, the timing runs stop at their next
+    # step, the directory is removed, and the command exits with 128 + 15
+    sigterm = _SigtermSeen()
+    previous = signal.signal(signal.SIGTERM, sigterm)
     try:
-        estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True)), layout_seconds,
-                        classify_seconds)
+        estimate = plan(study, StepCost(announce=lambda text: click.echo(text, err=True), stop_requested=sigterm.seen),
+                        layout_seconds, classify_seconds)
     finally:
         signal.signal(signal.SIGTERM, previous)
+    if sigterm.seen():
+        raise SystemExit(128 + signal.SIGTERM)
     basis = estimate.likely or estimate              # what the run will likely take: ranks and time from it
     ranks = basis.suggested_ranks()
     wall = basis.wall(ranks)

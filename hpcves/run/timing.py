@@ -15,7 +15,7 @@ from hpcves.model.params import Case, dealias_label
 from hpcves.run.resolution import expected_N
 
 
-def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
+def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2, stop_requested=lambda: False) -> float:
     """Wall seconds a step of ``case`` takes here: the fewest over ``repeats`` fresh runs of
     ``steps`` steps into scratch files (each run's wall leaves out its set-up; the fewest, as
     a shared machine only ever adds time). Samples and snapshots are written as in a campaign.
@@ -26,7 +26,8 @@ def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
     stops early is timed over what it ran; its t_end is cut to just past the timed steps, so its file
     holds only what they write. Call it once first on a throw-away case if
     nothing ran in this process yet (:class:`StepCost` does): the first run pays for
-    loading libraries and planning FFTs."""
+    loading libraries and planning FFTs. ``stop_requested`` is polled every step (runner.run): once it
+    is True the runs stop at once and what they measured means nothing (the caller is stopping)."""
     from hpcves.run.casefile import create_case_file, run_file
 
     numerics = dataclasses.replace(case.numerics, dt=case.settled_step, rtol=None)
@@ -38,7 +39,8 @@ def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2) -> float:
     best = float("inf")
     with tempfile.TemporaryDirectory(prefix="hpcves-timing-") as scratch:
         for i in range(repeats):
-            outcome = run_file(create_case_file(Path(scratch) / f"t{i}.h5", case), resume=False, max_steps=steps)
+            outcome = run_file(create_case_file(Path(scratch) / f"t{i}.h5", case), resume=False, max_steps=steps,
+                               stop_requested=stop_requested)
             best = min(best, outcome.wall / max(outcome.steps, 1))
     return best
 
@@ -53,8 +55,8 @@ class StepCost:
     shares of steps that sample and snapshot at the settled step -- the same for most cases
     of a study, since the step, the sampling and t_end all scale as 1 / S."""
 
-    def __init__(self, steps: int = 150, announce=lambda text: None):
-        self.steps, self.announce = steps, announce
+    def __init__(self, steps: int = 150, announce=lambda text: None, stop_requested=lambda: False):
+        self.steps, self.announce, self.stop_requested = steps, announce, stop_requested
         self.measured: dict = {}             # kind (kind_of) -> seconds per step
 
     @staticmethod
@@ -74,8 +76,8 @@ class StepCost:
                           + dealias_label(dealias)
                           + f", sampling every {1 / samples:.3g} steps ...")
             if not self.measured:              # the first run in a process loads and plans: not timed
-                seconds_per_step(case, steps=20, repeats=1)
-            self.measured[kind] = seconds_per_step(case, self.steps)
+                seconds_per_step(case, steps=20, repeats=1, stop_requested=self.stop_requested)
+            self.measured[kind] = seconds_per_step(case, self.steps, stop_requested=self.stop_requested)
         return self.measured[kind]
 
 
