@@ -129,3 +129,57 @@ def test_an_adaptive_run_with_a_contrast_resumed_from_its_checkpoints_is_bitwise
     assert run_in_process(case, tmp_path / "b.h5", max_steps=61).status == INTERRUPTED
     assert resume_in_process(tmp_path / "b.h5", stops=(40, 3, None)).status == FINISHED
     same_case_files(tmp_path / "a.h5", tmp_path / "b.h5", checkpoints=True)
+
+
+STUDY = """
+[campaign]
+name = "contrast"
+output = "{output}"
+t_end = 0.2
+[physics]
+shear_rate = 20.0
+[numerics]
+N = 32
+dt = 1e-3
+[run]
+max_spectral_tail = 1.0          # N = 32 on purpose (fast)
+sample_interval = 0.01
+snapshot_interval = 0.1
+checkpoint_interval = 0.1
+[sweep]
+viscosity_ratio = [0.5, 2.0]
+psi_bar = [0.3]
+"""
+
+
+def test_a_campaign_sweeps_the_viscosity_ratio_and_its_table_has_the_column(tmp_path):
+    """[sweep] viscosity_ratio: each case runs with its lambda, and the analysis table names it (as
+    `lambda` in figures); the mean tank-treading speed is lower at the larger lambda."""
+    from hpcves.campaign.driver import run_campaign
+    from hpcves.campaign.study import study_from_toml
+    from hpcves.reports.analyze import analyze
+
+    output = tmp_path / "c.h5"
+    study = study_from_toml(STUDY.format(output=output))
+    assert [c.case.physics.viscosity_ratio for c in study.cases] == [0.5, 2.0]
+    assert run_campaign(study, output).exit_status == 0
+    report = analyze(output, tmp_path / "a", case_figures=False)
+    rows = sorted(report.rows, key=lambda r: r["viscosity_ratio"])
+    assert [r["viscosity_ratio"] for r in rows] == [0.5, 2.0] and {r["status"] for r in rows} == {"finished"}
+    header = (tmp_path / "a" / "regimes.csv").read_text().splitlines()[0].split(",")
+    assert "viscosity_ratio" in header
+
+
+def test_a_case_written_before_the_parameter_reads_as_equal_viscosities(tmp_path):
+    """Files from before physics.viscosity_ratio hold no such attribute: their rows say 1."""
+    import h5py
+    from jobs import SHORT, run_in_process
+    from hpcves.run import verdict
+    from hpcves.run.store import CaseStore
+
+    run_in_process(case_from_toml(SHORT.format(t_end=0.01, checkpoint=0.01)), tmp_path / "old.h5")
+    with h5py.File(tmp_path / "old.h5", "r+") as f:
+        del f.attrs["physics.viscosity_ratio"]                 # as a file written before it
+    with h5py.File(tmp_path / "old.h5", "r") as f:
+        data = verdict.case_data(CaseStore.open(f), "old")
+    assert data.parameters["viscosity_ratio"] == 1.0 and data.parameters["shear_rate"] == 80.0

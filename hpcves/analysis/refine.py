@@ -203,10 +203,10 @@ class Cell:
         return max((self.x1 - self.x0) / settings.x.tolerance, (self.y1 - self.y0) / settings.y.tolerance)
 
 
-#: default tolerances of ``[refine]``: relative on S (10 %), absolute on the others
-DEFAULT_TOLERANCE = {"shear_rate": 0.1, "psi_bar": 0.05, "excess_length": 0.05, "B2": 0.05}
-#: the parameters refined on a log scale (S spans decades); the others are linear
-LOG_KEYS = ("shear_rate",)
+#: default tolerances of ``[refine]``: relative on S and lambda (10 %), absolute on the others
+DEFAULT_TOLERANCE = {"shear_rate": 0.1, "psi_bar": 0.05, "excess_length": 0.05, "B2": 0.05, "viscosity_ratio": 0.1}
+#: the parameters refined on a log scale (S and lambda span decades); the others are linear
+LOG_KEYS = ("shear_rate", "viscosity_ratio")
 
 
 @dataclass(frozen=True)
@@ -215,7 +215,7 @@ class RefinePlan:
 
         [refine]
         axes = ["shear_rate", "psi_bar"]               # default: the first two swept keys
-        tolerance = { shear_rate = 0.1, psi_bar = 0.05 }   # relative on S, absolute otherwise
+        tolerance = { shear_rate = 0.1, psi_bar = 0.05 }   # relative on S and lambda, absolute otherwise
         max_cases = 150                                # per refinement (coarse grid included)
         straight_span = 4       # a boundary crossing a cell is taken as straight over at most 4 tolerances
         max_N = 256             # an under-resolved case runs again at 2 N, up to N = 256 (default: never)

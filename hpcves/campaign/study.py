@@ -44,7 +44,7 @@ swept parameters (refine.py, docs/analysis.md)::
 
     [refine]
     axes = ["shear_rate", "psi_bar"]                  # default: the first two swept keys
-    tolerance = { shear_rate = 0.1, psi_bar = 0.05 }  # relative on S, absolute on the others
+    tolerance = { shear_rate = 0.1, psi_bar = 0.05 }  # relative on S and lambda, absolute on the others
     max_cases = 150                                   # per refinement
     straight_span = 4                                 # along a boundary, cells up to 4 tolerances wide
     max_N = 256                                       # an under-resolved case runs again at 2 N, up to 256

@@ -51,12 +51,13 @@ class ParameterName:
     axis: str
 
 
-#: the one table of the four sweepable parameters' names
+#: the one table of the sweepable parameters' names
 PARAMETER_NAMES = {
     "shear_rate": ParameterName("S", "S", "shear rate $S$"),
     "psi_bar": ParameterName("psi_bar", r"$\bar\psi$", r"mean composition $\bar\psi$"),
     "excess_length": ParameterName("Delta", r"$\Delta$", r"excess length $\Delta$"),
     "B2": ParameterName("B2", r"$B_2$", r"bending rigidity $B_2$"),
+    "viscosity_ratio": ParameterName("lambda", r"$\lambda$", r"viscosity ratio $\lambda$"),
 }
 #: the symbol of each sweepable parameter in tables
 LABELS = {key: name.text for key, name in PARAMETER_NAMES.items()}
@@ -68,7 +69,17 @@ def _require(condition: bool, message: str) -> None:
 
 #: the physics parameters a campaign may vary from case to case ([sweep]), in the order of a
 #: case's row (campaign/study.py, run/verdict.py, reports/)
-SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2")
+SWEEPABLE = ("shear_rate", "psi_bar", "excess_length", "B2", "viscosity_ratio")
+#: sweepable parameters added after files and tables had been written, with the value every case of
+#: those ran with (a row or a file without the parameter reads as that)
+ADDED_LATER = {"viscosity_ratio": 1.0}
+
+
+def parameter_of(values, key: str, prefix: str = "") -> float:
+    """``values[prefix + key]`` -- of a case's row, or with ``prefix`` "physics." of its file's attributes --
+    or the value a case written before the parameter existed ran with (:data:`ADDED_LATER`)."""
+    name = prefix + key
+    return values[name] if name in values else ADDED_LATER[key]
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.files.lock import CampaignLock, real_path
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
-from hpcves.model.params import LABELS
+from hpcves.model.params import ADDED_LATER, LABELS
 from hpcves.reports import case_pages
 from hpcves.reports import refinement as rc
 from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
@@ -385,9 +385,11 @@ def facet_suffix(fixed: dict) -> str:
 
 def shared_parameters(rows: list[dict], axes=()) -> dict:
     """The parameters (other than ``axes``) that every row has the same value of: what a figure
-    over ``rows`` holds fixed, for its title."""
+    over ``rows`` holds fixed, for its title and file name -- but not a parameter added later at the
+    value every older study ran with (params.ADDED_LATER: lambda = 1), so their titles and names stay."""
     return {k: rows[0][k] for k in PARAMETERS
-            if k not in axes and rows and k in rows[0] and len({r[k] for r in rows}) == 1}
+            if k not in axes and rows and k in rows[0] and len({r[k] for r in rows}) == 1
+            and not (k in ADDED_LATER and rows[0][k] == ADDED_LATER[k])}
 
 
 def facet_label(fixed: dict) -> str:
@@ -602,7 +604,7 @@ MAX_PERIOD_CELLS = 400
 
 
 #: how a chain's legs are named, by the key it runs along
-LEG_NAMES = {"shear_rate": "S", "excess_length": "Delta", "psi_bar": "psi_bar", "B2": "B2"}
+LEG_NAMES = {"shear_rate": "S", "excess_length": "Delta", "psi_bar": "psi_bar", "B2": "B2", "viscosity_ratio": "lambda"}
 
 
 def run_labels(source: Source, rows: list[dict]) -> list[str]:

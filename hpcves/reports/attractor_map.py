@@ -14,7 +14,7 @@ from dataclasses import replace
 from hpcves.analysis.accuracy import TUMBLING_ORBIT_SPREAD
 from hpcves.analysis.attractors import Run, group
 from hpcves.analysis.pattern import Topology
-from hpcves.model.params import SWEEPABLE
+from hpcves.model.params import SWEEPABLE, parameter_of
 from hpcves.reports.tables import markdown_table
 
 
@@ -43,7 +43,7 @@ def last_runs(rows) -> dict:
     """{parameter point: its last run}, the run at the largest N where a refinement ran a point again."""
     last: dict = {}
     for r in rows:
-        point = tuple(round(r[k], 9) for k in SWEEPABLE)
+        point = tuple(round(parameter_of(r, k), 9) for k in SWEEPABLE)
         if point not in last or r["N"] >= last[point]["N"]:
             last[point] = r
     return last
@@ -57,7 +57,8 @@ def compare(rows_by_start: dict, values: bool = True) -> list[dict]:
     runs: dict = {}
     for start, rows in rows_by_start.items():
         for key, r in last_runs(rows).items():
-            runs.setdefault(key, {"parameters": {k: r[k] for k in SWEEPABLE}, "rows": {}})["rows"][start] = r
+            runs.setdefault(key, {"parameters": {k: parameter_of(r, k) for k in SWEEPABLE},
+                                  "rows": {}})["rows"][start] = r
     out = []
     for entry in runs.values():
         runs_here = [run_from_row(r, start) for start, r in entry["rows"].items()]

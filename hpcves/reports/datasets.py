@@ -20,6 +20,7 @@ from hpcves.run.diagnostics import SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
 from hpcves.run.verdict import PARAMETERS
+from hpcves.model.params import ADDED_LATER, parameter_of
 
 #: analysis/ columns carried per case by open_campaign (the rest are in regimes.csv)
 RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
@@ -92,7 +93,7 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
                  if not k.startswith("physics.") or k.removeprefix("physics.") not in PARAMETERS}
         attrs.update(status=STATUS_NAMES.get(store.status, str(store.status)), message=store.message,
                      t_reached=float(store.progress[0]), source=str(path))
-        physics = {k: float(store.attrs[f"physics.{k}"]) for k in PARAMETERS}
+        physics = {k: float(parameter_of(store.attrs, k, "physics.")) for k in PARAMETERS}
         N = store.width
     t = data.pop("t")
     coords = {"time": t[1], "xy": ["x", "y"], **physics}
@@ -137,13 +138,13 @@ def open_campaign(path, *, variables=None):
                 cases.append(None)
                 statuses.append("damaged")
                 for k in PARAMETERS:
-                    parameters[k].append(float(h5["index"][k][i]) if k in h5["index"] else np.nan)
+                    parameters[k].append(float(h5["index"][k][i]) if k in h5["index"] else ADDED_LATER.get(k, np.nan))
                 continue
             names = names or _check_names(variables, store)
             cases.append(_case_variables(store, names, False, "sample"))
             statuses.append(STATUS_NAMES.get(store.status, str(store.status)))
             for k in PARAMETERS:
-                parameters[k].append(float(store.attrs[f"physics.{k}"]))
+                parameters[k].append(float(parameter_of(store.attrs, k, "physics.")))
         searches = np.asarray(h5["index"]["search"][:]) if "search" in h5["index"] else np.full(len(ids), -1)
         results = {}
         if "analysis" in h5 and "case" in h5["analysis"]:

@@ -102,7 +102,7 @@ def fixed_text(chosen: list[Chosen]) -> tuple[str, list[str]]:
     from hpcves.reports.plots import parameter_text
 
     same = shared_parameters([c.parameters for c in chosen])
-    return parameter_text(same), [k for k in PARAMETERS if k not in same]
+    return parameter_text(same), [k for k in PARAMETERS if len({c.parameters.get(k) for c in chosen}) > 1]
 
 
 def shape_sequence_figure(chosen: list[Chosen], n_shapes: int = 6, streamlines: bool = True):

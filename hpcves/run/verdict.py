@@ -21,7 +21,7 @@ from hpcves.analysis.regimes import CREEPING, UNDECIDED, AnalysisSettings, Class
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.runner import MODEL_LIMIT_PREFIX, UNDER_RESOLVED
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
-from hpcves.model.params import SWEEPABLE as PARAMETERS      # the columns of a case's parameters in a row
+from hpcves.model.params import SWEEPABLE as PARAMETERS, parameter_of      # the columns of a case's parameters in a row
 
 #: the status of a campaign case whose data cannot be read
 DAMAGED = "damaged"
@@ -61,7 +61,7 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
     N = float(attrs.get("numerics.N", math.nan))
     if float(attrs.get("numerics.N_max", 0)) > 0 and len(series.get("N", ())):
         N = float(np.max(series["N"]))
-    return CaseData(case_id, {k: float(attrs[f"physics.{k}"]) for k in PARAMETERS},
+    return CaseData(case_id, {k: float(parameter_of(attrs, k, "physics.")) for k in PARAMETERS},
                     STATUS_NAMES.get(store.status, str(store.status)), t, t_end, store.message, series,
                     search, mark(store), REGIMES_BY_CODE.get(store.decision[0], ""),
                     float(attrs.get("numerics.rtol", math.nan)), N,
