@@ -87,7 +87,7 @@ def test_the_analysis_names_each_start_and_groups_the_runs_of_each_point(tmp_pat
     report = analyze(study.output, tmp_path / "analysis", case_figures="none", write_to_file=False)
     assert [r["start"] for r in report.rows] == ["published", "two_domains"] * 2
     header = (tmp_path / "analysis" / "regimes.csv").read_text().splitlines()[0].split(",")
-    assert header[header.index("B2") + 1] == "start"
+    assert header[header.index("viscosity_ratio") + 1] == "start"          # right after the parameters
     text = (tmp_path / "analysis" / "attractors.md").read_text()
     assert (tmp_path / "analysis" / "attractors.png").exists()
     assert "2 points run from published and two_domains" in text
