@@ -229,7 +229,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
     click.echo(f"{path}: {case.numerics.grid()}, {step}, t_end = {case.run.t_end:g}, "
                f"S = {case.physics.shear_rate:g}, psi_bar = {case.physics.psi_bar:g}, "
                f"excess length = {case.physics.excess_length:g}"
-               + (f", viscosity ratio = {case.physics.viscosity_ratio:g}" if case.physics.viscosity_ratio != 1.0 else "")
+               + (f", viscosity ratio = {case.physics.viscosity_ratio:g}" if case.physics.contrast else "")
                + (f", {case.physics.initial_shape} start" if case.physics.initial_shape != "ellipse" else "")
                + (f", {case.physics.initial_phase} phase" if case.physics.initial_phase != "published" else "")
                + ("  (resuming)" if resume else ""),

@@ -153,8 +153,7 @@ psi_bar = [0.3]
 
 
 def test_a_campaign_sweeps_the_viscosity_ratio_and_its_table_has_the_column(tmp_path):
-    """[sweep] viscosity_ratio: each case runs with its lambda, and the analysis table names it (as
-    `lambda` in figures); the mean tank-treading speed is lower at the larger lambda."""
+    """[sweep] viscosity_ratio: each case runs with its lambda, and the analysis table has its column."""
     from hpcves.campaign.driver import run_campaign
     from hpcves.campaign.study import study_from_toml
     from hpcves.reports.analyze import analyze

@@ -81,18 +81,23 @@ class MembraneFlow:
         self.slp = StokesSLP(sp.N, sp.length)
         self._blocks = np.empty((3, sp.N, sp.N))
         self._A = np.empty((sp.N, sp.N))          # constraint matrix, factorised in place
+        self._D_s: np.ndarray | None = None       # D_s as a matrix, for a viscosity contrast
+
+    def _driving_flow(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the assembled single-layer blocks, u0 = u_inf + G f_b): the flow before the tension."""
+        blocks = self.slp.assemble(shape.z, shape.tangent, out=self._blocks)
+        u0 = self.slp.apply(blocks, bending_force(shape.curvature, psi, psi_s, shape.tangent, self.physics, self.sp))
+        u0 += self.physics.shear_rate * shape.z.imag
+        return blocks, u0
 
     def solve(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
         """Velocity of the membrane and its effective tension."""
-        if self.physics.viscosity_ratio != 1.0:
+        if self.physics.contrast:
             return self._solve_with_contrast(shape, psi, psi_s)
-        sp, phys, slp = self.sp, self.physics, self.slp
+        sp, slp = self.sp, self.slp
         tangent = shape.tangent
         conj_tangent = np.conj(tangent)
-        blocks = slp.assemble(shape.z, tangent, out=self._blocks)
-        f_b = bending_force(shape.curvature, psi, psi_s, tangent, phys, sp)
-        u0 = slp.apply(blocks, f_b)
-        u0 += phys.shear_rate * shape.z.imag
+        blocks, u0 = self._driving_flow(shape, psi, psi_s)
         rhs = (conj_tangent * sp.ds_complex(u0)).real
         A = slp.constraint_matrix(tangent, shape.curvature, out=self._A)
         # A is symmetric and C-ordered: its transpose is the same matrix in the Fortran
@@ -118,7 +123,6 @@ class MembraneFlow:
             raise TensionSolveError.unresolved(size / scale)
         return Flow(velocity=u, tension_eff=tension)
 
-
     def _solve_with_contrast(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
         """The same with lambda = physics.viscosity_ratio != 1 (numerics/double_layer.py):
 
@@ -129,10 +133,7 @@ class MembraneFlow:
         O(N^3) with a larger constant than the Cholesky of equal viscosities (BENCHMARKS.md)."""
         sp, phys, slp, N = self.sp, self.physics, self.slp, self.sp.N
         tangent = shape.tangent
-        blocks = slp.assemble(shape.z, tangent, out=self._blocks)
-        f_b = bending_force(shape.curvature, psi, psi_s, tangent, phys, sp)
-        u0 = slp.apply(blocks, f_b)
-        u0 += phys.shear_rate * shape.z.imag
+        blocks, u0 = self._driving_flow(shape, psi, psi_s)
         A = double_layer_matrix(shape.z, tangent, shape.curvature, sp.length / N, phys.viscosity_ratio)
         A *= -1.0
         A[np.diag_indices(2 * N)] += 0.5 * (1.0 + phys.viscosity_ratio)
@@ -157,7 +158,7 @@ class MembraneFlow:
 
     def _derivative_matrix(self) -> np.ndarray:
         """D_s as an N x N matrix (Spectral.ds of the unit vectors), once a solver."""
-        if getattr(self, "_D_s", None) is None:
+        if self._D_s is None:
             self._D_s = np.column_stack([np.array(self.sp.ds(e)) for e in np.eye(self.sp.N)])
         return self._D_s
 

@@ -204,7 +204,7 @@ def around_snapshot(snapshot: dict, physics: Physics, targets) -> np.ndarray:
     ``tension``, ``curvature`` and membrane velocity ``velocity_x``, ``velocity_y`` there
     (diagnostics.snapshot), under the case's ``physics``. Equal viscosities only: with a contrast the
     flow off the membrane has a double layer too (issue #42, not yet here)."""
-    if physics.viscosity_ratio != 1.0:
+    if physics.contrast:
         raise ValueError(f"the flow off the membrane at physics.viscosity_ratio = {physics.viscosity_ratio:g} needs "
                          "the double layer, which flowfield.py does not have yet (equal viscosities only)")
     z = np.asarray(snapshot["x"]) + 1j * np.asarray(snapshot["y"])

@@ -204,6 +204,11 @@ class Physics:
         return self.delta if self.initial_phase == "domains" else 4.0 * self.delta
 
     @property
+    def contrast(self) -> bool:
+        """True where the inner and outer viscosities differ (viscosity_ratio != 1)."""
+        return self.viscosity_ratio != 1.0
+
+    @property
     def homogeneous(self) -> bool:
         """True for psi_bar = 0 or 1: one lipid phase, no phase-field dynamics."""
         return self.psi_bar in (0.0, 1.0)
@@ -511,7 +516,7 @@ class Case:
             del out["run"]["max_spectral_tail"]       # the default watch: as files from before it
         if self.run.max_steps_per_shear_time == RunControl.max_steps_per_shear_time or not self.numerics.adaptive:
             del out["run"]["max_steps_per_shear_time"]    # likewise (and a fixed step cannot stall)
-        if self.physics.viscosity_ratio == 1.0:       # equal viscosities: as files from before the option
+        if not self.physics.contrast:                 # equal viscosities: as files from before the option
             del out["physics"]["viscosity_ratio"]
         if self.physics.bending_law == "linear":      # the law of files from before the option
             del out["physics"]["bending_law"], out["physics"]["bending_width"]

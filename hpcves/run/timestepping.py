@@ -257,7 +257,7 @@ class Solver:
         (run/compiled.py; the default with the FFTW backend) or "numpy" (this module's own arithmetic,
         the reference; the default with the numpy backend)."""
         self.case = case
-        contrast = case.physics.viscosity_ratio != 1.0
+        contrast = case.physics.contrast
         if engine is None:
             engine = "compiled" if fft_backend == "fftw" and not contrast else "numpy"
         if engine not in ENGINES:
@@ -280,7 +280,7 @@ class Solver:
         self._resolved = np.ones_like(k)
         self._resolved[-2:] = 0.0                    # modes N/2 - 1 and N/2 of theta_tilde
         self.lam_theta = num.bending_stabilization * max(phys.B1, phys.B2) * k**3 / 4.0
-        if phys.viscosity_ratio != 1.0:
+        if phys.contrast:
             # the double layer is smooth: the high modes feel the contrast only through (1 + lambda) / 2
             self.lam_theta = self.lam_theta * (2.0 / (1.0 + phys.viscosity_ratio))
         #: the exponential filter of theta's explicit part (None: numerics.filter_order = 0)
