@@ -39,6 +39,7 @@ bench: setup
 	$(PY) bench/bench_adaptive.py --out BENCHMARKS.md
 	$(PY) bench/bench_run_loop.py --out BENCHMARKS.md
 	$(PY) bench/bench_dealias.py --out BENCHMARKS.md
+	$(PY) bench/bench_contrast.py --out BENCHMARKS.md
 
 validate: setup
 	$(PY) -m pytest -m slow -q

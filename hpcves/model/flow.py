@@ -36,21 +36,22 @@ instead cost 3x more at N = 128; docs/numerics.md.)
 
 With a viscosity contrast (physics.viscosity_ratio = lambda != 1) the velocity
 solves ((1 + lambda)/2) u - D[u] = u_inf + SLP[...] instead, D the double layer
-(numerics/double_layer.py); that system is not symmetric and is solved densely
-(:meth:`MembraneFlow._solve_with_contrast`; docs/numerics.md, "Viscosity contrast").
+(numerics/double_layer.py); that system is not symmetric and is solved by GMRES, preconditioned
+by the equal-viscosity solve (:meth:`MembraneFlow._solve_with_contrast`; docs/numerics.md,
+"Viscosity contrast").
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg
 from scipy.linalg import blas, lapack
 
 from hpcves.model.forces import bending_force, tension_force
 from hpcves.model.geometry import Shape
 from hpcves.model.params import Physics
 from hpcves.numerics.double_layer import double_layer_matrix
+from hpcves.numerics.krylov import gmres
 from hpcves.numerics.quadrature import StokesSLP
 from hpcves.numerics.reductions import largest_magnitude
 from hpcves.numerics.spectral import Spectral
@@ -74,6 +75,8 @@ class MembraneFlow:
     REFINEMENT_TOLERANCE = 1e-8       # residual s . du/ds relative to the stretching of u0
     MAX_REFINEMENTS = 8
     UNRESOLVED = 1e-6                 # a residual above this after refining: the shape is not resolved
+    GMRES_TOLERANCE = 1e-9            # |b - K x| / |b| of a viscosity contrast's solve
+    MAX_ITERATIONS = 60               # GMRES iterations before the solve counts as diverged
 
     def __init__(self, physics: Physics, sp: Spectral):
         self.physics = physics
@@ -81,7 +84,6 @@ class MembraneFlow:
         self.slp = StokesSLP(sp.N, sp.length)
         self._blocks = np.empty((3, sp.N, sp.N))
         self._A = np.empty((sp.N, sp.N))          # constraint matrix, factorised in place
-        self._D_s: np.ndarray | None = None       # D_s as a matrix, for a viscosity contrast
 
     def _driving_flow(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(the assembled single-layer blocks, u0 = u_inf + G f_b): the flow before the tension."""
@@ -126,41 +128,63 @@ class MembraneFlow:
     def _solve_with_contrast(self, shape: Shape, psi: np.ndarray, psi_s: np.ndarray) -> Flow:
         """The same with lambda = physics.viscosity_ratio != 1 (numerics/double_layer.py):
 
-            A u = u_inf + G (f_b + B Lambda~),   s . D_s u = 0,   A = ((1 + lambda)/2) I - D,
+            K (u, Lambda~) = (c u - D u - G B Lambda~, s . D_s u) = (u_inf + G f_b, 0),   c = (1 + lambda)/2,
 
-        solved densely: A factorised (LU), W = A^{-1} [G B, u_inf + G f_b], the tension from the
-        N x N system (s . D_s) W[:, :N] Lambda~ = -(s . D_s) W[:, N], then u = W[:, N] + W[:, :N] Lambda~.
-        O(N^3) with a larger constant than the Cholesky of equal viscosities (BENCHMARKS.md)."""
+        by GMRES (numerics/krylov.py) to a relative residual of GMRES_TOLERANCE, right-preconditioned
+        by the equal-viscosity solve with c u in place of c u - D u: P^{-1} (r_1, r_2) = (u, Lambda~)
+        with A Lambda~ = s . D_s r_1 - c r_2 (A the factorised constraint matrix of :meth:`solve`) and
+        u = (r_1 + G B Lambda~) / c, so that K P^{-1} (r_1, r_2) = (r_1 - D u, s . D_s u) and only D u
+        is new each iteration. D gives back -(1 - lambda)/2 times a rigid motion (inextensible, so P
+        leaves it alone): K P^{-1} maps rigid motions to 1/c times themselves, and the preconditioner
+        M^{-1} = P^{-1} (I + (c - 1) Q Q^T), Q the orthonormal rigid motions at the nodes, maps them
+        to themselves. D is compact (a smooth kernel): 5 to 9 iterations at Delta = 0.194 and 0.94
+        (N = 128, lambda from 0.5 to 10; docs/numerics.md). The closed-form A differs from the
+        discrete B^T G B only in how fast the iteration converges, not in what it converges to."""
         sp, phys, slp, N = self.sp, self.physics, self.slp, self.sp.N
+        c = 0.5 * (1.0 + phys.viscosity_ratio)
         tangent = shape.tangent
+        conj_tangent = np.conj(tangent)
         blocks, u0 = self._driving_flow(shape, psi, psi_s)
-        A = double_layer_matrix(shape.z, tangent, shape.curvature, sp.length / N, phys.viscosity_ratio)
-        A *= -1.0
-        A[np.diag_indices(2 * N)] += 0.5 * (1.0 + phys.viscosity_ratio)
-        derivative = self._derivative_matrix()
-        columns = derivative * tangent[None, :]            # B: column j is d(e_j s)/ds
-        right = np.empty((2 * N, N + 1))
-        right[:, :N] = slp.matrix(blocks) @ np.concatenate([columns.real, columns.imag])
-        right[:N, N], right[N:, N] = u0.real, u0.imag
-        W = linalg.lu_solve(linalg.lu_factor(A, overwrite_a=True, check_finite=False), right, check_finite=False)
-        constrained = tangent.real[:, None] * (derivative @ W[:N]) + tangent.imag[:, None] * (derivative @ W[N:])
-        try:
-            tension = np.linalg.solve(constrained[:, :N], -constrained[:, N])
-        except np.linalg.LinAlgError:
-            raise TensionSolveError.not_definite() from None
-        w = W[:, N] + W[:, :N] @ tension
-        u = w[:N] + 1j * w[N:]
-        scale = largest_magnitude(constrained[:, N])
-        size = largest_magnitude((np.conj(tangent) * sp.ds_complex(u)).real)
+        D = double_layer_matrix(shape.z, tangent, shape.curvature, sp.length / N, phys.viscosity_ratio)
+        A = slp.constraint_matrix(tangent, shape.curvature, out=self._A)
+        factor, info = lapack.dpotrf(A.T, lower=1, overwrite_a=1, clean=0)
+        if info != 0:
+            raise TensionSolveError.not_definite()
+        rigid = rigid_motions(shape.z)
+
+        def stretching(u):
+            return (conj_tangent * sp.ds_complex(u)).real
+
+        def preconditioned(r):
+            v = r[:2 * N] + (c - 1.0) * (rigid @ (r[:2 * N] @ rigid))
+            r1 = v[:N] + 1j * v[N:]
+            tension = cholesky_solve(factor, stretching(r1) - c * r[2 * N:])
+            u = (r1 + slp.apply(blocks, tension_force(tension, tangent, sp))) / c
+            image = np.concatenate([v - D @ np.concatenate([u.real, u.imag]), stretching(u)])
+            return np.concatenate([u.real, u.imag, tension]), image
+
+        x, residual, _ = gmres(preconditioned, np.concatenate([u0.real, u0.imag, np.zeros(N)]),
+                               self.GMRES_TOLERANCE, self.MAX_ITERATIONS)
+        u, tension = x[:N] + 1j * x[N:2 * N], x[2 * N:]
+        if not residual <= self.GMRES_TOLERANCE:
+            raise TensionSolveError.unconverged(residual)
+        scale = largest_magnitude(stretching(u0)) / c
+        size = largest_magnitude(stretching(u))
         if size > self.UNRESOLVED * scale:
             raise TensionSolveError.unresolved(size / scale)
         return Flow(velocity=u, tension_eff=tension)
 
-    def _derivative_matrix(self) -> np.ndarray:
-        """D_s as an N x N matrix (Spectral.ds of the unit vectors), once a solver."""
-        if self._D_s is None:
-            self._D_s = np.column_stack([np.array(self.sp.ds(e)) for e in np.eye(self.sp.N)])
-        return self._D_s
+
+def rigid_motions(z: np.ndarray) -> np.ndarray:
+    """(2N, 3): the translations along x and y and the rotation about the nodes' mean, as real
+    (u_x, u_y) columns, orthonormal (the rotation i (z - mean z) sums to zero along each axis)."""
+    N = z.size
+    out = np.zeros((2 * N, 3))
+    out[:N, 0] = out[N:, 1] = 1.0 / np.sqrt(N)
+    arm = z - z.mean()
+    out[:N, 2], out[N:, 2] = -arm.imag, arm.real
+    out[:, 2] /= np.sqrt(out[:, 2] @ out[:, 2])
+    return out
 
 
 def cholesky_solve(factor, b):
@@ -182,3 +206,10 @@ class TensionSolveError(ArithmeticError):
         """``stretching``: what the tension leaves of the stretching it cancels (relative)."""
         return cls(f"the tension leaves a stretching of {stretching:.1e} of what it cancels: "
                    "the shape is no longer resolved (reduce dt or increase N)")
+
+    @classmethod
+    def unconverged(cls, residual: float) -> "TensionSolveError":
+        """``residual``: |b - K x| / |b| where GMRES stopped (viscosity contrast)."""
+        return cls(f"the velocity of the viscosity contrast kept a residual of {residual:.1e} after "
+                   f"{MembraneFlow.MAX_ITERATIONS} GMRES iterations: the shape is no longer resolved "
+                   "(reduce dt or increase N)")

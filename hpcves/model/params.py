@@ -116,7 +116,7 @@ class Physics:
     outside it, so that B stays positive (docs/numerics.md, "Bending law").
     ``viscosity_ratio`` is lambda = eta_in / eta_out (1: the publication's equal viscosities); other
     values add the double layer to the membrane's flow (flow.py; docs/numerics.md, "Viscosity
-    contrast") and run on the numpy engine.
+    contrast").
     """
 
     shear_rate: float = 10.0

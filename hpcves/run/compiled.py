@@ -20,7 +20,9 @@ only says where it differs:
 * the 3 x 3 Newton system of the area projection is solved by Gaussian elimination with partial
   pivoting (LAPACK's dgesv in the numpy path), the tension's triangular solves by loops, the
   interpolant of a sample by powers of e^{2 pi i alpha};
-* errors come back as numbers (the stretching the tension leaves) or, from LAPACK (the tension's
+* with a viscosity contrast the velocity's GMRES (numerics/krylov.py) is :func:`_contrast_flow`, the same
+  iteration, with the double layer's matrix and the Krylov vectors in the solver's workspace;
+* errors come back as numbers (the stretching the tension leaves, GMRES's residual) or, from LAPACK (the tension's
   Cholesky factorisation, the phase step's capacitance system), as numpy's LinAlgError, which the
   caller turns into the numpy path's exceptions.
 
@@ -46,6 +48,7 @@ jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 #: the numpy path's constants, the same objects (frozen into the kernels when they compile)
 REFINEMENT_TOLERANCE = MembraneFlow.REFINEMENT_TOLERANCE
 MAX_REFINEMENTS = MembraneFlow.MAX_REFINEMENTS
+GMRES_TOLERANCE, MAX_ITERATIONS = MembraneFlow.GMRES_TOLERANCE, MembraneFlow.MAX_ITERATIONS
 SHARPNESS, SATURATION = bending.SHARPNESS, bending.SATURATION
 SPINODAL_HALF_WIDTH, PLAUSIBLE = float(phasefield.SPINODAL_HALF_WIDTH), phasefield.PLAUSIBLE
 
@@ -214,15 +217,146 @@ def _tension_force(tension, tangent, ikc):
     return _multiply_complex(tension * tangent, ikc)
 
 
+@jit
+def _refined_flow(tangent, blocks, L, u0, rhs, w, ikc):
+    """The tension by the Cholesky factor L of A and its refinement (flow.MembraneFlow.solve): (the
+    stretching left, the one the tension cancels, u, tension)."""
+    tension = _cholesky_solve(L, rhs)
+    u = u0 + _apply(blocks, _tension_force(tension, tangent, ikc), w)
+    scale = _largest_magnitude(rhs)
+    previous = np.inf
+    size = 0.0
+    for refinements in range(MAX_REFINEMENTS + 1):
+        residual = _stretching(tangent, u, ikc)
+        size = _largest_magnitude(residual)
+        if size <= REFINEMENT_TOLERANCE * scale or size > 0.5 * previous or refinements == MAX_REFINEMENTS:
+            break
+        previous = size
+        correction = _cholesky_solve(L, residual)
+        tension += correction
+        u += _apply(blocks, _tension_force(correction, tangent, ikc), w)
+    return size, scale, u, tension
+
+
+@jit
+def _double_layer(z, tangent, curvature, inv, w, weight, viscosity_ratio, out):
+    """double_layer.double_layer_matrix on nodes of equal ``weight`` (L / N) into ``out``, from the
+    w / |r|^2 of :func:`_assemble` (``inv``), which spares its divisions."""
+    N = z.size
+    scale = (1.0 - viscosity_ratio) / math.pi * weight / (w * w)    # c weight / |r|^4 = scale (w / |r|^2)^2
+    nx, ny = tangent.imag.copy(), -tangent.real                  # n = -i t
+    for i in range(N):
+        xi, yi = z[i].real, z[i].imag
+        top, bottom, row = out[i], out[N + i], inv[i]
+        for j in range(N):
+            rx, ry = xi - z[j].real, yi - z[j].imag
+            k = (rx * nx[j] + ry * ny[j]) * scale * (row[j] * row[j])
+            xy = k * rx * ry
+            top[j], top[N + j], bottom[j], bottom[N + j] = k * rx * rx, xy, xy, k * ry * ry
+        tx, ty = tangent[i].real, tangent[i].imag
+        k = -0.5 * curvature[i] * (1.0 - viscosity_ratio) / math.pi * weight     # the limit -(H / 2) t t^T
+        top[i], top[N + i], bottom[i], bottom[N + i] = k * tx * tx, k * tx * ty, k * tx * ty, k * ty * ty
+
+
+@jit
+def _rigid_motions(z):
+    """flow.rigid_motions."""
+    N = z.size
+    out = np.zeros((2 * N, 3))
+    mean = z.sum() / N
+    total = 0.0
+    for i in range(N):
+        out[i, 0] = out[N + i, 1] = 1.0 / math.sqrt(N)
+        arm = z[i] - mean
+        out[i, 2], out[N + i, 2] = -arm.imag, arm.real
+        total += arm.imag * arm.imag + arm.real * arm.real
+    out[:, 2] /= math.sqrt(total)
+    return out
+
+
+@jit
+def _contrast_flow(z, tangent, curvature, blocks, inv, L, u0, w, ikc, length, viscosity_ratio, krylov):
+    """u and the tension of a viscosity contrast by right-preconditioned GMRES
+    (flow.MembraneFlow._solve_with_contrast; numerics/krylov.gmres, the same iteration): (the stretching
+    left, the one the tension cancels, u, tension); a stretching of inf when GMRES did not converge."""
+    N = z.size
+    c = 0.5 * (1.0 + viscosity_ratio)
+    D, basis, directions = krylov
+    _double_layer(z, tangent, curvature, inv, w, length / N, viscosity_ratio, D)
+    n, m_max = 3 * N, MAX_ITERATIONS
+    b = np.empty(n)
+    for j in range(N):
+        b[j], b[N + j], b[2 * N + j] = u0[j].real, u0[j].imag, 0.0
+    beta = math.sqrt(np.dot(b, b))
+    H = np.zeros((m_max + 1, m_max))
+    cosines, sines, g = np.empty(m_max), np.empty(m_max), np.zeros(m_max + 1)
+    g[0] = beta
+    basis[0] = b / beta
+    rigid = _rigid_motions(z)
+    r1 = np.empty(N, dtype=np.complex128)
+    image = np.empty(n)
+    m = 0
+    v, flat = np.empty(2 * N), np.empty(2 * N)         # contiguous, for BLAS (numba's dot of slices is a loop)
+    for j in range(m_max):
+        # M^{-1} basis[j] and K M^{-1} basis[j]
+        v[:] = basis[j, :2 * N]
+        v += (c - 1.0) * np.dot(rigid, np.dot(v, rigid))
+        for i in range(N):
+            r1[i] = complex(v[i], v[N + i])
+        tension = _cholesky_solve(L, _stretching(tangent, r1, ikc) - c * basis[j, 2 * N:])
+        u = (r1 + _apply(blocks, _tension_force(tension, tangent, ikc), w)) / c
+        d = directions[j]
+        for i in range(N):
+            flat[i], flat[N + i] = u[i].real, u[i].imag
+            d[i], d[N + i], d[2 * N + i] = u[i].real, u[i].imag, tension[i]
+        image[:2 * N] = v - np.dot(D, flat)
+        image[2 * N:] = _stretching(tangent, u, ikc)
+        for i in range(j + 1):                          # modified Gram-Schmidt
+            h = np.dot(image, basis[i])
+            H[i, j] = h
+            image -= h * basis[i]
+        H[j + 1, j] = math.sqrt(np.dot(image, image))
+        if H[j + 1, j] != 0.0:
+            basis[j + 1] = image / H[j + 1, j]
+        for i in range(j):
+            upper = cosines[i] * H[i, j] + sines[i] * H[i + 1, j]
+            H[i + 1, j] = cosines[i] * H[i + 1, j] - sines[i] * H[i, j]
+            H[i, j] = upper
+        radius = math.hypot(H[j, j], H[j + 1, j])
+        cosines[j], sines[j] = H[j, j] / radius, H[j + 1, j] / radius
+        H[j, j], H[j + 1, j] = radius, 0.0
+        g[j + 1] = -sines[j] * g[j]
+        g[j] = cosines[j] * g[j]
+        m = j + 1
+        if abs(g[m]) <= GMRES_TOLERANCE * beta:
+            break
+    y = np.zeros(m)
+    for i in range(m - 1, -1, -1):
+        total = g[i]
+        for k in range(i + 1, m):
+            total -= H[i, k] * y[k]
+        y[i] = total / H[i, i]
+    x = np.zeros(n)
+    for i in range(m):                                  # sum_i y_i M^{-1} v_i
+        x += y[i] * directions[i]
+    u = np.empty(N, dtype=np.complex128)
+    for i in range(N):
+        u[i] = complex(x[i], x[N + i])
+    scale = _largest_magnitude(_stretching(tangent, u0, ikc)) / c
+    size = _largest_magnitude(_stretching(tangent, u, ikc))
+    return size, scale, u, x[2 * N:].copy(), abs(g[m]) / beta
+
+
 # ---------------------------------------------------------------- rates (Solver._rates_on_nodes)
 @jit
 def shape_rates(theta_tilde, psi, center, homogeneous, ops, phys):
     """The first part of F at one level: the shape, psi's derivatives, the bending force and the squared
     distances |z_i - z_j|^2 whose logarithm the single-layer kernel needs. ``ops``: the grid's operators
-    (Solver._operators); ``phys``: (length, B1, B2, saturating, width, shear_rate, a0, eps, mobility).
+    (Solver._operators); ``phys``: (length, B1, B2, saturating, width, shear_rate, a0, eps, mobility,
+    viscosity_ratio).
     Returns (psi_hat, psi_s, psi_ss, z, tangent, curvature, B'(psi), f_b, r2)."""
-    (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks) = ops
-    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
+    (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks, krylov) = ops
+    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility, viscosity_ratio = phys
     N = theta_tilde.size
     # shape (geometry.shape_from_angle)
     theta = circle + theta_tilde
@@ -259,9 +393,10 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
                curvature, dB, f_b):
     """The rest of F at one level, given log|r|^2 and what :func:`shape_rates` gave. Returns (the
     stretching left after refining, the one the tension cancels -- their ratio the caller checks as
-    flow.MembraneFlow.solve does --, theta_t, psi_t, center rate, V, velocity, tension_eff, mu)."""
-    (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks) = ops
-    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
+    flow.MembraneFlow.solve does --, GMRES's relative residual with a viscosity contrast (0 without),
+    theta_t, psi_t, center rate, V, velocity, tension_eff, mu)."""
+    (circle, ik, k2, ikc, inv_ikc, base_w, E, w, A_diag0, mobility_k2, blocks, krylov) = ops
+    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility, viscosity_ratio = phys
     N = theta_tilde.size
     # flow and tension (flow.MembraneFlow.solve)
     inv = _assemble(z, tangent, log_r2, base_w, w, blocks)
@@ -271,20 +406,12 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
     A = _constraint_matrix(tangent, curvature, blocks, inv, E, w, A_diag0)
     empty = np.empty(0)
     A = np.linalg.cholesky(A)            # LAPACK's dpotrf (LinAlgError: not positive definite)
-    tension = _cholesky_solve(A, rhs)
-    u = u0 + _apply(blocks, _tension_force(tension, tangent, ikc), w)
-    scale = _largest_magnitude(rhs)
-    previous = np.inf
-    size = 0.0
-    for refinements in range(MAX_REFINEMENTS + 1):
-        residual = _stretching(tangent, u, ikc)
-        size = _largest_magnitude(residual)
-        if size <= REFINEMENT_TOLERANCE * scale or size > 0.5 * previous or refinements == MAX_REFINEMENTS:
-            break
-        previous = size
-        correction = _cholesky_solve(A, residual)
-        tension += correction
-        u += _apply(blocks, _tension_force(correction, tangent, ikc), w)
+    if viscosity_ratio != 1.0:
+        size, scale, u, tension, residual = _contrast_flow(z, tangent, curvature, blocks, inv, A, u0, w, ikc,
+                                                           length, viscosity_ratio, krylov)
+    else:
+        size, scale, u, tension = _refined_flow(tangent, blocks, A, u0, rhs, w, ikc)
+        residual = 0.0
 
     # theta_t = -n . d(u - V s)/ds
     V = 0.0
@@ -295,7 +422,7 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
     theta_t = tangent.real * node_velocity_s.imag - tangent.imag * node_velocity_s.real
     center_rate = u.sum() / N
     if homogeneous:
-        return size, scale, theta_t, np.zeros(N), center_rate, V, u, tension, empty
+        return size, scale, residual, theta_t, np.zeros(N), center_rate, V, u, tension, empty
     # chemical potential (phasefield.chemical_potential) and psi_t = nu mu_ss
     mu = np.empty(N)
     for j in range(N):
@@ -303,7 +430,7 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
         mu[j] = ((p * p - 0.25) * p * (a0 / eps) + (0.5 * dB[j]) * (curvature[j] * curvature[j])
                  - (a0 * eps) * psi_ss[j])
     psi_t = _multiply(mu, mobility_k2, N)
-    return size, scale, theta_t, psi_t, center_rate, V, u, tension, mu
+    return size, scale, residual, theta_t, psi_t, center_rate, V, u, tension, mu
 
 
 # ---------------------------------------------------------------- projection (geometry.project_closed)
@@ -689,7 +816,7 @@ def sample_values(theta_tilde, psi, shift, z, tangent, curvature, velocity, tens
                   homogeneous, ikc, phase, phys):
     """diagnostics.sample's numbers of a state from its rates, in the order of :data:`SAMPLE` (area and
     length as they are: the caller makes them errors). ``phase``: e^{2 pi i j / N} at the nodes."""
-    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility = phys
+    length, B1, B2, saturating, width, shear_rate, a0, eps, mobility, viscosity_ratio = phys
     N = z.size
     out = np.empty(len(SAMPLE))
     # moments of the enclosed region (geometry.moments), n = -i s

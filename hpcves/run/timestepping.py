@@ -257,14 +257,10 @@ class Solver:
         (run/compiled.py; the default with the FFTW backend) or "numpy" (this module's own arithmetic,
         the reference; the default with the numpy backend)."""
         self.case = case
-        contrast = case.physics.contrast
         if engine is None:
-            engine = "compiled" if fft_backend == "fftw" and not contrast else "numpy"
+            engine = "compiled" if fft_backend == "fftw" else "numpy"
         if engine not in ENGINES:
             raise ValueError(f"unknown engine {engine!r} (use one of {ENGINES})")
-        if engine == "compiled" and contrast:
-            raise ValueError("physics.viscosity_ratio != 1 runs on the numpy engine (the compiled kernels solve the "
-                             "equal-viscosity tension system only)")
         self.engine = engine
         #: B''(psi*) H^2 / 2 in the phase step's Jacobian (phasefield.LinearizedImplicit); False leaves it
         #: explicit, only to show what it does (tests/test_solver.py)
@@ -468,11 +464,14 @@ class Solver:
         if self._kernels is None:
             sp, phys, flow, N = self.sp, self.case.physics, self.flow, self.sp.N
             slp = flow.slp
+            iterations = MembraneFlow.MAX_ITERATIONS if phys.contrast else 0
+            krylov = (np.empty((2 * N, 2 * N) if phys.contrast else (0, 0)),      # GMRES's workspace
+                      np.empty((iterations + 1, 3 * N)), np.empty((iterations, 3 * N)))
             ops = (sp.circle_angle, sp.ik, sp.k2, sp.ikc, sp._inv_ikc, slp._base_w, slp._E, slp._c_dir,
-                   slp._A_diag0, self._mobility_k2, flow._blocks)
+                   slp._A_diag0, self._mobility_k2, flow._blocks, krylov)
             physics = (float(phys.length), float(phys.B1), float(phys.B2), phys.bending_law == "saturating",
                        float(phys.bending_width), float(phys.shear_rate), float(phys.a0), float(phys.epsilon),
-                       float(phys.mobility))
+                       float(phys.mobility), float(phys.viscosity_ratio))
             lam_psi = np.zeros_like(sp.k) if self.lam_psi is None else self.lam_psi
             step_ops = (self.lam_theta, self._resolved, lam_psi, sp._im2pi, sp._m2pi_powers[0].copy(),
                         max(1, int(0.125 * N)))
@@ -490,11 +489,13 @@ class Solver:
             theta, psi, complex(center), homogeneous, ops, physics)
         log_r2 = np.log(r2, out=r2)
         try:
-            left, cancelled, theta_t, psi_t, center_rate, V, velocity, tension, mu = compiled.flow_rates(
+            left, cancelled, residual, theta_t, psi_t, center_rate, V, velocity, tension, mu = compiled.flow_rates(
                 theta, psi, complex(center), homogeneous, ops, physics, log_r2, psi_hat, psi_s, psi_ss, z,
                 tangent, curvature, dB, f_b)
         except np.linalg.LinAlgError:
             raise TensionSolveError.not_definite() from None
+        if not residual <= MembraneFlow.GMRES_TOLERANCE:
+            raise TensionSolveError.unconverged(residual)
         if left > MembraneFlow.UNRESOLVED * cancelled:
             raise TensionSolveError.unresolved(left / cancelled)
         return Rates(theta=theta_t, psi=psi_t, center=complex(center_rate), shift=V / self.sp.length,
