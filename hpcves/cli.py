@@ -379,7 +379,8 @@ class _CampaignTerminal:
 
     def __init__(self, study, path, quiet: bool):
         self.study, self.quiet, self.display = study, quiet, None
-        self.critical_csv = path.with_name(path.stem + "_critical_shear.csv")
+        stem = study.search.stem if study.search else "critical_shear"
+        self.critical_csv = path.with_name(f"{path.stem}_{stem}.csv")
         self.refine_csv = path.with_name(path.stem + "_refinement.csv")
 
     def announce(self, text, n_cases, finished_before):
@@ -407,7 +408,7 @@ class _CampaignTerminal:
         else:
             from hpcves.reports.critical import write_critical_csv
 
-            write_critical_csv([o.row() for o in outcomes], self.critical_csv)
+            write_critical_csv([o.row() for o in outcomes], self.critical_csv, self.study.search.along)
             kind, csv_path, brief = "searches", self.critical_csv, _search_brief
         if not any(o.regimes for o in outcomes):          # a new search or refinement: nothing found yet
             return
@@ -616,10 +617,10 @@ def _plan_text(estimate, study, suggested: int) -> str:
 
 def _search_brief(outcome) -> str:
     """``psi_bar = 0.3: [40, 56.6]``: one search in a few characters."""
-    point = ", ".join(f"{k} = {v:g}" for k, v in outcome.point.items() if k in outcome.swept_keys) or "S_C"
+    point = ", ".join(f"{k} = {v:g}" for k, v in outcome.point.items() if k in outcome.swept_keys) or outcome.column
     state = outcome.state
     if state.status == "converged":
-        return f"{point}: S_C = {state.critical:.4g}"
+        return f"{point}: {outcome.column} = {state.critical:.4g}"
     if state.status == "running" and state.low == state.low:
         return f"{point}: [{state.low:g}, {state.high:g}]"
     return f"{point}: {state.status}"
@@ -628,8 +629,8 @@ def _search_brief(outcome) -> str:
 def _print_searches(outcomes, critical_csv) -> None:
     from hpcves.reports.critical import critical_table
 
-    click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys))
-    click.echo(f"critical shear rates: {critical_csv}")
+    click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys, outcomes[0].column))
+    click.echo(f"critical {'shear rates' if outcomes[0].symbol == 'S' else 'viscosity ratios'}: {critical_csv}")
 
 
 def _print_refinements(study, outcomes, refine_csv) -> None:
@@ -783,7 +784,8 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
 
     Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
     tables (PNG and PDF) and cases/<id>.png -- for a [search] campaign,
-    critical_shear.csv/.md and S_C figures instead of the period tables, for a
+    critical_shear.csv/.md and S_C figures instead of the period tables (critical_lambda.csv/.md
+    and lambda_C for a search along the viscosity ratio), for a
     [refine] campaign boundaries.csv (the polylines) and refinement.md; the
     results also go into the file's analysis/ group. The file may belong to a running campaign (then
     nothing is written into it).
@@ -813,7 +815,10 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
     click.echo(f"{report.source.path}: {len(rows)} case{'s' * (len(rows) != 1)}: {counts}")
     for s in report.searches:
         where = f"psi_bar = {s['psi_bar']:g}, Delta = {s['excess_length']:g}, B2 = {s['B2']:g}"
-        value = f"S_C = {s['S_C']:.4g}" if s["S_C"] == s["S_C"] else s["status"]
+        column = "S_C" if "S_C" in s else "lambda_C"
+        if column == "lambda_C":
+            where += f", S = {s['shear_rate']:g}"
+        value = f"{column} = {s[column]:.4g}" if s[column] == s[column] else s["status"]
         click.echo(f"search {where}: {value}  ({s['reason']})")
     from hpcves.reports.refinement import REFINEMENT_FIELDS
 

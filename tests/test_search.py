@@ -14,8 +14,8 @@ def run_search(settings, regime_at):
         state = step(settings, results)
         if state.status != RUNNING:
             return state, results
-        assert state.next_shear_rates and not set(state.next_shear_rates) & set(results)
-        for s in state.next_shear_rates:
+        assert state.next_values and not set(state.next_values) & set(results)
+        for s in state.next_values:
             results[s] = regime_at(s)
 
 
@@ -62,7 +62,7 @@ def test_the_next_case_depends_only_on_the_results():
     settings = SearchSettings(low=10.0, high=320.0)
     a = step(settings, {320.0: "PT", 10.0: "TT"})
     b = step(settings, {10.0: "TT", 320.0: "PT"})
-    assert a.next_shear_rates == b.next_shear_rates == (pytest.approx(math.sqrt(3200.0)),)
+    assert a.next_values == b.next_values == (pytest.approx(math.sqrt(3200.0)),)
     assert (a.low, a.high, a.status) == (b.low, b.high, b.status) == (10.0, 320.0, RUNNING)
 
 
@@ -80,9 +80,9 @@ def test_k_section_converges_in_fewer_stages(points, critical):
     settings = SearchSettings(low=10.0, high=320.0, rel_tol=0.02, max_cases=80, points=points)
     results, stages = {}, 0
     while (state := step(settings, results)).status == RUNNING:
-        assert len(state.next_shear_rates) == (points + 1 if stages == 0 else points)
+        assert len(state.next_values) == (points + 1 if stages == 0 else points)
         stages += 1
-        for s in state.next_shear_rates:
+        for s in state.next_values:
             results[s] = threshold(critical)(s)
     assert state.status == CONVERGED and state.low < critical <= state.high
     assert state.high / state.low - 1 <= 0.02
@@ -99,3 +99,18 @@ def test_search_settings_from_a_table():
         SearchSettings.from_dict({"low": 10})
     with pytest.raises(ConfigError, match="search.points"):
         SearchSettings.from_dict({"low": 10, "high": 320, "points": 1.5})
+
+
+def test_a_search_along_lambda_speaks_of_lambda_c():
+    """[search] along = "viscosity_ratio": the same bisection, TT below lambda_C and TU above."""
+    settings = SearchSettings.from_dict({"low": 1, "high": 20, "along": "viscosity_ratio", "rel_tol": 0.05})
+    assert (settings.symbol, settings.column, settings.stem) == ("lambda", "lambda_C", "critical_lambda")
+    state, results = run_search(settings, lambda lam: "TU" if lam >= 4.2 else "TT")
+    assert state.status == CONVERGED and state.low < 4.2 <= state.high and "lambda_C = " in state.reason
+    above, _ = run_search(settings, lambda lam: "TT")
+    assert "TT up to lambda = 20: lambda_C > 20" in above.reason
+    assert SearchSettings(low=10.0, high=320.0).column == "S_C"
+    with pytest.raises(ConfigError, match="search.along = 'psi_bar'"):
+        SearchSettings.from_dict({"low": 1, "high": 20, "along": "psi_bar"})
+    with pytest.raises(ConfigError, match="the range of lambda"):
+        SearchSettings.from_dict({"low": 1, "along": "viscosity_ratio"})

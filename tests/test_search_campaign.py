@@ -287,3 +287,88 @@ def test_a_search_in_a_file_of_an_older_layout_continues_in_it(searched, tmp_pat
             assert f["blocks/0/timeseries/theta"].shape[0] == f.attrs["n_cases"] > before
     assert superblock_version(output) == (0 if version == 1 else 2)      # and in the HDF5 formats it was written in
     assert_same_results(output, reference)
+
+
+LAMBDA_SEARCH = """
+[campaign]
+name = "lambda"
+output = "{output}"
+t_end = 3.0
+[physics]
+psi_bar = 0.0
+excess_length = 0.94
+""" + TINY_RUN + """[search]
+along = "viscosity_ratio"
+low = 2.0
+high = 12.0
+rel_tol = 0.6
+[sweep]
+shear_rate = [40.0]
+"""
+
+
+@pytest.fixture(scope="module")
+def lambda_searched(tmp_path_factory):
+    """A search along lambda for lambda_C of the homogeneous vesicle (Delta = 0.94, S = 40, N = 32):
+    TT at lambda = 1 and 3, TU at 6, 10, 20 on a grid of the same cases; at 3.5 TT, 4.5 TU, and
+    near lambda_C (4.0, 4.24) still undecided at t = 3 (critical slowing down), so the range and
+    tolerance put the search's cases at 2, 12, 4.90 and 3.13."""
+    directory = tmp_path_factory.mktemp("lambda")
+    path = directory / "lambda.toml"
+    path.write_text(LAMBDA_SEARCH.format(output=directory / "lambda.h5", checkpoint=0.5))
+    study = study_from_toml(path.read_text())
+    summary = run_campaign(study, directory / "lambda.h5")
+    assert summary.exit_status == 0
+    return study, path, directory / "lambda.h5", summary
+
+
+def test_a_search_along_lambda_brackets_lambda_c(lambda_searched, tmp_path):
+    study, _, output, summary = lambda_searched
+    assert study.sweep_keys == ("viscosity_ratio", "shear_rate")
+    (search,) = summary.searches
+    assert search.point == {"psi_bar": 0.0, "excess_length": 0.94, "B2": study.base.physics.B2, "shear_rate": 40.0}
+    assert search.state.status == CONVERGED, search.state.reason
+    low, high = search.state.low, search.state.high
+    assert 3.0 <= low < high <= 6.0 and high / low - 1 <= 0.6
+    assert search.regimes[low] == "TT" and search.regimes[high] == "TU"
+    with h5py.File(output, "r") as f:
+        assert sorted(f["index/viscosity_ratio"][:]) == sorted(search.regimes)
+        assert set(f["index/shear_rate"][:]) == {40.0}
+    report = analyze(output, tmp_path / "out", case_figures="none")
+    names = {p.name for p in report.written}
+    assert {"critical_lambda.csv", "critical_lambda.md"} <= names and "critical_shear.csv" not in names
+    with open(tmp_path / "out" / "critical_lambda.csv") as f:
+        (row,) = list(csv.DictReader(f))
+    assert float(row["lambda_C"]) == pytest.approx(search.state.critical) and row["status"] == CONVERGED
+    assert float(row["shear_rate"]) == 40.0
+    assert "lambda_C" in (tmp_path / "out" / "critical_lambda.md").read_text()
+
+
+def test_a_search_along_lambda_cut_between_stages_resumes_to_the_same_cases(lambda_searched, tmp_path, monkeypatch):
+    from hpcves.campaign import driver as campaign_module
+
+    study, path, reference, _ = lambda_searched
+    output = tmp_path / "lambda.h5"
+    real_add = campaign_module._add_stage
+
+    def stop_at_stage_2(path, comm, cases, stage, source):
+        if stage == 2:
+            raise KeyboardInterrupt
+        return real_add(path, comm, cases, stage, source)
+
+    monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(study, output)
+    monkeypatch.undo()
+    assert run_campaign(study, output, resume=True).exit_status == 0
+    assert_same_results(output, reference)
+
+
+def test_a_search_along_the_shear_rate_keeps_its_fingerprint_when_along_is_said():
+    plain = study_from_toml(SEARCH.format(output="x.h5", checkpoint=0.5))
+    said = study_from_toml(SEARCH.format(output="x.h5", checkpoint=0.5).replace("[search]\n",
+                                                                                  '[search]\nalong = "shear_rate"\n'))
+    assert said.search.along == "shear_rate" and said.fingerprint == plain.fingerprint
+    with pytest.raises(ConfigError, match="runs along viscosity_ratio: leave viscosity_ratio out of"):
+        study_from_toml(LAMBDA_SEARCH.format(output="x.h5", checkpoint=0.5).replace(
+            "shear_rate = [40.0]", "viscosity_ratio = [2.0]"))

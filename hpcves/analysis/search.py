@@ -1,6 +1,9 @@
 """The critical shear rate S_C: bracket it between a TT and a PT case, then bisect (pure logic).
 
-One search runs along S for fixed (psi_bar, Delta, B2). Its state is nothing
+One search runs along S for fixed (psi_bar, Delta, B2) -- or, with ``along =
+"viscosity_ratio"``, along lambda for fixed (psi_bar, Delta, B2, S), where
+lambda_C bounds tank-treading from above as S_C does (TT below, PT/TU above);
+what is said of S below holds of lambda then. Its state is nothing
 but the regimes found so far, ``{S: regime}``; :func:`step` turns that into
 the next shear rates to run or a final verdict. Being a pure function of the
 results, a search resumes by replaying them, and the cases it asks for are
@@ -30,18 +33,25 @@ from hpcves.analysis.regimes import PT, TT, TU
 
 CONVERGED, RUNNING, UNBRACKETED, STOPPED = "converged", "running", "not bracketed", "stopped"
 
+#: what a search may run along -> (its symbol, the column of its critical value, the stem of its tables)
+AXES = {"shear_rate": ("S", "S_C", "critical_shear"), "viscosity_ratio": ("lambda", "lambda_C", "critical_lambda")}
+
 
 @dataclass(frozen=True)
 class SearchSettings:
-    """``[search]`` of a campaign file: the S range and the relative tolerance on S_C."""
+    """``[search]`` of a campaign file: the parameter searched along (``along``, the shear rate
+    unless said), its range and the relative tolerance on its critical value."""
 
     low: float
     high: float
     rel_tol: float = 0.02
     max_cases: int = 16
     points: int = 1                # shear rates per search per stage (k-section; 1 = bisection)
+    along: str = "shear_rate"
 
     def __post_init__(self):
+        if self.along not in AXES:
+            raise ConfigError(f"search.along = {self.along!r}: a search runs along one of {', '.join(AXES)}")
         if not 0 < self.low < self.high:
             raise ConfigError(f"search: need 0 < low < high, got low = {self.low}, high = {self.high}")
         if not 0 < self.rel_tol < 1:
@@ -50,6 +60,21 @@ class SearchSettings:
             raise ConfigError(f"search.points = {self.points}: must be >= 1")
         if self.max_cases < self.points + 1:
             raise ConfigError(f"search.max_cases = {self.max_cases}: must be >= points + 1 = {self.points + 1}")
+
+    @property
+    def symbol(self) -> str:
+        """S or lambda."""
+        return AXES[self.along][0]
+
+    @property
+    def column(self) -> str:
+        """S_C or lambda_C: the column of the critical value in the tables."""
+        return AXES[self.along][1]
+
+    @property
+    def stem(self) -> str:
+        """critical_shear or critical_lambda: the name of the tables."""
+        return AXES[self.along][2]
 
     def cases_needed(self) -> int:
         """Cases a search takes at most to converge from [low, high].
@@ -71,14 +96,15 @@ class SearchSettings:
         unknown = set(values) - {f.name for f in fields(cls)}       # from_table names them
         missing = [k for k in ("low", "high") if k not in values]
         if missing and not unknown:
-            raise ConfigError(f"{where}: give {' and '.join(missing)} (the range of S to search)")
+            raise ConfigError(f"{where}: give {' and '.join(missing)} (the range of "
+                              f"{AXES.get(values.get('along', 'shear_rate'), ('S',))[0]} to search)")
         return from_table(cls, values, where, "search")
 
 
 @dataclass(frozen=True)
 class SearchState:
     status: str                    # converged, running, not bracketed, stopped
-    next_shear_rates: tuple        # to run now (empty unless running)
+    next_values: tuple             # to run now (empty unless running)
     low: float                     # bracket: the largest TT below the transition (nan if none)
     high: float                    # the smallest PT/TU above it (nan if none)
     critical: float                # sqrt(low high) once converged, else nan
@@ -104,6 +130,7 @@ def step(settings: SearchSettings, results: dict) -> SearchState:
     A regime other than TT, PT or TU (undecided, failed, model limit) is never taken as either side.
     """
     nan = float("nan")
+    S, S_C = settings.symbol, settings.column
     missing = tuple(s for s in start_rates(settings) if s not in results)
     if missing:
         return SearchState(RUNNING, missing, nan, nan, nan, "starting: both ends of the range")
@@ -113,28 +140,28 @@ def step(settings: SearchSettings, results: dict) -> SearchState:
         undecided = [s for s in rates if results[s] != TT]
         if undecided:
             return SearchState(STOPPED, (), nan, nan, nan,
-                               f"no PT found, and S = {_list(undecided)} undecided")
+                               f"no PT found, and {S} = {_list(undecided)} undecided")
         return SearchState(UNBRACKETED, (), settings.high, nan, nan,
-                           f"TT up to S = {settings.high:g}: S_C > {settings.high:g}")
+                           f"TT up to {S} = {settings.high:g}: {S_C} > {settings.high:g}")
     hi = above[0]
     below = [s for s in rates if s < hi]
     if not below or results[settings.low] in (PT, TU):
         return SearchState(UNBRACKETED, (), nan, hi, nan,
-                           f"{results[settings.low]} already at S = {settings.low:g}: S_C < {settings.low:g}")
+                           f"{results[settings.low]} already at {S} = {settings.low:g}: {S_C} < {settings.low:g}")
     lo = below[-1]
     if results[lo] != TT:
-        return SearchState(STOPPED, (), nan, hi, nan, f"S = {lo:g} below the first PT is {results[lo]}")
+        return SearchState(STOPPED, (), nan, hi, nan, f"{S} = {lo:g} below the first PT is {results[lo]}")
     wrong = [s for s in rates if s > hi and results[s] == TT]
     if wrong:
         return SearchState(STOPPED, (), lo, hi, nan,
-                           f"TT again at S = {_list(wrong)} above PT at S = {hi:g}: not a single transition")
+                           f"TT again at {S} = {_list(wrong)} above PT at {S} = {hi:g}: not a single transition")
     if hi / lo - 1 <= settings.rel_tol:
         critical = math.sqrt(lo * hi)
         return SearchState(CONVERGED, (), lo, hi, critical,
-                           f"S_C = {critical:.4g} in [{lo:g}, {hi:g}] ({len(results)} cases)")
+                           f"{S_C} = {critical:.4g} in [{lo:g}, {hi:g}] ({len(results)} cases)")
     left = settings.max_cases - len(results)
     if left <= 0:
-        return SearchState(STOPPED, (), lo, hi, nan, f"max_cases = {settings.max_cases} spent; S_C in "
+        return SearchState(STOPPED, (), lo, hi, nan, f"max_cases = {settings.max_cases} spent; {S_C} in "
                                                      f"[{lo:g}, {hi:g}]")
     return SearchState(RUNNING, between(lo, hi, min(settings.points, left)), lo, hi, nan,
                        f"bracket [{lo:g}, {hi:g}]")

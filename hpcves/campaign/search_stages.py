@@ -1,6 +1,7 @@
 """The ``[search]`` campaign mode: critical-shear searches run stage by stage.
 
-A search study holds one search per point of its sweep (psi_bar, Delta, B2).
+A search study holds one search per point of its sweep (psi_bar, Delta, B2; and S in a search along
+lambda).
 The campaign runs in stages: every case the searches asked for runs under the
 same MPI scheduler; then rank 0 classifies the finished cases
 (:func:`hpcves.analysis.regimes.classify`, with the study's ``[analysis]`` thresholds),
@@ -23,51 +24,64 @@ from dataclasses import dataclass
 from hpcves.run.verdict import Verdict, case_data, verdict_of
 from hpcves.run.store import ENDED
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
-from hpcves.campaign.study import SEARCHABLE, Study
+from hpcves.campaign.study import Study, search_keys
 
 @dataclass(frozen=True)
 class SearchOutcome:
     """Where one search stands: its parameters, its state, the regimes it found."""
 
     index: int
-    point: dict                # psi_bar, excess_length, B2 of the search (swept or from the base case)
+    point: dict                # psi_bar, excess_length, B2 (and S) of the search (swept or from the base case)
     state: SearchState
-    regimes: dict              # {shear rate: regime} of its finished cases
+    regimes: dict              # {value searched along: regime} of its finished cases
     swept_keys: tuple = ()     # the keys of ``point`` that the study sweeps
+    settings: SearchSettings | None = None     # None: a search along the shear rate
+
+    @property
+    def symbol(self) -> str:
+        return self.settings.symbol if self.settings else "S"
+
+    @property
+    def column(self) -> str:
+        """The critical value's column: S_C, or lambda_C in a search along lambda."""
+        return self.settings.column if self.settings else "S_C"
 
     def row(self) -> dict:
-        """One row of critical_shear.csv."""
+        """One row of critical_shear.csv (critical_lambda.csv)."""
         reason = self.state.reason
         if self.state.status == RUNNING:
-            reason = f"unfinished: next S = {', '.join(f'{s:g}' for s in self.state.next_shear_rates)} ({reason})"
-        return {**self.point, "S_C": self.state.critical, "bracket_low": self.state.low,
+            reason = (f"unfinished: next {self.symbol} = {', '.join(f'{s:g}' for s in self.state.next_values)} "
+                      f"({reason})")
+        return {**self.point, self.column: self.state.critical, "bracket_low": self.state.low,
                 "bracket_high": self.state.high, "bending_gap": math.nan, "bending_gap_err": math.nan,
                 "status": self.state.status, "cases": len(self.regimes), "reason": reason}
 
 
 def outcomes(settings: SearchSettings, points: list[dict], found: list[tuple[int, float, str]],
              swept_keys: tuple = ()) -> list[SearchOutcome]:
-    """The state of every search from ``found`` = (search, shear rate, regime) of its finished cases."""
+    """The state of every search from ``found`` = (search, value searched along, regime) of its finished
+    cases."""
     by_search = [{} for _ in points]
-    for search, shear_rate, regime in found:
-        by_search[search][shear_rate] = regime
-    return [SearchOutcome(i, point, step(settings, regimes), regimes, tuple(swept_keys))
+    for search, value, regime in found:
+        by_search[search][value] = regime
+    return [SearchOutcome(i, point, step(settings, regimes), regimes, tuple(swept_keys), settings)
             for i, (point, regimes) in enumerate(zip(points, by_search))]
 
 
 def search_points(study: Study) -> list[dict]:
-    """psi_bar, excess_length and B2 of every search of ``study``."""
+    """psi_bar, excess_length and B2 (and S in a search along lambda) of every search of ``study``."""
     physics = study.base.physics
-    return [{k: float(point.get(k, getattr(physics, k))) for k in SEARCHABLE} for point in study.searches]
+    return [{k: float(point.get(k, getattr(physics, k))) for k in search_keys(study.search.along)}
+            for point in study.searches]
 
 
 def cases_from_file(study: Study, campaign) -> Study:
     """``study`` with the cases its file holds already (a resumed search; the file's fingerprint
     guarantees they are the cases this study makes)."""
     searches = campaign.searches_of_cases()
-    shear_rates = campaign.h5["index/shear_rate"][:]
-    cases = [study.search_case(search, float(s), case_id)
-             for case_id, search, s in zip(campaign.case_ids, searches, shear_rates)]
+    values = campaign.h5[f"index/{study.search.along}"][:]
+    cases = [study.search_case(search, float(v), case_id)
+             for case_id, search, v in zip(campaign.case_ids, searches, values)]
     return study.with_cases(cases)
 
 
@@ -134,18 +148,20 @@ class SearchDriver(StageDriver):
 
     def next_stage(self, study: Study, campaign) -> tuple[list[SearchOutcome], list]:
         """(outcome of every search, the new StudyCases to run: none once every search has ended)."""
+        along = study.search.along
         found = []
         for c in study.cases:
             regime = self.regime(campaign, c.case_id)
             if regime is not None:
-                found.append((c.search, c.swept["shear_rate"], regime))
+                found.append((c.search, c.swept[along], regime))
         states = outcomes(study.search, self.points, found, tuple(study.sweep))
         new = []
-        taken = {(c.search, c.swept["shear_rate"]) for c in study.cases}
+        taken = {(c.search, c.swept[along]) for c in study.cases}
         for outcome in states:
-            for shear_rate in outcome.state.next_shear_rates:
-                if (outcome.index, shear_rate) in taken:       # asked for, not finished: cannot happen after a stage
-                    raise RuntimeError(f"search {outcome.index}: S = {shear_rate:g} was run but is not finished")
+            for value in outcome.state.next_values:
+                if (outcome.index, value) in taken:       # asked for, not finished: cannot happen after a stage
+                    raise RuntimeError(f"search {outcome.index}: {outcome.symbol} = {value:g} was run but is "
+                                       "not finished")
                 case_id = f"{len(study.cases) + len(new):0{study.id_width}d}"
-                new.append(study.search_case(outcome.index, shear_rate, case_id))
+                new.append(study.search_case(outcome.index, value, case_id))
         return states, new

@@ -33,9 +33,10 @@ A ``[search]`` table makes it a critical-shear search (search.py, docs/analysis.
     rel_tol = 0.02      # stop when the bracket [S_TT, S_PT] is this narrow
     max_cases = 16      # per search
     points = 1          # shear rates per search and stage (1: bisection)
+    along = "shear_rate"    # or "viscosity_ratio": low and high are then lambda's range, for lambda_C
 
-Then ``[sweep]`` may hold only ``psi_bar``, ``excess_length`` and ``B2``: one
-search per point of that grid. The cases are made stage by stage as the
+Then ``[sweep]`` may hold only ``psi_bar``, ``excess_length`` and ``B2`` (and ``shear_rate`` in a search
+along lambda): one search per point of that grid. The cases are made stage by stage as the
 searches ask for them (numbered in that order); the ends of every search's
 range are validated up front.
 
@@ -98,6 +99,12 @@ from hpcves.analysis.refine import CREEP_TIGHTENING, RefinePlan, RefineSettings
 from hpcves.analysis.search import SearchSettings
 
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
+
+
+def search_keys(along: str = "shear_rate") -> tuple:
+    """The keys a search's ``[sweep]`` may hold (one search per point of it) and its tables' columns:
+    SEARCHABLE, and the shear rate where the search runs along lambda."""
+    return SEARCHABLE if along == "shear_rate" else SEARCHABLE + ("shear_rate",)
 #: what a named start of ``[starts]`` may set: the physics of the initial shape and phase
 START_KEYS = ("initial_shape", "psi_init_coordinate", "initial_phase", "phase_domains", "phase_center",
               "phase_seed", "delta", "stored_file", "stored_case", "stored_time")
@@ -205,9 +212,12 @@ class Study:
         else:
             times = dataclasses.asdict(self.times)
             samples = times.pop("samples_per_shear_time")
+            search = dataclasses.asdict(self.search)
+            if search["along"] == "shear_rate":    # as files made before the key existed
+                del search["along"]
             payload = {"name": self.name, "mode": "search", "base": self.base.significant(),
                        "end_time": times, "searches": list(self.searches),
-                       "search": dataclasses.asdict(self.search), "analysis": dataclasses.asdict(self.analysis)}
+                       "search": search, "analysis": dataclasses.asdict(self.analysis)}
             if samples is not None:        # absent from files written before the rule existed
                 payload["samples_per_shear_time"] = samples
             if self.starts:
@@ -258,9 +268,10 @@ class Study:
             raise ConfigError(f"{where}: {exc}") from None
         return StudyCase(case_id, case, swept, search, after)
 
-    def search_case(self, search: int, shear_rate: float, case_id: str) -> StudyCase:
-        """Case ``case_id`` of search number ``search``, at ``shear_rate``."""
-        return self.make_case(case_id, {"shear_rate": shear_rate, **self.searches[search]}, search)
+    def search_case(self, search: int, value: float, case_id: str) -> StudyCase:
+        """Case ``case_id`` of search number ``search``, at ``value`` of what it runs along (the shear rate
+        unless [search] along says otherwise)."""
+        return self.make_case(case_id, {self.search.along: value, **self.searches[search]}, search)
 
     def refine_case(self, refinement: int, x: float, y: float, case_id: str, numerics: dict | None = None,
                     start: float | None = None) -> StudyCase:
@@ -296,8 +307,8 @@ class Study:
 
     @property
     def sweep_keys(self) -> tuple:
-        """The per-case swept keys (a search adds the shear rate in front)."""
-        return (("shear_rate",) if self.search else ()) + tuple(self.sweep)
+        """The per-case swept keys (a search adds what it runs along in front: the shear rate unless said)."""
+        return ((self.search.along,) if self.search else ()) + tuple(self.sweep)
 
 
 def sweep_values(key: str, spec) -> tuple:
@@ -412,14 +423,15 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
     with problems.check():
         search = SearchSettings.from_dict(tables["search"]) if is_search else None
     with problems.check():
-        allowed = SEARCHABLE if is_search else SWEEPABLE
+        along = tables["search"].get("along", "shear_rate") if is_search else None
+        allowed = search_keys(along) if is_search else SWEEPABLE
         unknown = [k for k in sweep_spec if k not in allowed]
         if unknown:
             if "start" in unknown:
                 raise ConfigError("sweep over start: name the starts in a [starts] table instead "
                                   "(name = { initial_shape = ..., ... }); they are swept as the last key")
-            if is_search and unknown == ["shear_rate"]:
-                raise ConfigError("[search] runs along the shear rate: leave shear_rate out of [sweep] "
+            if is_search and unknown == [along]:
+                raise ConfigError(f"[search] runs along {along}: leave {along} out of [sweep] "
                                   "(the search range is [search] low and high)")
             raise ConfigError(f"sweep over {', '.join(unknown)}: only {', '.join(allowed)} can be swept")
         sweep = {}
@@ -492,8 +504,8 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
         return study.with_cases(study.make_case(f"{i:0{width}d}", swept) for i, swept in enumerate(points))
     study = dataclasses.replace(study, searches=tuple(points))
     for i in range(len(points)):         # validate every search at both ends of its range
-        for shear_rate in (search.low, search.high):
-            study.search_case(i, shear_rate, f"of search {i}")
+        for value in (search.low, search.high):
+            study.search_case(i, value, f"of search {i}")
     return study
 
 

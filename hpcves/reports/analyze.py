@@ -24,6 +24,7 @@ from hpcves.files import faults
 from hpcves.files.atomic import StorageError, copy_for_change, publish, remove_partial, size_text
 from hpcves.campaign.file import CampaignFile
 from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
+from hpcves.campaign.study import study_from_toml
 from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError,
                          attr_text, open_file, reading)
 from hpcves.run.store import FORMAT as CASE_FORMAT
@@ -488,7 +489,7 @@ class Findings:
     others: list                # the other swept keys: one facet per combination
     searches: list              # critical-shear rows (search campaigns)
     refined: list               # RefineOutcome of every refinement (refine campaigns)
-    study: object = None        # the Study of a refine campaign
+    study: object = None        # the Study of a refine or search campaign
     lines: list = ()            # boundaries.csv rows (refine campaigns)
 
     @property
@@ -504,8 +505,11 @@ def findings(source: Source, rows: list[dict], axes=None) -> Findings:
         study, refined = rc.source_outcomes(source, rows)
         lines = rc.boundary_rows(study, refined)
         axes = axes or tuple(sorted(study.refine.axes, key=lambda k: k != "shear_rate"))
+    searches = []
+    if source.mode == "search":
+        study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
+        searches = critical_rows(source, rows, study)
     x_key, y_key, others = grid_axes(source, rows, axes)
-    searches = critical_rows(source, rows) if source.mode == "search" else []
     return Findings(source, rows, x_key, y_key, others, searches, refined, study, lines)
 
 
@@ -528,24 +532,30 @@ def refinement_tables(f: Findings, out: Path) -> list[Path]:
 
 
 def critical_shear_tables(f: Findings, out: Path) -> list[Path]:
-    """critical_shear.csv / .md: S_C of every search with its bracket."""
+    """critical_shear.csv / .md: S_C of every search with its bracket (critical_lambda.csv / .md, lambda_C,
+    for searches along lambda)."""
     if f.source.mode != "search":
         return []
-    write_critical_csv(f.searches, out / "critical_shear.csv")
-    (out / "critical_shear.md").write_text(critical_markdown(f.source.name, f.searches))
-    return [out / "critical_shear.csv", out / "critical_shear.md"]
+    settings = f.study.search
+    csv_path, md_path = out / f"{settings.stem}.csv", out / f"{settings.stem}.md"
+    write_critical_csv(f.searches, csv_path, settings.along)
+    md_path.write_text(critical_markdown(f.source.name, f.searches, settings.along))
+    return [csv_path, md_path]
 
 
 def critical_shear_figures(f: Findings, out: Path) -> list[Path]:
-    """S_C against the first parameter the searches vary, one figure per value of the others."""
+    """S_C (lambda_C) against the first parameter the searches vary, one figure per value of the others."""
     from hpcves.reports import plots
 
-    varied = [k for k in f.source.sweep_keys if k != "shear_rate" and len({r[k] for r in f.searches}) > 1]
+    if f.source.mode != "search":
+        return []
+    settings = f.study.search
+    varied = [k for k in f.source.sweep_keys if k != settings.along and len({r[k] for r in f.searches}) > 1]
     written = []
     for fixed, subset in (facets(f.searches, varied[1:]) if varied else ()):
         fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
-            shared_parameters(subset, (varied[0], "shear_rate"))))
-        written += _save(fig, out / f"critical_shear{facet_suffix(fixed)}")
+            shared_parameters(subset, (varied[0], settings.along))), along=settings.along)
+        written += _save(fig, out / f"{settings.stem}{facet_suffix(fixed)}")
     return written
 
 
@@ -584,9 +594,10 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
         fig = plots.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
                                   nearest="point" if f.refined else "row",
                                   log_keys=f.study.refine_settings.log_keys() if f.refined else None)
-        if f.searches and "shear_rate" in (f.x_key, f.y_key):
+        along = f.study.search.along if f.searches else None
+        if f.searches and along in (f.x_key, f.y_key):
             plots.mark_critical(fig.axes[0], [r for r in f.searches if all(r[k] == v for k, v in fixed.items())],
-                                f.y_key if f.x_key == "shear_rate" else f.x_key, s_on_x=f.x_key == "shear_rate")
+                                f.y_key if f.x_key == along else f.x_key, s_on_x=f.x_key == along, along=along)
         if f.refined and {f.x_key, f.y_key} == set(f.study.refine.axes):
             plots.mark_boundaries(fig.axes[0], [r for r in f.lines if all(r[k] == v for k, v in fixed.items()
                                                                           if k in r)],      # a start: every one's

@@ -1,28 +1,35 @@
-"""critical_shear.csv and critical_shear.md: the verdict of every critical-shear search."""
+"""critical_shear.csv and critical_shear.md: the verdict of every critical-shear search (critical_lambda.csv
+and .md for searches along lambda, with lambda_C)."""
 from __future__ import annotations
 
 import math
 from pathlib import Path
 
 from hpcves.campaign.search_stages import outcomes, search_points
-from hpcves.campaign.study import SEARCHABLE, study_from_toml
+from hpcves.analysis.search import AXES
+from hpcves.campaign.study import search_keys, study_from_toml
 from hpcves.model.params import LABELS
 from hpcves.run.store import ENDED_NAMES
 from hpcves.reports.tables import fmt, markdown_table, write_rows
 
+def critical_columns(along: str = "shear_rate") -> tuple:
+    """The columns of critical_shear.csv (critical_lambda.csv for ``along`` = "viscosity_ratio"): the search's
+    point, S_C (lambda_C), its bracket, bending_gap (Delta E_b of the case at bracket_high, the smallest
+    phase-treading value; nan if none), status, cases, reason."""
+    return search_keys(along) + (AXES[along][1], "bracket_low", "bracket_high", "bending_gap", "bending_gap_err",
+                                 "status", "cases", "reason")
+
+
 #: the columns of critical_shear.csv
-#: (bending_gap: Delta E_b of the case at bracket_high, the smallest phase-treading shear rate; nan if none)
-CRITICAL_COLUMNS = SEARCHABLE + ("S_C", "bracket_low", "bracket_high", "bending_gap", "bending_gap_err", "status",
-                                 "cases", "reason")
+CRITICAL_COLUMNS = critical_columns()
 
 
+def write_critical_csv(rows: list[dict], path: Path, along: str = "shear_rate") -> None:
+    """critical_shear.csv: one row per search (:func:`critical_columns`)."""
+    write_rows(rows, critical_columns(along), path)
 
-def write_critical_csv(rows: list[dict], path: Path) -> None:
-    """critical_shear.csv: one row per search (CRITICAL_COLUMNS)."""
-    write_rows(rows, CRITICAL_COLUMNS, path)
 
-
-def critical_rows(source, rows: list[dict]) -> list[dict]:
+def critical_rows(source, rows: list[dict], study=None) -> list[dict]:
     """critical_shear.csv rows of a search file (analysis.Source) from its cases' classification ``rows``.
 
     The searches are replayed with these regimes: with the campaign's own
@@ -30,11 +37,13 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
     others (``--set``) a search may want cases the file does not hold (its
     status is then "running", its reason names them).
     """
-    study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
-    found = [(case.search, case.parameters["shear_rate"], row["regime"]) for case, row in zip(source.cases, rows)
+    if study is None:
+        study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
+    along = study.search.along
+    found = [(case.search, case.parameters[along], row["regime"]) for case, row in zip(source.cases, rows)
              if row["status"] in ENDED_NAMES]
     searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
-    gaps = {(case.search, case.parameters["shear_rate"]): (row["bending_gap"], row["bending_gap_err"])
+    gaps = {(case.search, case.parameters[along]): (row["bending_gap"], row["bending_gap_err"])
             for case, row in zip(source.cases, rows)}
     out = []
     for o in searched:
@@ -44,14 +53,15 @@ def critical_rows(source, rows: list[dict]) -> list[dict]:
     return out
 
 
-def critical_table(rows: list[dict], keys) -> str:
-    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then S_C and its bracket."""
+def critical_table(rows: list[dict], keys, column: str = "S_C") -> str:
+    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then its critical value
+    (``column``: S_C or lambda_C) and its bracket."""
     body = [[f"{r[k]:g}" for k in keys]
-            + [fmt(r["S_C"], ".4g"), f"[{fmt(r['bracket_low'], '.4g')}, {fmt(r['bracket_high'], '.4g')}]",
+            + [fmt(r[column], ".4g"), f"[{fmt(r['bracket_low'], '.4g')}, {fmt(r['bracket_high'], '.4g')}]",
                _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
                r["status"], r["reason"]] for r in rows]
     return markdown_table([LABELS.get(k, k) for k in keys]
-                          + ["S_C", "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
+                          + [column, "bracket", "Delta E_b at the bracket's top", "cases", "status", "reason"],
                           body, left=(len(keys) + 4, len(keys) + 5))
 
 
@@ -59,8 +69,14 @@ def _gap(gap: float, error: float) -> str:
     return f"{gap:.4g} +- {error:.1g}" if math.isfinite(gap) else ""
 
 
-def critical_markdown(name: str, searches: list[dict]) -> str:
-    return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
-            "between the largest TT and the smallest PT/TU shear rate. Delta E_b: the bending-energy gap (max - "
-            "min of E_b over a period) of the phase-treading case at the bracket's top.\n\n"
-            + critical_table(searches, SEARCHABLE) + "\n")
+def critical_markdown(name: str, searches: list[dict], along: str = "shear_rate") -> str:
+    if along == "shear_rate":
+        return (f"# Critical shear rates of {name!r}\n\nS_C = sqrt(low high), the geometric middle of the bracket "
+                "between the largest TT and the smallest PT/TU shear rate. Delta E_b: the bending-energy gap (max - "
+                "min of E_b over a period) of the phase-treading case at the bracket's top.\n\n"
+                + critical_table(searches, search_keys(along)) + "\n")
+    return (f"# Critical viscosity ratios of {name!r}\n\nlambda_C = sqrt(low high), the geometric middle of the "
+            "bracket between the largest tank-treading (TT) and the smallest phase-treading or tumbling (PT/TU) "
+            "viscosity ratio lambda = eta_in / eta_out. Delta E_b: the bending-energy gap (max - min of E_b over a "
+            "period) of the case at the bracket's top where it phase-treads.\n\n"
+            + critical_table(searches, search_keys(along), AXES[along][1]) + "\n")

@@ -492,14 +492,19 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
     return fig
 
 
-def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True) -> None:
-    """On a phase diagram with S along one axis: each search's bracket [low, high] as a bar at its
-    ``other_key`` value, S_C as a diamond, and the S_C curve through the converged ones in order of
-    ``other_key`` (rows of critical_shear.csv)."""
+#: what a search runs along -> (its critical value's column, its symbol in a figure)
+CRITICAL = {"shear_rate": ("S_C", "S$_C$"), "viscosity_ratio": ("lambda_C", r"$\lambda_C$")}
+
+
+def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True, along: str = "shear_rate") -> None:
+    """On a phase diagram with S (``along``) on one axis: each search's bracket [low, high] as a bar at its
+    ``other_key`` value, S_C (lambda_C) as a diamond, and the curve through the converged ones in order of
+    ``other_key`` (rows of critical_shear.csv, critical_lambda.csv)."""
     def xy(s_values, others):
         return (s_values, others) if s_on_x else (others, s_values)
 
-    label, curve_label = "S$_C$ bracket", "S$_C$"
+    column, symbol = CRITICAL[along]
+    label, curve_label = f"{symbol} bracket", symbol
     runs, run = [], []                # the curve breaks where a search did not converge
     for r in sorted(searches, key=lambda r: r[other_key]):
         low, high = r["bracket_low"], r["bracket_high"]
@@ -507,8 +512,8 @@ def mark_critical(ax, searches: list[dict], other_key: str, s_on_x: bool = True)
             ax.plot(*xy([low, high], [r[other_key]] * 2), color="k", lw=3, solid_capstyle="butt", zorder=4,
                     label=label)
             label = None
-        if np.isfinite(r["S_C"]):
-            run.append((r["S_C"], r[other_key]))
+        if np.isfinite(r[column]):
+            run.append((r[column], r[other_key]))
         elif run:
             runs.append(run)
             run = []
@@ -564,31 +569,33 @@ def mark_boundaries(ax, lines: list[dict], x_key: str, y_key: str) -> None:
         _legend_outside(ax)
 
 
-def critical_shear_figure(searches: list[dict], x_key: str, title: str = ""):
-    """S_C against one swept parameter: the bracket as an error bar, S_C as a point; a search
-    that did not bracket S_C is an arrow at the end of its range."""
+def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", along: str = "shear_rate"):
+    """S_C (lambda_C: ``along`` = "viscosity_ratio") against one swept parameter: the bracket as an error
+    bar, the critical value as a point; a search that did not bracket it is an arrow at the end of its range."""
+    column, symbol = CRITICAL[along]
     fig = Figure(figsize=(7, 5), constrained_layout=True)
     ax = fig.subplots()
     for r in searches:
         x, low, high = r[x_key], r["bracket_low"], r["bracket_high"]
-        if np.isfinite(r["S_C"]):
-            ax.errorbar([x], [r["S_C"]], yerr=[[r["S_C"] - low], [high - r["S_C"]]], fmt="D", color="C0",
+        if np.isfinite(r[column]):
+            ax.errorbar([x], [r[column]], yerr=[[r[column] - low], [high - r[column]]], fmt="D", color="C0",
                         mec="k", ms=8, capsize=5, lw=2)
         elif np.isfinite(low) and np.isfinite(high):
             ax.plot([x, x], [low, high], color="C1", lw=3)
             ax.annotate(r["status"], (x, high), textcoords="offset points", xytext=(5, 0), fontsize=9)
         elif np.isfinite(low):
             ax.plot([x], [low], marker="^", color="C3", ms=11, mec="k")
-            ax.annotate(f"S$_C$ > {low:g}", (x, low), textcoords="offset points", xytext=(8, -4), fontsize=10)
+            ax.annotate(f"{symbol} > {low:g}", (x, low), textcoords="offset points", xytext=(8, -4), fontsize=10)
         elif np.isfinite(high):
             ax.plot([x], [high], marker="v", color="C3", ms=11, mec="k")
-            ax.annotate(f"S$_C$ < {high:g}", (x, high), textcoords="offset points", xytext=(8, -4), fontsize=10)
+            ax.annotate(f"{symbol} < {high:g}", (x, high), textcoords="offset points", xytext=(8, -4), fontsize=10)
     ax.set_yscale("log")
     ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
     ax.margins(x=0.15, y=0.15)
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key), fontsize=13)
-    ax.set_ylabel("critical shear rate $S_C$", fontsize=13)
+    ax.set_ylabel("critical shear rate $S_C$" if along == "shear_rate" else
+                  r"critical viscosity ratio $\lambda_C$", fontsize=13)
     ax.grid(alpha=0.3, which="both")
     gaps = [r for r in searches if np.isfinite(r.get("bending_gap", math.nan))]
     if gaps:                                      # Delta E_b of the PT case at each bracket top, beside S_C
@@ -601,7 +608,7 @@ def critical_shear_figure(searches: list[dict], x_key: str, title: str = ""):
         twin.set_ylabel(r"bending-energy gap $\Delta E_b$ at the bracket top", color="tab:orange", fontsize=12)
         twin.set_ylim(bottom=0.0, top=1.15 * max(r["bending_gap"] + np.nan_to_num(r["bending_gap_err"])
                                                   for r in gaps))
-        handles = [matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k", label="$S_C$ (left)"),
+        handles = [matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k", label=f"{symbol} (left)"),
                    twin.get_legend_handles_labels()[0][0]]
         ax.legend(handles=handles, frameon=False, fontsize=10, loc="upper center")
     if title:
