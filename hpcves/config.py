@@ -275,5 +275,6 @@ def _toml_value(value) -> str:
     if isinstance(value, str):
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(value, float):
-        return repr(value)          # shortest repr round-trips exactly
+        return repr(float(value))   # shortest repr round-trips exactly (numpy's float64 is a float whose
+                                    # repr is "np.float64(...)")
     return str(value)

@@ -237,3 +237,17 @@ def test_the_start_round_trips_through_a_stored_case():
     assert 'initial_shape = "smoothed"' in case_to_toml(case)
     assert case_from_toml(case_to_toml(case), stored=True) == case
     assert case_from_toml("[physics]\n").physics.initial_shape == "ellipse"     # the default, and older files'
+
+
+def test_numpy_numbers_in_a_case_are_written_as_plain_toml():
+    """numpy's float64 is a float whose repr is "np.float64(...)": a case built from numpy numbers
+    (an API user's sweep) must still store TOML that reads back as the same case."""
+    import numpy as np
+
+    from hpcves.config import case_from_toml, case_to_toml
+    from hpcves.model.params import Case, Physics
+
+    case = Case(Physics(excess_length=np.float64(0.7416264591), viscosity_ratio=np.float64(3.0)))
+    text = case_to_toml(case)
+    assert "np." not in text
+    assert case_from_toml(text) == case
