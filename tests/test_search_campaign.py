@@ -372,3 +372,18 @@ def test_a_search_along_the_shear_rate_keeps_its_fingerprint_when_along_is_said(
     with pytest.raises(ConfigError, match="runs along viscosity_ratio: leave viscosity_ratio out of"):
         study_from_toml(LAMBDA_SEARCH.format(output="x.h5", checkpoint=0.5).replace(
             "shear_rate = [40.0]", "viscosity_ratio = [2.0]"))
+
+
+def test_resuming_a_whole_search_file_leaves_the_file_alone(lambda_searched, tmp_path, caplog):
+    """A finished search in today's layout has no half-added stage: --resume must not copy the file to
+    drop one (it did, for every search file with blocks, and said it removed 0 cases)."""
+    import shutil
+
+    study, _, reference, _ = lambda_searched
+    output = tmp_path / "lambda.h5"
+    shutil.copyfile(reference, output)
+    before = os.stat(output).st_ino
+    with caplog.at_level("WARNING"):
+        assert run_campaign(study, output, resume=True).exit_status == 0
+    assert os.stat(output).st_ino == before
+    assert "removed" not in caplog.text

@@ -60,7 +60,7 @@ from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_
 from hpcves.campaign.file import CampaignFile
 from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
                          FileFormatError,
-                         attr_text, open_file, reading, refuse_unopenable, storage_bytes)
+                         open_file, reading, refuse_unopenable, storage_bytes)
 from hpcves.files.lock import CampaignLock, LockError, real_path
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import AnalysisSettings
@@ -143,8 +143,7 @@ def _drop_partial_stage(path: Path) -> None:
     """Files of hpcves before stages were added by replacement: drop a half-added stage's cases."""
     try:
         with open_file(path, "r", locking=False) as h5:
-            partial = (attr_text(h5.attrs.get("mode", "")) == "search"
-                       and len(h5.get("cases", ())) != int(h5.attrs.get("n_cases", -1)))
+            partial = CampaignFile.has_partial_stage(h5)
     except HDF5_ERRORS:
         return                                     # check_file says what is wrong
     if partial:

@@ -183,6 +183,17 @@ class CampaignFile:
         self.h5.attrs["n_cases"] = stop
 
     @staticmethod
+    def has_partial_stage(h5) -> bool:
+        """Whether a search file holds the cases of a stage whose adding was cut short: more rows in
+        index/ (blocks layout) or more case groups (format 1) than ``n_cases`` says."""
+        if attr_text(h5.attrs.get("mode", "")) != "search":
+            return False
+        n = int(h5.attrs.get("n_cases", -1))
+        if BLOCKS in h5:
+            return "index" in h5 and h5["index/case_id"].shape[0] > n
+        return len(h5.get("cases", ())) != n
+
+    @staticmethod
     def drop_partial_stage(h5) -> int:
         """Remove the cases of a stage whose adding was cut short (search files; serial access).
 
