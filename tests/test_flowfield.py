@@ -121,3 +121,30 @@ def test_the_flow_off_the_membrane_meets_the_solvers_membrane_velocity():
         at_membrane = np.linalg.solve(np.vander(distances, distances.size), values)[-1]
         # measured 1.3e-6 outside, 1.3e-7 inside: the extrapolation's error and the force's above
         assert np.abs(at_membrane - membrane).max() < 1e-5 * np.abs(membrane).max(), side
+
+
+@pytest.mark.parametrize("viscosity_ratio", [0.2, 5.0])
+def test_the_double_layer_of_a_rigid_motion_and_the_winding_number(viscosity_ratio):
+    """Off a closed curve the double layer of a rigid motion v is -(1 - lambda) v inside and 0 outside
+    (the identity its jump comes from), by the plain rule far away and the upsampled one near; the
+    winding number is 1 inside and 0 outside."""
+    N = 64
+    alpha = np.arange(N) / N
+    z = 0.6 * np.cos(2 * np.pi * alpha) + 0.35j * np.sin(2 * np.pi * alpha) + 0.08 * np.exp(6j * np.pi * alpha)
+    rigid = 0.3 - 0.2j + 1.7j * (z - 0.05)                              # a translation and a rotation
+    coarse = flowfield._Curve(z, np.zeros(N, dtype=complex), rigid, viscosity_ratio)
+    fine = coarse.upsampled(flowfield.UPSAMPLE * N)
+    h = coarse.length / N
+    inner = np.array([0.0, 0.2 + 0.05j, -0.3])
+    outer = np.array([2.0, 1.5j, -1.2 - 0.8j])
+    assert list(coarse.winding(inner)) == [1, 1, 1] and list(coarse.winding(outer)) == [0, 0, 0]
+    expected = -(1.0 - viscosity_ratio) * (0.3 - 0.2j + 1.7j * (inner - 0.05))
+    assert np.abs(coarse.double_layer(inner) - expected).max() < 1e-10
+    assert np.abs(coarse.double_layer(outer)).max() < 1e-10
+    normal = -1j * coarse.dz / np.abs(coarse.dz)
+    for d in (0.5 * h, 2.0 * h):                                      # the near zone, both sides
+        inside = z[::8] - d * normal[::8]
+        outside = z[::8] + d * normal[::8]
+        expected = -(1.0 - viscosity_ratio) * (0.3 - 0.2j + 1.7j * (inside - 0.05))
+        assert np.abs(fine.double_layer(inside) - expected).max() < 1e-9
+        assert np.abs(fine.double_layer(outside)).max() < 1e-9

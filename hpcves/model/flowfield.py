@@ -32,6 +32,18 @@ Three zones, by the distance d of a target from the nearest node (h = L/N):
   It needs the curve's distance to any other part of itself to exceed
   CLOSE_POINTS D (0.94 h).
 
+With a viscosity contrast lambda = eta_in / eta_out (Pozrikidis 1992, sec. 5.3; the membrane's own
+equation in numerics/double_layer.py) the membrane velocity u adds its double layer,
+
+    outside:  u(x) = u_inf(x) + SLP[f](x) + DLP[u](x),
+    inside:   lambda u(x) = u_inf(x) + SLP[f](x) + DLP[u](x),
+    DLP[u](x) = ((1 - lambda)/pi) int (r . n)(r r^T)/|r|^4 u(y) ds(y),   r = x - y,
+
+whose limits on the membrane differ from its principal value by +-(1 - lambda)/2 u, so that both
+sides meet u there. It is evaluated by the same three zones (its kernel is as near-singular as the
+single layer's), the close zone interpolating u - u_inf of the target's side; which side a far
+target lies on is the winding number of the curve about it (the trapezoid rule again).
+
 Tested against the closed-form single layer of Fourier-mode forces on a circle
 (tests/test_flowfield.py) from 1e-6 h to 10 h inside and outside. The cost is
 that of the direct sums: 0.3 s for a 120 x 120 grid around a Delta = 2.3 shape
@@ -75,16 +87,18 @@ def traction(z: np.ndarray, psi: np.ndarray, tension: np.ndarray, curvature: np.
 
 
 def velocity(targets, z: np.ndarray, force: np.ndarray, membrane_velocity: np.ndarray,
-             shear_rate: float) -> np.ndarray:
+             shear_rate: float, viscosity_ratio: float = 1.0) -> np.ndarray:
     """u at ``targets`` (complex x + i y, any shape) of the flow driven by ``force`` on the closed
     curve ``z`` (N nodes, equally spaced in the parameter) whose velocity is ``membrane_velocity``
-    (the single layer's value on the curve, e.g. Flow.velocity or a snapshot's velocity)."""
+    (e.g. Flow.velocity or a snapshot's velocity), with ``viscosity_ratio`` = eta_in / eta_out."""
     targets = np.asarray(targets, dtype=complex)
     x = targets.ravel()
     z, force = np.asarray(z, dtype=complex), np.asarray(force, dtype=complex)
-    disturbance = np.asarray(membrane_velocity, dtype=complex) - shear_rate * z.imag    # the single layer on it
+    membrane_velocity = np.asarray(membrane_velocity, dtype=complex)
+    disturbance = membrane_velocity - shear_rate * z.imag            # u - u_inf on the membrane
     N = z.size
-    coarse = _Curve(z, force)
+    contrast = viscosity_ratio != 1.0
+    coarse = _Curve(z, force, membrane_velocity if contrast else None, viscosity_ratio)
     fine = coarse.upsampled(UPSAMPLE * N)
     h = coarse.length / N
     D = NEAR * h / UPSAMPLE
@@ -93,29 +107,32 @@ def velocity(targets, z: np.ndarray, force: np.ndarray, membrane_velocity: np.nd
         np.concatenate([np.min(np.abs(part[:, None] - z[None, :]), axis=1)
                         for part in np.array_split(x, x.size * N // _CHUNK + 1)])
     far = nearest >= FAR * h
-    u[far] = coarse.single_layer(x[far])
+    inside = coarse.winding(x[far]) != 0 if contrast else None
+    u[far] = coarse.disturbance(x[far], inside, shear_rate)
     rest = np.flatnonzero(~far)
     if rest.size:
         alpha, point, normal, distance = coarse.nearest_points(x[rest])
+        outward = np.real(np.conj(x[rest] - point) * normal) >= 0.0
         close = distance < D
         near = rest[~close]
-        u[near] = fine.single_layer(x[near])
+        u[near] = fine.disturbance(x[near], None if not contrast else ~outward[~close], shear_rate)
         if np.any(close):
             u[rest[close]] = _along_normal(fine, x[rest[close]], alpha[close], point[close], normal[close],
-                                           distance[close], disturbance, D)
+                                           distance[close], outward[close], disturbance, D, shear_rate)
     u += shear_rate * x.imag
     return u.reshape(targets.shape)
 
 
-def _along_normal(fine, x, alpha, point, normal, distance, on_membrane, D):
-    """The close zone: the polynomial through the single layer at p (``on_membrane``, at the nodes)
-    and the near-zone values at p + side n k D."""
-    side = np.where(np.real(np.conj(x - point) * normal) >= 0.0, 1.0, -1.0)
+def _along_normal(fine, x, alpha, point, normal, distance, outward, on_membrane, D, shear_rate):
+    """The close zone: the polynomial through u - u_inf at p (``on_membrane``, at the nodes) and the
+    near-zone values at p + side n k D, on the target's side (``outward``)."""
+    side = np.where(outward, 1.0, -1.0)
     steps = np.arange(1, CLOSE_POINTS + 1) * D
     probes = point[:, None] + (side * normal)[:, None] * steps[None, :]
     values = np.empty((x.size, CLOSE_POINTS + 1), dtype=complex)
     values[:, 0] = _per_alpha(on_membrane.size).interpolate(on_membrane, alpha)
-    values[:, 1:] = fine.single_layer(probes.ravel()).reshape(probes.shape)
+    inside = None if fine.velocity is None else np.repeat(~outward, CLOSE_POINTS)
+    values[:, 1:] = fine.disturbance(probes.ravel(), inside, shear_rate).reshape(probes.shape)
     nodes = np.concatenate([[0.0], steps])
     return np.sum(_lagrange_weights(nodes, distance) * values, axis=1)
 
@@ -136,10 +153,11 @@ def _per_alpha(n: int) -> Spectral:
 
 
 class _Curve:
-    """Nodes, force and arclength weights of one quadrature of the curve."""
+    """Nodes, force (and, with a contrast, velocity) and arclength weights of one quadrature of the curve."""
 
-    def __init__(self, z: np.ndarray, force: np.ndarray):
-        self.z, self.force = z, force
+    def __init__(self, z: np.ndarray, force: np.ndarray, velocity: np.ndarray | None = None,
+                 viscosity_ratio: float = 1.0):
+        self.z, self.force, self.velocity, self.viscosity_ratio = z, force, velocity, viscosity_ratio
         n = z.size
         self.dz = _per_alpha(n).ds_complex(z)
         self.weight = np.abs(self.dz) / n                  # ds = |z'(alpha)| d alpha, trapezoid
@@ -147,7 +165,17 @@ class _Curve:
         self.orientation = 1.0 if np.sum(np.imag(np.conj(z) * self.dz)) > 0 else -1.0   # +1: counterclockwise
 
     def upsampled(self, n: int) -> _Curve:
-        return _Curve(_resample(self.z, n), _resample(self.force, n))
+        velocity = None if self.velocity is None else _resample(self.velocity, n)
+        return _Curve(_resample(self.z, n), _resample(self.force, n), velocity, self.viscosity_ratio)
+
+    def disturbance(self, x: np.ndarray, inside: np.ndarray | None, shear_rate: float) -> np.ndarray:
+        """u - u_inf at ``x`` off the curve: the single layer, and with a contrast (``inside`` the targets
+        within the curve) the double layer, divided by lambda inside with u_inf (module docstring)."""
+        if self.velocity is None:
+            return self.single_layer(x)
+        total = self.single_layer(x) + self.double_layer(x) + shear_rate * x.imag
+        total[inside] /= self.viscosity_ratio
+        return total - shear_rate * x.imag
 
     def single_layer(self, x: np.ndarray) -> np.ndarray:
         """(1/4 pi) sum_j w_j G(x - z_j) f_j: the trapezoid rule (no u_inf)."""
@@ -160,6 +188,29 @@ class _Curve:
             terms = -0.5 * np.log(r2) * fw + r * (np.real(np.conj(r) * fw) / r2)
             out[start:start + rows] = terms.sum(axis=1) / (4.0 * np.pi)
         return out
+
+    def double_layer(self, x: np.ndarray) -> np.ndarray:
+        """((1 - lambda)/pi) sum_j w_j (r . n_j) r (r . u_j) / |r|^4, r = x - z_j: the trapezoid rule."""
+        out = np.empty(x.size, dtype=complex)
+        rows = max(1, _CHUNK // self.z.size)
+        normal = -1j * self.orientation * self.dz / np.abs(self.dz)          # outward
+        scale = (1.0 - self.viscosity_ratio) / np.pi
+        for start in range(0, x.size, rows):
+            r = x[start:start + rows, None] - self.z[None, :]
+            r2 = np.abs(r) ** 2
+            k = np.real(np.conj(r) * normal) * np.real(np.conj(r) * self.velocity) * self.weight / (r2 * r2)
+            out[start:start + rows] = scale * (r * k).sum(axis=1)
+        return out
+
+    def winding(self, x: np.ndarray) -> np.ndarray:
+        """How many times the curve winds around each target (0 outside; the trapezoid rule of
+        (1 / 2 pi i) oint dz / (z - x), exact to round-off away from the curve), rounded."""
+        out = np.empty(x.size)
+        rows = max(1, _CHUNK // self.z.size)
+        for start in range(0, x.size, rows):
+            terms = self.dz[None, :] / (self.z[None, :] - x[start:start + rows, None])
+            out[start:start + rows] = np.imag(terms.sum(axis=1)) / (2.0 * np.pi * self.z.size)
+        return np.rint(out)
 
     def nearest_points(self, x: np.ndarray):
         """(alpha, point, outward unit normal, distance) of the membrane point nearest each target:
@@ -202,12 +253,8 @@ def _resample(samples: np.ndarray, n: int) -> np.ndarray:
 def around_snapshot(snapshot: dict, physics: Physics, targets) -> np.ndarray:
     """u (lab frame) at ``targets`` for one snapshot: its nodes ``x``, ``y`` and ``psi``,
     ``tension``, ``curvature`` and membrane velocity ``velocity_x``, ``velocity_y`` there
-    (diagnostics.snapshot), under the case's ``physics``. Equal viscosities only: with a contrast the
-    flow off the membrane has a double layer too (issue #42, not yet here)."""
-    if physics.contrast:
-        raise ValueError(f"the flow off the membrane at physics.viscosity_ratio = {physics.viscosity_ratio:g} needs "
-                         "the double layer, which flowfield.py does not have yet (equal viscosities only)")
+    (diagnostics.snapshot), under the case's ``physics`` (its viscosity ratio included)."""
     z = np.asarray(snapshot["x"]) + 1j * np.asarray(snapshot["y"])
     force = traction(z, snapshot["psi"], snapshot["tension"], snapshot["curvature"], physics)
     membrane = np.asarray(snapshot["velocity_x"]) + 1j * np.asarray(snapshot["velocity_y"])
-    return velocity(targets, z, force, membrane, physics.shear_rate)
+    return velocity(targets, z, force, membrane, physics.shear_rate, physics.viscosity_ratio)

@@ -28,13 +28,12 @@ PSI_CMAP = "coolwarm"      # blue: hard phase (psi = 0), red: soft phase (psi = 
 def shape_strip(ax, snapshots: dict, indices, spacing: float = 1.3, label_times: bool = True,
                 physics=None, colour_width: float = 3.0):
     """Draw the shapes of the chosen snapshots side by side, coloured by psi; with the case's
-    ``physics``, the streamlines of the flow around each (:func:`streamlines`) behind it (equal
-    viscosities only: flowfield.around_snapshot)."""
+    ``physics``, the streamlines of the flow around each (:func:`streamlines`) behind it."""
     collections = []
     for k, i in enumerate(indices):
         x, y, psi = snapshots["x"][i], snapshots["y"][i], snapshots["psi"][i]
         cx, cy = x.mean(), y.mean()
-        if physics is not None and "velocity_x" in snapshots and not physics.contrast:
+        if physics is not None and "velocity_x" in snapshots:
             streamlines(ax, {name: snapshots[name][i] for name in STREAMLINE_FIELDS}, physics,
                         offset=complex(k * spacing - cx, -cy), half_width=0.5 * spacing)
         xs = np.r_[x, x[0]] - cx + k * spacing
@@ -194,7 +193,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
         indices = _shape_indices(snap_t, tw[0] if settled else snap_t[0], period, n_shapes)
         mappable = shape_strip(ax, snapshots, indices, physics=physics)
         fig.colorbar(mappable, ax=ax, shrink=0.7, label=r"$\psi$ (1 = soft)")
-        if physics is not None and "velocity_x" in snapshots and not physics.contrast:
+        if physics is not None and "velocity_x" in snapshots:
             ax.set_title("streamlines in the frame moving with the vesicle", fontsize=9)
     if kymographs and n >= 2:
         chosen = snap_t >= (tw[0] if settled else snap_t[0])
