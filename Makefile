@@ -3,7 +3,8 @@
 #   make test   -- set up, then the test suite (what CI runs)
 # Further: make bench (BENCHMARKS.md, ~25 min), make validate (VALIDATION.md, ~4 min),
 #          make faults (the kills at exact moments left out of make test, then FAULTS.md: 40 campaigns
-#          SIGKILLed at random moments, resumed, compared; ~10 min).
+#          SIGKILLed at random moments, resumed, compared; ~10 min), make reproduce (REPRODUCTION.md),
+#          make contrast (its viscosity-contrast sections, ~30 min).
 
 PY      := .venv/bin/python
 HPCVES  := .venv/bin/hpcves
@@ -17,7 +18,7 @@ MPIRUN  ?= env OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
 GRID    ?= coarse
 NP      ?= 2
 
-.PHONY: setup test demo bench validate faults reproduce clean
+.PHONY: setup test demo bench validate faults reproduce contrast clean
 
 setup:
 	@./scripts/bootstrap.sh
@@ -61,6 +62,13 @@ reproduce: setup
 	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" $(if $(STUDY),--study $(STUDY)) \
 	    $(if $(RETRY_FAILED),--retry-failed) \
 	    --out $(if $(filter fine,$(GRID)),REPRODUCTION-fine.md,REPRODUCTION.md)
+
+# beyond the publication (issue #42): the phase diagrams lambda x S (psi_bar = 0.5; Delta = 0.194, 0.94) and
+# lambda x psi_bar (Delta = 0.94, S = 20) with a viscosity contrast, refined; their sections of REPRODUCTION.md
+# (about half an hour on 2 cores; resumable like make reproduce)
+CONTRAST := contrast_lambda_S_D0194,contrast_lambda_S_D094,contrast_lambda_psi
+contrast: setup
+	$(MAKE) reproduce STUDY=$(CONTRAST)
 
 clean:
 	rm -rf out .pytest_cache

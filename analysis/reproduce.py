@@ -47,6 +47,7 @@ from hpcves.campaign.file import read_table
 from hpcves.campaign.progress import WORK_LEFT
 from hpcves.reports.critical import critical_table
 from hpcves.campaign.study import load_study
+from hpcves.model.params import LABELS
 
 JOBS = {"coarse": Path("jobs/reproduce"), "fine": Path("jobs/reproduce/fine")}
 FIGURES = {"coarse": Path("docs/reproduction"), "fine": Path("docs/reproduction/fine")}
@@ -498,6 +499,92 @@ def _phase_section(c: Context) -> list[str]:
     return lines + refinement_text(c.out, c.name) + [""]
 
 
+GERA = ("Gera, Salac & Spagnolie (J. Fluid Mech. 2022; arXiv:2108.10671) give a small-deformation theory of a "
+        "two-dimensional vesicle whose bending stiffness varies along the membrane and moves with it: a membrane "
+        "of nearly uniform stiffness swings (theta oscillates without flipping while the membrane tank-treads -- "
+        "what this model calls phase-treading, PT, as its stiff and soft domains tank-tread with the membrane), "
+        "and a variation beyond a critical size, relative to the flow rate and to the viscosity contrast, makes "
+        "it tumble (TU). Their sequence is swinging where the flow is strong and tumbling where the stiffness "
+        "variation outweighs it, the threshold moving with lambda. Their domains cannot slip through the "
+        "membrane, so the TT of this model (a pattern held fixed in the lab frame by diffusion while the "
+        "membrane tank-treads) has no counterpart there; and their shapes are nearly circles, where Delta = "
+        "0.94 is not")
+
+
+def _runs(pairs) -> str:
+    """'PT (0.1 - 2.5) -> TU (12.5 - 62.5)': the regimes along an axis, consecutive equal ones merged."""
+    merged = []
+    for value, regime in pairs:
+        if merged and merged[-1][0] == regime:
+            merged[-1][2] = value
+        else:
+            merged.append([regime, value, value])
+    return " -> ".join(f"{r} ({a:g})" if a == b else f"{r} ({a:g} - {b:g})" for r, a, b in merged)
+
+
+def contrast_section(c: Context) -> list[str]:
+    """A lambda x S or lambda x psi_bar diagram of the two-phase vesicle (issue #42): the refined diagram,
+    the regime sequence along lambda at every coarse value of the other axis (and along S at every coarse
+    lambda), and how that sequence compares with Gera, Salac & Spagnolie's."""
+    study, physics = c.study, c.study.base.physics
+    other = next(k for k in study.refine.axes if k != "viscosity_ratio")
+    if other == "shear_rate":
+        title = (f"## Beyond the publication: lambda x S at psi_bar = {physics.psi_bar:g}, "
+                 f"Delta = {physics.excess_length:.3g} (refined)")
+    else:
+        title = (f"## Beyond the publication: lambda x psi_bar at Delta = {physics.excess_length:.3g}, "
+                 f"S = {physics.shear_rate:g} (refined)")
+    lines = [title, "", "The viscosity ratio lambda = eta_in / eta_out (`physics.viscosity_ratio`; the publication "
+             "has lambda = 1 throughout and names the interplay of a contrast with the inhomogeneous bending as "
+             "open). From the ellipse.", ""] + _phase_section(c)
+    repeated = superseded(c.report.source)
+    rows = [r for r in c.report.rows if r["case"] not in repeated]
+    decided = ("TT", "PT", "TU")
+    sequences = []
+    for value in study.sweep[other]:
+        pairs = sorted((r["viscosity_ratio"], r["regime"]) for r in rows if r[other] == value)
+        sequences.append(f"{LABELS.get(other, other)} = {value:g}: " + _runs(pairs))
+    lines += ["Along lambda at each coarse value of the other axis (every case on that line, refined ones "
+              "included):", ""] + [f"* {line}" for line in sequences] + [""]
+    # the ordering a swinging -> tumbling picture asks for: along lambda, nothing but TU above a TU
+    against = []
+    for value in sorted({r[other] for r in rows}):
+        line = sorted((r["viscosity_ratio"], r["regime"]) for r in rows if r[other] == value and r["regime"] in decided)
+        first_tu = next((lam for lam, regime in line if regime == "TU"), None)
+        if first_tu is not None:
+            against += [f"{other} = {value:g}, lambda = {lam:g}: {regime} above TU at lambda = {first_tu:g}"
+                        for lam, regime in line if lam > first_tu and regime != "TU"]
+    lines += [GERA + ".", "",
+              "Tumbling here is reached by raising lambda: along every line of constant "
+              f"{LABELS.get(other, other)} in the file, "
+              + ("no decided case above the first tumbling one is anything but TU" if not against else
+                 f"{len(against)} decided cases above a tumbling one are not TU: " + "; ".join(against[:6])
+                 + ("; ..." if len(against) > 6 else ""))
+              + "."]
+    if other == "shear_rate":
+        below = []
+        for lam in sorted({r["viscosity_ratio"] for r in rows}):
+            line = sorted((r["shear_rate"], r["regime"]) for r in rows
+                          if r["viscosity_ratio"] == lam and r["regime"] in decided)
+            last_tu = max((s for s, regime in line if regime == "TU"), default=None)
+            if last_tu is not None:
+                below += [f"lambda = {lam:g}, S = {s:g}: PT below TU at S = {last_tu:g}"
+                          for s, regime in line if s < last_tu and regime == "PT"]
+        lines[-1] += (" Along S at fixed lambda the vesicle tumbles where the flow is weak and phase-treads "
+                      "(swings) where it is strong: "
+                      + ("no phase-treading case lies below a tumbling one" if not below else
+                         f"{len(below)} phase-treading cases lie below a tumbling one: " + "; ".join(below[:6])
+                         + ("; ..." if len(below) > 6 else "")) + ".")
+    swinging = [r for r in rows if r["regime"] == "undecided" and "theta oscillates" in r["reason"]
+                and "fixed" in r["reason"]]
+    lines += ["", ("No case swings with its pattern fixed in the lab frame (theta oscillating without flipping "
+                   "while the pattern stays put: the classifier would leave such a case undecided and say so)."
+                   if not swinging else
+                   f"{len(swinging)} cases oscillate without flipping while the pattern stays fixed in the lab "
+                   f"frame (swinging without phase-treading): {', '.join(r['case'] for r in swinging[:10])}."), ""]
+    return lines
+
+
 #: every campaign of the reproduction, in the order of REPRODUCTION.md, and the writer of its section
 SECTIONS = {
     "homogeneous": homogeneous_section,
@@ -513,6 +600,9 @@ SECTIONS = {
     "delta230_S_psi": s_psi_section,
     "delta230_S_psi_smoothed": s_psi_section,
     "delta230_chain": chain_section,
+    "contrast_lambda_S_D0194": contrast_section,
+    "contrast_lambda_S_D094": contrast_section,
+    "contrast_lambda_psi": contrast_section,
 }
 STUDIES = tuple(SECTIONS)
 SECTION_TAG = "<!-- hpcves reproduce section "

@@ -580,7 +580,8 @@ def _plan_text(estimate, study, suggested: int) -> str:
     from hpcves.campaign.queue import ranks_for
 
     likely = estimate.likely
-    kind = {"grid": "a grid", "search": f"{estimate.units} critical-shear search{'es' * (estimate.units != 1)}",
+    critical = "critical-shear" if study.search is None or study.search.along == "shear_rate" else "critical-lambda"
+    kind = {"grid": "a grid", "search": f"{estimate.units} {critical} search{'es' * (estimate.units != 1)}",
             "refine": f"{estimate.units} refinement{'s' * (estimate.units != 1)}"}[estimate.mode]
     per_step = ", ".join(f"N = {n}: {1e3 * a:.2g}" + (f" to {1e3 * b:.2g}" if f"{a:.2g}" != f"{b:.2g}" else "")
                          + " ms" for n, (a, b) in sorted(estimate.step_seconds.items()))

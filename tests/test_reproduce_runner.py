@@ -189,3 +189,10 @@ def test_the_wall_ledger_adds_calls_and_starts_again_with_a_new_file(tmp_path):
     reproduce._add_walls(ledger, {"a": 10.0, "b": 5.0})
     assert reproduce._add_walls(ledger, {"a": 2.5}) == {"a": 12.5, "b": 5.0}       # a resumed campaign
     assert reproduce._add_walls(ledger, {"a": 4.0}, restart=("a",)) == {"a": 4.0, "b": 5.0}   # made anew
+
+
+def test_a_regime_sequence_merges_neighbours_of_one_regime():
+    """The contrast sections' 'along lambda' lines (reproduce.contrast_section)."""
+    pairs = [(0.1, "TT"), (0.5, "PT"), (1.0, "PT"), (2.5, "PT"), (12.5, "TU"), (62.5, "TU")]
+    assert reproduce._runs(pairs) == "TT (0.1) -> PT (0.5 - 2.5) -> TU (12.5 - 62.5)"
+    assert reproduce._runs([]) == ""

@@ -742,7 +742,8 @@ def _announcement(study, path, statuses, size, mode, access: FileAccess) -> str:
         what = f"{len(study.cases)} cases"
     else:
         n = len(study.searches)
-        what = (f"{n} critical-shear search{'es' * (n != 1)} over S in [{study.search.low:g}, "
+        kind = "critical-shear" if study.search.along == "shear_rate" else "critical-lambda"
+        what = (f"{n} {kind} search{'es' * (n != 1)} over {study.search.symbol} in [{study.search.low:g}, "
                 f"{study.search.high:g}] to {study.search.rel_tol:g} (at most {study.search.max_cases} cases each), "
                 f"{len(statuses)} cases so far")
     return f"campaign {study.name!r} -> {path} ({verb}): {what}; {size} rank{'s' * (size > 1)}, {access.description}"
