@@ -279,8 +279,9 @@ def doubts(reports: dict) -> list[tuple[str | None, str]]:
         for r in report.rows:
             if r["case"] in repeated:
                 continue
+            lam = r.get("viscosity_ratio", 1.0)
             label = (f"{name} case {r['case']} (S = {r['shear_rate']:g}, psi_bar = {r['psi_bar']:g}, "
-                     f"Delta = {r['excess_length']:g}, B2 = {r['B2']:g})")
+                     f"Delta = {r['excess_length']:g}, B2 = {r['B2']:g}" + (f", lambda = {lam:g})" if lam != 1 else ")"))
             line = None
             if r["status"] != "finished":
                 line = f"{label}: {r['status']}: {r['reason']}"
@@ -507,8 +508,8 @@ GERA = ("Gera, Salac & Spagnolie (J. Fluid Mech. 2022; arXiv:2108.10671) give a 
         "it tumble (TU). Their sequence is swinging where the flow is strong and tumbling where the stiffness "
         "variation outweighs it, the threshold moving with lambda. Their domains cannot slip through the "
         "membrane, so the TT of this model (a pattern held fixed in the lab frame by diffusion while the "
-        "membrane tank-treads) has no counterpart there; and their shapes are nearly circles, where Delta = "
-        "0.94 is not")
+        "membrane tank-treads) has no counterpart there; and their shapes are nearly circles (Delta = 0.194 "
+        "is close to one, 0.94 is not)")
 
 
 def _runs(pairs) -> str:
