@@ -239,23 +239,37 @@ def _refined_flow(tangent, blocks, L, u0, rhs, w, ikc):
 
 
 @jit
-def _double_layer(z, tangent, curvature, inv, w, weight, viscosity_ratio, out):
-    """double_layer.double_layer_matrix on nodes of equal ``weight`` (L / N) into ``out``, from the
-    w / |r|^2 of :func:`_assemble` (``inv``), which spares its divisions."""
+def _assemble_with_double_layer(z, tangent, curvature, log_r2, base_w, w, blocks, weight, viscosity_ratio, out):
+    """:func:`_assemble` and double_layer.double_layer_matrix (nodes of equal ``weight``, L / N) into
+    ``out`` in one pass over the pairs of nodes, which share r and w / |r|^2; returns w / |r|^2."""
     N = z.size
+    inv = np.empty((N, N))
+    M, P, Q = blocks[0], blocks[1], blocks[2]
     scale = (1.0 - viscosity_ratio) / math.pi * weight / (w * w)    # c weight / |r|^4 = scale (w / |r|^2)^2
     nx, ny = tangent.imag.copy(), -tangent.real                  # n = -i t
     for i in range(N):
         xi, yi = z[i].real, z[i].imag
-        top, bottom, row = out[i], out[N + i], inv[i]
+        top, bottom = out[i], out[N + i]
         for j in range(N):
-            rx, ry = xi - z[j].real, yi - z[j].imag
-            k = (rx * nx[j] + ry * ny[j]) * scale * (row[j] * row[j])
-            xy = k * rx * ry
-            top[j], top[N + j], bottom[j], bottom[N + j] = k * rx * rx, xy, xy, k * ry * ry
+            dx = xi - z[j].real
+            dy = yi - z[j].imag
+            xx, yy = dx * dx, dy * dy
+            ir = w / (xx + yy)
+            M[i, j] = base_w[i, j] - log_r2[i, j]
+            P[i, j] = (xx - yy) * ir
+            Q[i, j] = (dx * dy) * ir
+            inv[i, j] = ir
+            k = (dx * nx[j] + dy * ny[j]) * scale * (ir * ir)
+            xy = k * dx * dy
+            top[j], top[N + j], bottom[j], bottom[N + j] = k * xx, xy, xy, k * yy
+        t2 = tangent[i] * tangent[i]
+        P[i, i] = w * t2.real
+        Q[i, i] = (0.5 * w) * t2.imag
+        inv[i, i] = w
         tx, ty = tangent[i].real, tangent[i].imag
         k = -0.5 * curvature[i] * (1.0 - viscosity_ratio) / math.pi * weight     # the limit -(H / 2) t t^T
         top[i], top[N + i], bottom[i], bottom[N + i] = k * tx * tx, k * tx * ty, k * tx * ty, k * ty * ty
+    return inv
 
 
 @jit
@@ -275,14 +289,13 @@ def _rigid_motions(z):
 
 
 @jit
-def _contrast_flow(z, tangent, curvature, blocks, inv, L, u0, w, ikc, length, viscosity_ratio, krylov):
+def _contrast_flow(z, tangent, blocks, L, u0, w, ikc, viscosity_ratio, krylov):
     """u and the tension of a viscosity contrast by right-preconditioned GMRES
     (flow.MembraneFlow._solve_with_contrast; numerics/krylov.gmres, the same iteration): (the stretching
     left, the one the tension cancels, u, tension); a stretching of inf when GMRES did not converge."""
     N = z.size
     c = 0.5 * (1.0 + viscosity_ratio)
-    D, basis, directions = krylov
-    _double_layer(z, tangent, curvature, inv, w, length / N, viscosity_ratio, D)
+    D, basis, directions = krylov               # D assembled with the single layer's blocks
     n, m_max = 3 * N, MAX_ITERATIONS
     b = np.empty(n)
     for j in range(N):
@@ -399,7 +412,11 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
     length, B1, B2, saturating, width, shear_rate, a0, eps, mobility, viscosity_ratio = phys
     N = theta_tilde.size
     # flow and tension (flow.MembraneFlow.solve)
-    inv = _assemble(z, tangent, log_r2, base_w, w, blocks)
+    if viscosity_ratio != 1.0:
+        inv = _assemble_with_double_layer(z, tangent, curvature, log_r2, base_w, w, blocks, length / N,
+                                          viscosity_ratio, krylov[0])
+    else:
+        inv = _assemble(z, tangent, log_r2, base_w, w, blocks)
     u0 = _apply(blocks, f_b, w)
     u0 += shear_rate * z.imag
     rhs = _stretching(tangent, u0, ikc)
@@ -407,8 +424,8 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
     empty = np.empty(0)
     A = np.linalg.cholesky(A)            # LAPACK's dpotrf (LinAlgError: not positive definite)
     if viscosity_ratio != 1.0:
-        size, scale, u, tension, residual = _contrast_flow(z, tangent, curvature, blocks, inv, A, u0, w, ikc,
-                                                           length, viscosity_ratio, krylov)
+        size, scale, u, tension, residual = _contrast_flow(z, tangent, blocks, A, u0, w, ikc, viscosity_ratio,
+                                                           krylov)
     else:
         size, scale, u, tension = _refined_flow(tangent, blocks, A, u0, rhs, w, ikc)
         residual = 0.0
