@@ -7,6 +7,7 @@ input (configuration, files).
 from __future__ import annotations
 
 import functools
+import os
 import json
 import logging
 import math
@@ -192,7 +193,14 @@ def main():
     _log_to_terminal()
 
 
-@main.command("run")
+RUN_EXIT = ("Exit status: 0 finished, or stopped cleanly with a checkpoint (SIGINT/SIGTERM); 1 the computation "
+            "diverged or is under-resolved (the file keeps its last good checkpoint and says why); 2 bad input, or a "
+            "file system that refused a write.")
+CAMPAIGN_EXIT = ("Exit status: 0 every case finished or at the model's limit (or stopped cleanly); 1 a case failed; "
+                 "2 bad input, or a file system that refused a write (full disk, read-only, ...).")
+
+
+@main.command("run", epilog=RUN_EXIT)
 @click.argument("case_file", required=False, type=click.Path())
 @click.option("--out", "out", type=click.Path(), help="HDF5 file to write (new).")
 @click.option("--resume", "resume", type=click.Path(),
@@ -293,7 +301,7 @@ def _mpi_world():
     return MPI.COMM_WORLD
 
 
-@main.command("campaign")
+@main.command("campaign", epilog=CAMPAIGN_EXIT)
 @click.argument("study_file", type=click.Path())
 @click.option("--resume", is_flag=True,
               help="Continue the campaign file (finished cases are kept, running ones continue from "
@@ -682,6 +690,7 @@ def status_command(campaign_file, check, as_json):
     from hpcves.run.verdict import DAMAGED
 
     check_output_path(campaign_file)
+    _refuse_a_study_file(campaign_file, "status")
     try:
         table = read_table(campaign_file, check=check)
     except (BeingCreated, CreationInterrupted) as exc:        # work left: a campaign makes it, or --resume will
@@ -709,6 +718,31 @@ def status_command(campaign_file, check, as_json):
               + "; ".join(f"{r['case']}: {r['message']}" for r in damaged[:3])
               + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")
     sys.exit(left.exit_status)
+
+
+def _refuse_a_study_file(path, command: str) -> None:
+    """A study file (TOML with a [campaign] table) given where a campaign file is wanted: say which
+    command takes it, and where its campaign file is."""
+    import stat
+    import tomllib
+
+    try:
+        info = os.stat(path)
+        if not stat.S_ISREG(info.st_mode) or info.st_size == 0 or info.st_size > 1 << 20:
+            return                                    # not a TOML text: the HDF5 reader says what it is
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return
+    if not data:
+        return
+    if isinstance(data.get("campaign"), dict):
+        output = data["campaign"].get("output")
+        _fail(f"{path}: a study file, not a campaign file: `hpcves {command} "
+              + (f"{output}`" if output else "<its output file>`") + f" for its campaign, `hpcves campaign {path}` "
+              "to run it")
+    _fail(f"{path}: a case file (TOML), not a campaign file: `hpcves run {path} --out FILE.h5` runs it, and "
+          f"`hpcves {command}` takes the campaign file of `hpcves campaign`")
 
 
 def _status_json(campaign_file, table, totals, left) -> None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import os
 import stat
 import tomllib
@@ -101,11 +102,23 @@ def with_prefix(prefix: str, exc: ConfigError) -> ConfigError:
 
 def refuse_unknown(values: dict, known, where: str) -> None:
     """ConfigError naming every key of ``values`` not in ``known`` (and the known ones), e.g.
-    ``[physics]: unknown keys shear, tension (known: ...)``: the one check of every table."""
+    ``[physics]: unknown keys shear (did you mean shear_rate?), tension (known: ...)``: the one check of
+    every table."""
     unknown = sorted(set(values) - set(known))
     if unknown:
-        raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} {', '.join(unknown)} "
-                          f"(known: {', '.join(known)})")
+        raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} "
+                          f"{', '.join(did_you_mean(key, known) for key in unknown)} (known: {', '.join(known)})")
+
+
+def did_you_mean(name: str, known) -> str:
+    """``name``, followed by " (did you mean X?)" where one of ``known`` is close to it: a typo or a
+    missing underscore (difflib's ratio >= 0.75: psibar -> psi_bar, rtoll -> rtol) or a word left out
+    (the name inside a known one: shear -> shear_rate); nothing for a name like none of them."""
+    known = list(known)
+    close = difflib.get_close_matches(name, known, n=1, cutoff=0.75)
+    if not close:
+        close = [k for k in known if len(name) >= 3 and name.strip("[]") in k]
+    return f"{name} (did you mean {close[0]}?)" if len(close) >= 1 else name
 
 
 def from_table(cls, values: dict, where: str, prefix: str):
@@ -168,7 +181,8 @@ def case_from_dict(data: dict, base: Case | None = None) -> Case:
     unknown = sorted(set(data) - set(GROUPS))
     if unknown:
         problems.found.append("unknown table" + ("s" if len(unknown) > 1 else "") + ": "
-                              + ", ".join(f"[{u}]" for u in unknown) + " (known: [physics], [numerics], [run])")
+                              + ", ".join(did_you_mean(f"[{u}]", [f"[{g}]" for g in GROUPS]) for u in unknown)
+                              + " (known: [physics], [numerics], [run])")
     base = base if base is not None else Case()
     groups = {}
     for name in GROUPS:

@@ -24,8 +24,10 @@ BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nmax_spectral_tail = 1.0\nt_end
 
 #: case files: (text, words the one line must hold)
 CASE_FILES = {
-    "unknown key": ("[physics]\nshear = 3\n", "[physics]: unknown key shear"),
-    "unknown table": ("[physic]\nshear_rate = 3\n", "unknown table: [physic]"),
+    "unknown key": ("[physics]\nshear = 3\n", "[physics]: unknown key shear (did you mean shear_rate?)"),
+    "unknown table": ("[physic]\nshear_rate = 3\n", "unknown table: [physic] (did you mean [physics]?)"),
+    "a typo": ("[numerics]\nrtoll = 1e-3\n", "[numerics]: unknown key rtoll (did you mean rtol?)"),
+    "a key like none": ("[physics]\ntension = 3\n", "[physics]: unknown key tension (known: "),
     "a table that is a number": ("physics = 3\n", "[physics] must be a table"),
     "nested table": ("[physics.more]\nx = 1\n", "[physics]: unknown key more"),
     "float for N": ("[numerics]\nN = 64.5\n", "numerics.N = 64.5: must be an integer"),
@@ -259,8 +261,8 @@ def test_every_problem_of_a_case_file_is_told_at_once(tmp_path):
     path = write(tmp_path / "case.toml", content)
     errors = error_lines("run", path, tmp_path)
     assert errors == [f"Error: {path}: {problem}" for problem in (
-        "unknown table: [physic] (known: [physics], [numerics], [run])",
-        "[physics]: unknown key shear (known: " + errors[1].split("(known: ")[1][:-1] + ")",
+        "unknown table: [physic] (did you mean [physics]?) (known: [physics], [numerics], [run])",
+        "[physics]: unknown key shear (did you mean shear_rate?) (known: " + errors[1].split("(known: ")[1][:-1] + ")",
         "physics.psi_bar = 'a': must be a number",
         "numerics.N = 64.5: must be an integer",
         "run.t_end = -1.0: must be > 0")], errors

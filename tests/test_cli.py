@@ -266,3 +266,36 @@ def test_help_texts_show_no_markup():
         assert result.exit_code == 0, result.output
         assert "``" not in result.output and ":func:" not in result.output and ":mod:" not in result.output, \
             (command, result.output)
+
+
+def test_python_dash_m_hpcves_is_the_command_line():
+    """``python -m hpcves`` (what a user without the script on PATH types) runs the same commands."""
+    out = subprocess.run([sys.executable, "-m", "hpcves", "--help"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("Usage: hpcves ") and "campaign" in out.stdout
+
+
+def test_the_commands_that_end_with_an_exit_status_say_which_in_their_help():
+    from click.testing import CliRunner
+
+    from hpcves.cli import main
+
+    for command, words in (("run", "1 the computation diverged"), ("campaign", "1 a case failed"),
+                           ("status", "3 work is left")):
+        result = CliRunner().invoke(main, [command, "--help"])
+        assert "Exit status: 0" in result.output and words in " ".join(result.output.split()), result.output
+
+
+def test_status_of_a_toml_file_names_the_command_that_takes_it(tmp_path):
+    """`hpcves status STUDY.toml` used to say "not a readable HDF5 file (corrupt or truncated?)"."""
+    from click.testing import CliRunner
+
+    from hpcves.cli import main
+
+    study = write(tmp_path, '[campaign]\nname = "s"\noutput = "out/s.h5"\n[sweep]\nshear_rate = [1.0]\n', "s.toml")
+    case = write(tmp_path, "[physics]\nshear_rate = 3.0\n", "c.toml")
+    result = CliRunner().invoke(main, ["status", str(study)])
+    assert result.exit_code == 2 and "`hpcves status out/s.h5`" in result.output
+    assert f"`hpcves campaign {study}`" in result.output
+    result = CliRunner().invoke(main, ["status", str(case)])
+    assert result.exit_code == 2 and f"`hpcves run {case} --out FILE.h5`" in result.output

@@ -17,9 +17,10 @@ ROOT = pathlib.Path(hpcves.__file__).parent
 
 
 def layer_of(module: str) -> str | None:
-    """``hpcves.run.store`` -> ``run``; the root package (``hpcves``: the version) -> None."""
+    """``hpcves.run.store`` -> ``run``; the root package (``hpcves``: the version) -> None;
+    ``hpcves.__main__`` (``python -m hpcves``) -> ``cli``, the command line it starts."""
     parts = module.split(".")
-    return parts[1] if len(parts) > 1 else None
+    return ("cli" if parts[1] == "__main__" else parts[1]) if len(parts) > 1 else None
 
 
 def modules():
