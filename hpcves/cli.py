@@ -221,6 +221,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
 
     if resume:
         path = resume
+        _refuse_a_campaign_file(path)
         h5 = open_for_resume(path)
         store = CaseStore(h5)
         if store.status in (FINISHED, MODEL_LIMIT):
@@ -230,6 +231,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
             return
     else:
         path = out
+        _refuse_a_study_as_case(case_file)
         h5 = create_case_file(path, load_case(case_file), overwrite)
         store = CaseStore(h5)
     case = store.case
@@ -720,22 +722,52 @@ def status_command(campaign_file, check, as_json):
     sys.exit(left.exit_status)
 
 
-def _refuse_a_study_file(path, command: str) -> None:
-    """A study file (TOML with a [campaign] table) given where a campaign file is wanted: say which
-    command takes it, and where its campaign file is."""
+def _toml_of(path) -> dict | None:
+    """The parsed TOML of ``path`` if it is a regular, non-empty text file of TOML (at most 1 MB), else
+    None: the reader the command meant to use says what is wrong with it."""
     import stat
     import tomllib
 
     try:
         info = os.stat(path)
         if not stat.S_ISREG(info.st_mode) or info.st_size == 0 or info.st_size > 1 << 20:
-            return                                    # not a TOML text: the HDF5 reader says what it is
+            return None
         with open(path, "rb") as f:
-            data = tomllib.load(f)
+            return tomllib.load(f) or None
     except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
-        return
-    if not data:
-        return
+        return None
+
+
+def _refuse_a_study_as_case(path) -> None:
+    """``hpcves run STUDY.toml``: a study (a [campaign] table) is run by ``hpcves campaign``."""
+    data = _toml_of(path)
+    if data is not None and isinstance(data.get("campaign"), dict):
+        _fail(f"{path}: a study file (it has a [campaign] table), not a case: `hpcves campaign {path}` runs it "
+              f"(`mpirun -n P hpcves campaign {path}` on P ranks)")
+
+
+def _refuse_a_campaign_file(path) -> None:
+    """``hpcves run --resume CAMPAIGN.h5``: a campaign file is continued by ``hpcves campaign --resume``."""
+    from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
+    from hpcves.run.store import HDF5_ERRORS, attr_text, open_file
+
+    try:
+        with open_file(path, "r", locking=False) as h5:
+            kind = attr_text(h5.attrs.get("format", ""))
+            source = attr_text(h5.attrs.get("campaign_toml", ""))
+    except (OSError, *HDF5_ERRORS):
+        return                                        # open_for_resume says what is wrong with it
+    if kind == CAMPAIGN_FORMAT:
+        _fail(f"{path}: a campaign file, not a case's: `hpcves campaign STUDY.toml --resume` continues it"
+              + (" (the study it was made from is stored in the file: campaign_toml)" if source else ""))
+
+
+def _refuse_a_study_file(path, command: str) -> None:
+    """A study file (TOML with a [campaign] table) given where a campaign file is wanted: say which
+    command takes it, and where its campaign file is."""
+    data = _toml_of(path)
+    if data is None:
+        return                                        # not a TOML text: the HDF5 reader says what it is
     if isinstance(data.get("campaign"), dict):
         output = data["campaign"].get("output")
         _fail(f"{path}: a study file, not a campaign file: `hpcves {command} "

@@ -533,7 +533,8 @@ def test_a_damaged_campaign_file(sound, sound_v2, sound_v1, tmp_path, layout, na
 CASE_DAMAGE = {
     "random bytes": (replace_bytes(lambda d: np.random.default_rng(2).bytes(2048)), "not a readable HDF5"),
     "truncated": (replace_bytes(lambda d: d[:len(d) // 3]), ""),
-    "a campaign file": (None, "not an hpcves case"),                  # (analyze reads it, as it should)
+    "a campaign file": (None, "a campaign file, not a case's: `hpcves campaign STUDY.toml --resume`"),  # (analyze
+                                                                      # reads it, as it should)
     "no format": (edit(lambda f: f.attrs.__delitem__("format")), "not an hpcves"),
     "version 1": (edit(lambda f: f.attrs.__setitem__("format_version", 1)), "case format version 1"),
     "version 4.5": (edit(lambda f: f.attrs.__setitem__("format_version", 4.5)), "case format version 4.5"),

@@ -299,3 +299,20 @@ def test_status_of_a_toml_file_names_the_command_that_takes_it(tmp_path):
     assert f"`hpcves campaign {study}`" in result.output
     result = CliRunner().invoke(main, ["status", str(case)])
     assert result.exit_code == 2 and f"`hpcves run {case} --out FILE.h5`" in result.output
+
+
+def test_run_points_a_study_file_and_a_campaign_file_to_campaign(tmp_path):
+    from click.testing import CliRunner
+
+    from hpcves.cli import main
+
+    study = write(tmp_path, '[campaign]\nname = "s"\noutput = "s.h5"\n[sweep]\nshear_rate = [1.0]\n', "s.toml")
+    result = CliRunner().invoke(main, ["run", str(study), "--out", str(tmp_path / "x.h5")])
+    assert result.exit_code == 2 and f"`hpcves campaign {study}` runs it" in result.output
+    assert not (tmp_path / "x.h5").exists()
+    campaign = tmp_path / "c.h5"
+    with h5py.File(campaign, "w") as h5:
+        from hpcves.campaign.file import FORMAT
+        h5.attrs["format"] = FORMAT
+    result = CliRunner().invoke(main, ["run", "--resume", str(campaign)])
+    assert result.exit_code == 2 and "`hpcves campaign STUDY.toml --resume` continues it" in result.output
