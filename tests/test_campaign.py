@@ -387,3 +387,17 @@ def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed
     assert limit["regime"] == "model limit" and limit["reason"].startswith(f"stopped at t = {stopped[1]}")
     assert ": psi in [" in limit["reason"]
     assert report.counts()["model limit"] == 1
+
+
+def test_a_stage_with_more_ranks_than_cases_says_how_many_idle():
+    """`mpirun -n 4` on 2 cases idled 2 ranks without a word."""
+    from hpcves.campaign.driver import _stage_line
+    from hpcves.campaign.study import study_from_toml
+
+    study = study_from_toml(STUDY.format(name="idle", output="idle.h5", t_end=0.1, checkpoint=0.05,
+                                         shear="[5.0]"))          # x psi_bar = [0.3, 0.5]: 2 cases
+    todo = [(c.case_id, False) for c in study.cases]
+    assert len(todo) == 2
+    assert "2 of the 4 ranks idle: more ranks than cases" in _stage_line(study, {}, todo, 0, size=4)
+    assert "idle" not in _stage_line(study, {}, todo, 0, size=2)
+    assert "idle" not in _stage_line(study, {}, todo, 0)

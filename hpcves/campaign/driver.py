@@ -639,7 +639,7 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
         if stage == 0:
             announce(_announcement(study, path, statuses, size, mode, access), None, finished)
         if todo or not study.staged:
-            line = _stage_line(study, statuses, todo, stage)
+            line = _stage_line(study, statuses, todo, stage, size)
             if ended is not None:
                 line += f"; {time.perf_counter() - ended:.1f} s between stages"
             announce(line, len(statuses), finished)
@@ -749,8 +749,9 @@ def _announcement(study, path, statuses, size, mode, access: FileAccess) -> str:
     return f"campaign {study.name!r} -> {path} ({verb}): {what}; {size} rank{'s' * (size > 1)}, {access.description}"
 
 
-def _stage_line(study, statuses, todo, stage) -> str:
-    """What a stage runs: cases to run, resumed, finished and failed before."""
+def _stage_line(study, statuses, todo, stage, size: int = 1) -> str:
+    """What a stage runs: cases to run, resumed, finished and failed before -- and, where ``size`` ranks
+    (rank 0 among them: it runs cases too) outnumber its cases, how many of them wait idle."""
     finished = sum(1 for s in statuses.values() if s == FINISHED)
     failed = sum(1 for s in statuses.values() if s == FAILED)
     resumed = sum(1 for case_id, resume in todo if resume)
@@ -770,4 +771,8 @@ def _stage_line(study, statuses, todo, stage) -> str:
         kind = "search" if study.search else "refinement"
         parts[0] = f"stage {stage}: {len(todo)} new case{'s' * (len(todo) != 1)} for {groups} " \
                    f"{kind}{('es' if study.search else 's') * (groups != 1)}"
-    return ", ".join(parts)
+    line = ", ".join(parts)
+    if 0 < len(todo) < size:
+        line += (f"; {size - len(todo)} of the {size} ranks idle: more ranks than cases"
+                 + (" in this stage" if study.staged else " (fewer ranks do the same in the same time)"))
+    return line
