@@ -791,6 +791,7 @@ def _status_json(campaign_file, table, totals, left) -> None:
 
 def _status_table(name, rows, totals, writing, left) -> None:
     """The human ``hpcves status``: one line per case, the totals, what is left."""
+    from hpcves.run.store import ENDED_NAMES
     from hpcves.run.verdict import DAMAGED
 
     keys = [k for k in rows[0] if k not in ("case", "status", "t", "t_end", "wall", "steps_per_second",
@@ -806,10 +807,14 @@ def _status_table(name, rows, totals, writing, left) -> None:
     for line in [header, *lines]:
         click.echo("  ".join(str(x).ljust(w) for x, w in zip(line, widths)).rstrip())
     readable = [r for r in rows if r["status"] != DAMAGED]
-    done = sum(min(r["t"], r["t_end"]) for r in readable)
+    # a case that ended (finished, decided early, failed, at the model's limit) has done its share, whatever its t
+    done = sum(r["t_end"] if r["status"] in ENDED_NAMES else min(r["t"], r["t_end"]) for r in readable)
     total = sum(r["t_end"] for r in readable)
     wall = sum(r["wall"] for r in readable)
-    share = f"{100 * done / total:.0f} %" if total > 0 else "-"
+    early = sum(1 for r in readable if r["status"] in ENDED_NAMES and r["t"] < r["t_end"])
+    share = (f"{100 * done / total:.0f} % done" if total > 0 else "- done") + (
+        f" ({early} case{'s' * (early != 1)} ended before t_end: decided, failed or at the model's limit)"
+        if early else "")
     if left is None:
         state = ""
     elif left.complete:
@@ -817,7 +822,7 @@ def _status_table(name, rows, totals, writing, left) -> None:
     else:
         state = f"; work left: {left.left}"
     click.echo(f"study {name!r}: {len(rows)} cases: " + ", ".join(f"{n} {s}" for s, n in totals.items())
-               + f"; simulated time {share} done; {_duration(wall)} of compute; {writing}{state}")
+               + f"; simulated time {share}; {_duration(wall)} of compute; {writing}{state}")
 
 
 def _case_selection(which: str):

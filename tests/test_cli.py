@@ -316,3 +316,19 @@ def test_run_points_a_study_file_and_a_campaign_file_to_campaign(tmp_path):
         h5.attrs["format"] = FORMAT
     result = CliRunner().invoke(main, ["run", "--resume", str(campaign)])
     assert result.exit_code == 2 and "`hpcves campaign STUDY.toml --resume` continues it" in result.output
+
+
+def test_status_counts_a_case_that_ended_early_as_done(capsys):
+    """A case decided (or failed) before t_end used to leave 'simulated time 50 % done ... complete'."""
+    from types import SimpleNamespace
+
+    from hpcves.cli import _status_table
+
+    rows = [{"case": "0000", "shear_rate": 1.0, "status": "finished", "t": 2.0, "t_end": 4.0, "wall": 1.0,
+             "steps_per_second": 10.0, "message": "decided TT"},
+            {"case": "0001", "shear_rate": 2.0, "status": "finished", "t": 4.0, "t_end": 4.0, "wall": 1.0,
+             "steps_per_second": 10.0, "message": ""}]
+    _status_table("s", rows, {"finished": 2}, "no campaign is writing it",
+                  SimpleNamespace(complete=True, failed=0, left=""))
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert "simulated time 100 % done (1 case ended before t_end" in last and last.endswith("complete")
