@@ -239,37 +239,24 @@ def _refined_flow(tangent, blocks, L, u0, rhs, w, ikc):
 
 
 @jit
-def _assemble_with_double_layer(z, tangent, curvature, log_r2, base_w, w, blocks, weight, viscosity_ratio, out):
-    """:func:`_assemble` and double_layer.double_layer_matrix (nodes of equal ``weight``, L / N) into
-    ``out`` in one pass over the pairs of nodes, which share r and w / |r|^2; returns w / |r|^2."""
+def _double_layer(z, tangent, curvature, inv, w, weight, viscosity_ratio, out):
+    """double_layer.double_layer_matrix on nodes of equal ``weight`` (L / N) into ``out``, from the
+    w / |r|^2 of :func:`_assemble` (``inv``), which spares its divisions."""
     N = z.size
-    inv = np.empty((N, N))
-    M, P, Q = blocks[0], blocks[1], blocks[2]
     scale = (1.0 - viscosity_ratio) / math.pi * weight / (w * w)    # c weight / |r|^4 = scale (w / |r|^2)^2
     nx, ny = tangent.imag.copy(), -tangent.real                  # n = -i t
     for i in range(N):
         xi, yi = z[i].real, z[i].imag
-        top, bottom = out[i], out[N + i]
+        top, bottom, row = out[i], out[N + i], inv[i]
         for j in range(N):
             dx = xi - z[j].real
             dy = yi - z[j].imag
-            xx, yy = dx * dx, dy * dy
-            ir = w / (xx + yy)
-            M[i, j] = base_w[i, j] - log_r2[i, j]
-            P[i, j] = (xx - yy) * ir
-            Q[i, j] = (dx * dy) * ir
-            inv[i, j] = ir
-            k = (dx * nx[j] + dy * ny[j]) * scale * (ir * ir)
+            k = (dx * nx[j] + dy * ny[j]) * scale * (row[j] * row[j])
             xy = k * dx * dy
-            top[j], top[N + j], bottom[j], bottom[N + j] = k * xx, xy, xy, k * yy
-        t2 = tangent[i] * tangent[i]
-        P[i, i] = w * t2.real
-        Q[i, i] = (0.5 * w) * t2.imag
-        inv[i, i] = w
+            top[j], top[N + j], bottom[j], bottom[N + j] = k * (dx * dx), xy, xy, k * (dy * dy)
         tx, ty = tangent[i].real, tangent[i].imag
         k = -0.5 * curvature[i] * (1.0 - viscosity_ratio) / math.pi * weight     # the limit -(H / 2) t t^T
         top[i], top[N + i], bottom[i], bottom[N + i] = k * tx * tx, k * tx * ty, k * tx * ty, k * ty * ty
-    return inv
 
 
 @jit
@@ -295,7 +282,7 @@ def _contrast_flow(z, tangent, blocks, L, u0, w, ikc, viscosity_ratio, krylov):
     left, the one the tension cancels, u, tension); a stretching of inf when GMRES did not converge."""
     N = z.size
     c = 0.5 * (1.0 + viscosity_ratio)
-    D, basis, directions = krylov               # D assembled with the single layer's blocks
+    D, basis, directions = krylov               # D assembled by flow_rates (_double_layer)
     n, m_max = 3 * N, MAX_ITERATIONS
     b = np.empty(n)
     for j in range(N):
@@ -412,11 +399,9 @@ def flow_rates(theta_tilde, psi, center, homogeneous, ops, phys, log_r2, psi_hat
     length, B1, B2, saturating, width, shear_rate, a0, eps, mobility, viscosity_ratio = phys
     N = theta_tilde.size
     # flow and tension (flow.MembraneFlow.solve)
+    inv = _assemble(z, tangent, log_r2, base_w, w, blocks)
     if viscosity_ratio != 1.0:
-        inv = _assemble_with_double_layer(z, tangent, curvature, log_r2, base_w, w, blocks, length / N,
-                                          viscosity_ratio, krylov[0])
-    else:
-        inv = _assemble(z, tangent, log_r2, base_w, w, blocks)
+        _double_layer(z, tangent, curvature, inv, w, length / N, viscosity_ratio, krylov[0])
     u0 = _apply(blocks, f_b, w)
     u0 += shear_rate * z.imag
     rhs = _stretching(tangent, u0, ikc)
