@@ -34,17 +34,17 @@ class SearchOutcome:
     point: dict                # psi_bar, excess_length, B2 (and S) of the search (swept or from the base case)
     state: SearchState
     regimes: dict              # {value searched along: regime} of its finished cases
+    settings: SearchSettings   # the [search] table: what it runs along
     swept_keys: tuple = ()     # the keys of ``point`` that the study sweeps
-    settings: SearchSettings | None = None     # None: a search along the shear rate
 
     @property
     def symbol(self) -> str:
-        return self.settings.symbol if self.settings else "S"
+        return self.settings.symbol
 
     @property
     def column(self) -> str:
         """The critical value's column: S_C, or lambda_C in a search along lambda."""
-        return self.settings.column if self.settings else "S_C"
+        return self.settings.column
 
     def row(self) -> dict:
         """One row of critical_shear.csv (critical_lambda.csv)."""
@@ -64,7 +64,7 @@ def outcomes(settings: SearchSettings, points: list[dict], found: list[tuple[int
     by_search = [{} for _ in points]
     for search, value, regime in found:
         by_search[search][value] = regime
-    return [SearchOutcome(i, point, step(settings, regimes), regimes, tuple(swept_keys), settings)
+    return [SearchOutcome(i, point, step(settings, regimes), regimes, settings, tuple(swept_keys))
             for i, (point, regimes) in enumerate(zip(points, by_search))]
 
 

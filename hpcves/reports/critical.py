@@ -7,7 +7,7 @@ from pathlib import Path
 
 from hpcves.campaign.search_stages import outcomes, search_points
 from hpcves.analysis.search import AXES
-from hpcves.campaign.study import search_keys, study_from_toml
+from hpcves.campaign.study import search_keys
 from hpcves.model.params import LABELS
 from hpcves.run.store import ENDED_NAMES
 from hpcves.reports.tables import fmt, markdown_table, write_rows
@@ -29,16 +29,15 @@ def write_critical_csv(rows: list[dict], path: Path, along: str = "shear_rate") 
     write_rows(rows, critical_columns(along), path)
 
 
-def critical_rows(source, rows: list[dict], study=None) -> list[dict]:
-    """critical_shear.csv rows of a search file (analysis.Source) from its cases' classification ``rows``.
+def critical_rows(source, rows: list[dict], study) -> list[dict]:
+    """critical_shear.csv rows of a search file (analysis.Source, made from ``study``) from its cases'
+    classification ``rows``.
 
     The searches are replayed with these regimes: with the campaign's own
     ``[analysis]`` thresholds they reproduce the campaign's verdicts; with
     others (``--set``) a search may want cases the file does not hold (its
     status is then "running", its reason names them).
     """
-    if study is None:
-        study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
     along = study.search.along
     found = [(case.search, case.parameters[along], row["regime"]) for case, row in zip(source.cases, rows)
              if row["status"] in ENDED_NAMES]
