@@ -45,6 +45,20 @@ def write_search(tmp_path, checkpoint=0.5):
     return path, output
 
 
+def stop_before_stage_2(monkeypatch):
+    """Make a search stop (KeyboardInterrupt) as it would add its second stage's cases."""
+    from hpcves.campaign import driver as campaign_module
+
+    real_add = campaign_module._add_stage
+
+    def stop_at_stage_2(path, comm, cases, stage, source):
+        if stage == 2:
+            raise KeyboardInterrupt
+        return real_add(path, comm, cases, stage, source)
+
+    monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
+
+
 @pytest.fixture(scope="module")
 def searched(tmp_path_factory):
     """The tiny search run serially in this process: (study, file, summary)."""
@@ -258,19 +272,10 @@ def test_a_search_in_a_file_of_an_older_layout_continues_in_it(searched, tmp_pat
     """A file of campaign format 1 (a group per case) or 2 (blocks, a dataset a record), its search cut
     short after its first stage, is continued by this hpcves in that layout (format 1: stages laid out
     as groups, run/stamp.py), to the cases and data of the search run in format 3 from the start."""
-    from hpcves.campaign import driver as campaign_module
-
     _, reference, _, _ = searched
     path, output = write_search(tmp_path)
     study = study_from_toml(path.read_text())
-    real_add = campaign_module._add_stage
-
-    def stop_at_stage_2(path, comm, cases, stage, source):
-        if stage == 2:
-            raise KeyboardInterrupt
-        return real_add(path, comm, cases, stage, source)
-
-    monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
+    stop_before_stage_2(monkeypatch)
     with pytest.raises(KeyboardInterrupt), writing_format(version):
         run_campaign(study, output)
     monkeypatch.undo()
@@ -345,18 +350,9 @@ def test_a_search_along_lambda_brackets_lambda_c(lambda_searched, tmp_path):
 
 
 def test_a_search_along_lambda_cut_between_stages_resumes_to_the_same_cases(lambda_searched, tmp_path, monkeypatch):
-    from hpcves.campaign import driver as campaign_module
-
     study, path, reference, _ = lambda_searched
     output = tmp_path / "lambda.h5"
-    real_add = campaign_module._add_stage
-
-    def stop_at_stage_2(path, comm, cases, stage, source):
-        if stage == 2:
-            raise KeyboardInterrupt
-        return real_add(path, comm, cases, stage, source)
-
-    monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
+    stop_before_stage_2(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         run_campaign(study, output)
     monkeypatch.undo()
