@@ -269,13 +269,15 @@ def run_command(case_file, out, resume, overwrite, quiet):
 class CampaignProgress(_StatusLine):
     """``[######......] 12/40 cases | 2 running | 1 failed | 31 % | ETA 14 min`` on rank 0's stderr.
 
-    The fraction is of the total cost (steps x N^2), counting running cases by
-    how far they have got; the ETA extrapolates this call's rate.
+    Cases that ended before this call (``ended_before``: how many, and how many of them failed) count as
+    done and failed. The fraction is of the total cost (steps x N^2), counting running cases by how far
+    they have got; the ETA extrapolates this call's rate.
     """
 
-    def __init__(self, n_total: int, n_done_before: int, stream=sys.stderr):
+    def __init__(self, n_total: int, ended_before: tuple[int, int] = (0, 0), stream=sys.stderr):
         super().__init__(stream)
-        self.n_total, self.n_done_before = n_total, n_done_before
+        self.n_total = n_total
+        self.n_done_before, self.n_failed_before = ended_before
         self.start = time.monotonic()
 
     def __call__(self, master) -> None:
@@ -284,7 +286,7 @@ class CampaignProgress(_StatusLine):
         from hpcves.run.store import ENDED, FAILED
 
         ended = [r for r in master.results if r.status in ENDED]
-        failed = sum(1 for r in ended if r.status == FAILED)
+        failed = self.n_failed_before + sum(1 for r in ended if r.status == FAILED)
         fraction = master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0
         elapsed = time.monotonic() - self.start
         eta = elapsed * (1.0 - fraction) / fraction if fraction > 0.0 else float("inf")
@@ -393,11 +395,11 @@ class _CampaignTerminal:
         self.critical_csv = path.with_name(f"{path.stem}_{stem}.csv")
         self.refine_csv = path.with_name(path.stem + "_refinement.csv")
 
-    def announce(self, text, n_cases, finished_before):
+    def announce(self, text, n_cases, ended_before):
         self.close()
         click.echo(text, err=True)
         if n_cases is not None and not self.quiet:
-            self.display = CampaignProgress(n_cases, finished_before)
+            self.display = CampaignProgress(n_cases, ended_before)
 
     def show(self, master):
         if self.display is not None:
@@ -424,7 +426,7 @@ class _CampaignTerminal:
             return
         ended = sum(1 for o in outcomes if o.state.status != "running")
         detail = "; ".join(brief(o) for o in outcomes) if len(outcomes) <= 8 else f"see {csv_path}"
-        self.announce(f"{kind}: {ended} of {len(outcomes)} ended; {detail}", None, 0)
+        self.announce(f"{kind}: {ended} of {len(outcomes)} ended; {detail}", None, (0, 0))
 
 
 def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out, quiet, io):

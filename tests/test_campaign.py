@@ -3,6 +3,7 @@
 The MPI tests start real jobs (``mpirun -n 2`` and an oversubscribed ``-n 3``)
 and compare every recorded number bitwise with an uninterrupted serial run.
 """
+import io
 import json
 import os
 import re
@@ -23,6 +24,7 @@ from hpcves.files.lock import CampaignLock
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
 from hpcves.model.params import ConfigError
 from hpcves.campaign.study import study_from_toml
+from hpcves.cli import CampaignProgress
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
@@ -139,8 +141,17 @@ def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, refer
         assert "injected failure" in store.traceback and "in broken" in store.traceback
 
     monkeypatch.setattr(campaign_module.runner, "run", real_run)
-    again = run_campaign(study, output, resume=True)                  # failed cases are left alone
+    shown = io.StringIO()                                  # the progress line counts what ended before
+    display = []
+
+    def announce(text, n_cases, ended_before):
+        if n_cases is not None:
+            display[:] = [CampaignProgress(n_cases, ended_before, stream=shown)]
+
+    again = run_campaign(study, output, resume=True, announce=announce,     # failed cases are left alone
+                         display=lambda master: display and display[0](master))
     assert again.ran == () and again.exit_status == 1
+    assert "4/4 cases | 0 running | 1 failed | 100 %" in shown.getvalue(), shown.getvalue()
     retried = run_campaign(study, output, resume=True, retry_failed=True)
     assert [r.case_id for r in retried.ran] == ["0001"] and retried.exit_status == 0
     assert_same_results(output, reference)

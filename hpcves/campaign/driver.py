@@ -479,7 +479,8 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: Analys
 # ---------------------------------------------------------------------- the whole job
 def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, retry_failed: bool = False,
                  overwrite: bool = False, io: str = "auto", stop_flag: Callable[[], bool] = lambda: False,
-                 display=None, announce: Callable[[str, int, int], None] = lambda text, total, finished: None,
+                 display=None,
+                 announce: Callable[[str, int | None, tuple[int, int]], None] = lambda text, total, ended: None,
                  on_stage: Callable[[list], None] = lambda outcomes: None) -> Summary:
     """Run (or continue) a study into ``path`` on every rank of ``comm`` (None: this process alone).
 
@@ -494,9 +495,10 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     before the next stage runs them. Rank 0 calls ``on_stage(outcomes)`` with
     the state of every search (refinement) after each stage.
 
-    Rank 0 calls ``announce(text, None, n_finished)`` with the campaign's
-    first line, ``announce(text, n_cases, n_finished_before)`` once the work
-    of a stage is known, and ``display(master)`` at every scheduling turn.
+    Rank 0 calls ``announce(text, None, (0, 0))`` with the campaign's
+    first line, ``announce(text, n_cases, (n_ended, n_failed))`` once the work
+    of a stage is known (the cases that ended before it, and how many of
+    those failed), and ``display(master)`` at every scheduling turn.
 
     Collective: every rank calls it with the same study. Bad input raises
     ConfigError on every rank (the message is rank 0's).
@@ -545,7 +547,7 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
     if mode == "create":
         if rank == 0:
             announce(f"creating {path} ({len(study.cases)} cases, "
-                     f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, 0)
+                     f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, (0, 0))
         _create(study, path, comm)
         mode_seen = "create"
     else:
@@ -635,14 +637,16 @@ def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, sta
     if rank == 0:
         statuses = campaign.statuses()
         todo = work_list(statuses, study, retry_failed)
-        finished = sum(1 for s in statuses.values() if s == FINISHED)
+        to_run = {case_id for case_id, _ in todo}
+        before = [s for case_id, s in statuses.items() if case_id not in to_run]
+        ended_before = (len(before), sum(1 for s in before if s == FAILED))
         if stage == 0:
-            announce(_announcement(study, path, statuses, size, mode, access), None, finished)
+            announce(_announcement(study, path, statuses, size, mode, access), None, (0, 0))
         if todo or not study.staged:
             line = _stage_line(study, statuses, todo, stage, size)
             if ended is not None:
                 line += f"; {time.perf_counter() - ended:.1f} s between stages"
-            announce(line, len(statuses), finished)
+            announce(line, len(statuses), ended_before)
         master = Master(comm, campaign, study, todo, statuses, flush, stop_flag, study.stop_timeout, display,
                         access.relay(campaign, flush))
         results = master.run()
