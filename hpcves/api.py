@@ -6,17 +6,21 @@ fetches these names from here on first use, so ``import hpcves`` stays light)::
     import hpcves
 
     case = hpcves.load_case("jobs/case.toml")             # a frozen Case (model/params.py)
-    outcome = hpcves.run_case(case, "out/case.h5")         # runs to t_end; Outcome(status, t, ...)
+    outcome = hpcves.run_case(case, "out/case.h5")         # runs to t_end, with a progress bar; Outcome(...)
     ds = hpcves.open_case("out/case.h5")                   # xarray.Dataset over time (and snapshots)
     found = hpcves.classify(ds)                            # Classification: regime, period, reason
 
     study = hpcves.load_study("jobs/demo.toml")
     summary = hpcves.run_campaign(study)                   # in this process (MPI: the command line)
+
+Both show a progress bar (tqdm.auto: a widget in Jupyter where ipywidgets is installed, text
+elsewhere); ``progress=False`` shows none.
     report = hpcves.analyze(study.output)                  # tables, figures, results into the file
     cases = hpcves.open_campaign(study.output)             # xarray.Dataset over (case, sample)
 """
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from hpcves.analysis.regimes import AnalysisSettings, Classification
@@ -33,30 +37,41 @@ __all__ = ("load_case", "load_study", "run_case", "run_campaign", "analyze", "cl
 
 
 def run_case(case: Case | str | Path, path: str | Path, *, resume: bool = False, overwrite: bool = False,
-             max_steps: int | None = None, progress=None) -> Outcome:
+             max_steps: int | None = None, progress=True) -> Outcome:
     """Run one case into the new HDF5 file ``path`` (``hpcves run CASE.toml --out PATH``), or with
     ``resume`` continue the run in ``path`` from its last checkpoint (``case`` is then ignored:
-    the file holds it; pass None). ``max_steps`` stops after that many steps (resumable);
-    ``progress`` is called with a runner.Tick now and then. Returns the runner's Outcome."""
+    the file holds it; pass None). ``max_steps`` stops after that many steps (resumable).
+    ``progress``: True, a bar over simulated time; False, none; or a function called with a
+    runner.Tick now and then. Returns the runner's Outcome."""
     from hpcves.run.casefile import create_case_file, open_for_resume, run_file
 
     if resume:
         h5 = open_for_resume(path)
     else:
         h5 = create_case_file(path, load_case(case) if isinstance(case, (str, Path)) else case, overwrite)
-    return run_file(h5, resume=resume, max_steps=max_steps, progress=progress)
+    bar = CaseBar(Path(path).name) if progress is True else None
+    try:
+        return run_file(h5, resume=resume, max_steps=max_steps, progress=bar or progress or None)
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def run_campaign(study: Study | str | Path, path: str | Path | None = None, *, resume: bool = False,
-                 retry_failed: bool = False, overwrite: bool = False):
+                 retry_failed: bool = False, overwrite: bool = False, progress: bool = True):
     """Run (or with ``resume`` continue) a study in this process, one case after the other, into
     ``path`` (default: the study's output). The same file as ``mpirun -n P hpcves campaign``
-    writes, which is how to spread it over cores. Returns the campaign's Summary."""
+    writes, which is how to spread it over cores. ``progress``: a bar per stage over the cases'
+    cost (False: none). Returns the campaign's Summary."""
     from hpcves.campaign.driver import run_campaign as _run_campaign
 
     study = load_study(study) if isinstance(study, (str, Path)) else study
-    return _run_campaign(study, Path(path or study.output), resume=resume, retry_failed=retry_failed,
-                         overwrite=overwrite)
+    bars = CampaignBars(study.name)
+    try:
+        return _run_campaign(study, Path(path or study.output), resume=resume, retry_failed=retry_failed,
+                             overwrite=overwrite, **(bars.callbacks() if progress else {}))
+    finally:
+        bars.close()
 
 
 def classify(series, settings: AnalysisSettings = AnalysisSettings()) -> Classification:
@@ -67,3 +82,70 @@ def classify(series, settings: AnalysisSettings = AnalysisSettings()) -> Classif
         series = {"t": series["time"].values, **{k: series[k].values for k in series.data_vars
                                                  if "time" in series[k].dims}}
     return _classify(series, settings)
+
+
+# ---------------------------------------------------------------------- progress bars (tqdm.auto)
+class CaseBar:
+    """A bar over one run's simulated time, fed runner.Ticks: a widget in Jupyter, text elsewhere."""
+
+    def __init__(self, label: str):
+        self.label, self.bar = label, None
+
+    def __call__(self, tick) -> None:
+        if self.bar is None:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=tick.t_end, desc=self.label, unit="t", bar_format=_BAR)
+        self.bar.n = min(tick.t, tick.t_end)
+        self.bar.set_postfix_str(f"{tick.steps_per_second:,.0f} steps/s, theta = {tick.theta:.3f}", refresh=False)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+class CampaignBars:
+    """A bar per stage of a campaign run in this process, over the cost (steps x N^2) of its cases,
+    with how many cases ended and failed (those that ended before this call count too)."""
+
+    def __init__(self, name: str):
+        self.name, self.bar, self.master = name, None, None
+        self.total, self.before, self.shown = 0, (0, 0), 0.0
+
+    def callbacks(self) -> dict:
+        return {"announce": self.announce, "display": self.show}
+
+    def announce(self, text: str, n_cases, ended_before) -> None:
+        if n_cases is None:
+            return
+        from tqdm.auto import tqdm
+
+        self.close()
+        self.total, self.before = n_cases, ended_before
+        self.bar = tqdm(total=100.0, desc=self.name, bar_format=_BAR)
+
+    def show(self, master, every: float = 0.2) -> None:
+        """Called at every scheduling turn; redraws at most every ``every`` seconds."""
+        self.master = master
+        if self.bar is None or time.monotonic() - self.shown < every:
+            return
+        from hpcves.run.store import ENDED, FAILED
+
+        self.shown = time.monotonic()
+        ended = [r for r in master.results if r.status in ENDED]
+        failed = self.before[1] + sum(1 for r in ended if r.status == FAILED)
+        self.bar.n = 100.0 * (master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0)
+        self.bar.set_postfix_str(f"{self.before[0] + len(ended)}/{self.total} cases, {len(master.busy)} running, "
+                                 f"{failed} failed", refresh=False)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        if self.bar is not None:
+            if self.master is not None:
+                self.show(self.master, every=0.0)         # where the stage ended
+            self.bar.close()
+        self.bar, self.master, self.shown = None, None, 0.0
+
+
+_BAR = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]"

@@ -1,5 +1,7 @@
 """The files as any scientific-Python tool reads them: hpcves.open_case / open_campaign (xarray),
 the raw groups through h5netcdf (dimension scales, units), and plain h5py agreeing with both."""
+import re
+
 import h5py
 import numpy as np
 import pytest
@@ -45,10 +47,14 @@ checkpoint_interval = 0.1
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("datasets")
-    study = study_from_toml(STUDY.format(output=tmp / "xr.h5"))
+    study = campaign_study(tmp / "xr.h5")
     assert hpcves.run_campaign(study).counts["finished"] == 4
     hpcves.analyze(study.output, tmp / "analysis", case_figures=False)
     return study.output
+
+
+def campaign_study(path):
+    return study_from_toml(STUDY.format(output=path))
 
 
 def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_reads_it(campaign):
@@ -108,6 +114,23 @@ def test_one_case_of_a_campaign_and_its_raw_groups_through_h5netcdf(campaign):
     for args, words in (((campaign,), "name the case"), ((campaign, "0009"), "no case '0009'")):
         with pytest.raises(FileFormatError, match=words):
             hpcves.open_case(*args)
+
+
+def test_the_python_api_shows_progress_bars_unless_told_not_to(campaign, capsys):
+    """A notebook user saw nothing while run_case / run_campaign worked (tqdm.auto: text here)."""
+    again = hpcves.run_campaign(campaign_study(campaign), campaign, resume=True)   # all ended before
+    assert again.ran == ()
+    assert re.search(r"xr: 100%\|[^|]+\| .*4/4 cases, 0 running, 0 failed", capsys.readouterr().err)
+    hpcves.run_campaign(campaign_study(campaign), campaign, resume=True, progress=False)
+    assert capsys.readouterr().err == ""
+    from hpcves.api import CaseBar
+    from hpcves.run.runner import Tick
+
+    bar = CaseBar("case.h5")
+    for t in (0.1, 0.4):
+        bar(Tick(t=t, t_end=0.4, steps_per_second=1234.0, eta_seconds=1.0, theta=0.5))
+    bar.close()
+    assert re.search(r"case.h5: 100%\|[^|]+\| .*1,234 steps/s, theta = 0.500", capsys.readouterr().err)
 
 
 def test_the_python_api_runs_resumes_opens_and_classifies_a_case(tmp_path):
