@@ -207,9 +207,10 @@ class CaseView:
         """Its records (a packed array's as the records it holds, so files of every layout compare)."""
         found = []
         self.group.visititems(lambda name, obj: found.append(name) if isinstance(obj, h5py.Dataset) else None)
-        scales = ("snapshots/alpha", "timeseries/xy") if self.row is None else (
-            "case", "sample", "snapshot", "alpha", "xy", "timeseries/quantity", "timeseries/long_name",
-            "timeseries/units", "snapshots/field", "snapshots/long_name", "snapshots/units", "checkpoint/array")
+        in_group = ("snapshots/alpha", "timeseries/xy", "timeseries/sample", "snapshots/snapshot")
+        in_block = ("case", "sample", "snapshot", "alpha", "xy", "timeseries/quantity", "timeseries/long_name",
+                    "timeseries/units", "snapshots/field", "snapshots/long_name", "snapshots/units", "checkpoint/array")
+        scales = in_group if self.row is None else in_block
         records = {}
         for record, column in getattr(self.store._place, "_columns", {}).items():
             records.setdefault(column.array, []).append(record)

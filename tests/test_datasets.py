@@ -83,9 +83,99 @@ def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_
     few = hpcves.open_campaign(campaign, variables=["theta"])
     assert list(few.data_vars) == ["theta", "regime", "period", "period_err", "period_dt_err", "period_N_err",
                                    "theta_mean", "theta_mean_err", "theta_mean_dt_err", "theta_mean_N_err",
-                                   "t_settle", "cycles", "bending_gap", "reason"]
+                                   "t_settle", "cycles", "bending_gap", "reason", "regime_flag"]
     with pytest.raises(FileFormatError, match="no series thetta"):
         hpcves.open_campaign(campaign, variables=["thetta"])
+
+
+def assert_cf(ds):
+    """What CF-1.11 asks of hpcves' Datasets: Conventions; long_name on every variable and units on the
+    numeric ones; flags of the variable's type; attribute names without dots; no missing value in a
+    dimension coordinate (the 2-D ``t`` is an auxiliary coordinate: NaN allowed there)."""
+    assert ds.attrs["Conventions"] == "CF-1.11"
+    for name, var in ds.variables.items():
+        assert var.attrs.get("long_name"), name
+        if var.dtype.kind in "fiu":
+            assert "units" in var.attrs, name
+        if "flag_values" in var.attrs:
+            assert var.attrs["flag_values"].dtype == var.dtype
+            assert len(var.attrs["flag_meanings"].split()) == len(var.attrs["flag_values"])
+        assert not [k for k in var.attrs if "." in k], name
+        if name in ds.dims and var.dtype.kind == "f":
+            assert not np.isnan(var.values).any(), name
+    assert not [k for k in ds.attrs if "." in k]
+
+
+def test_the_hpcves_engine_a_datatree_and_cf_metadata_and_netcdf_readers(campaign, tmp_path):
+    """`xr.open_dataset(path, engine="hpcves")`, a DataTree, CF attributes (checked by hand and by
+    cf-xarray), and the raw file and the Datasets through h5netcdf and netCDF4-python."""
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("cf_xarray")                     # registers the .cf accessor
+    netCDF4 = pytest.importorskip("netCDF4")
+    assert "hpcves" in xr.backends.list_engines()
+    ds = xr.open_dataset(campaign, engine="hpcves")
+    assert ds.identical(hpcves.open_campaign(campaign))
+    assert_cf(ds)
+    assert ds["shear_rate"].attrs == {"long_name": "dimensionless shear rate S", "units": "1"}
+    assert ds["period"].attrs["units"] == "1" and ds["theta_mean"].attrs["units"] == "rad"
+    assert ds["regime_flag"].cf.is_flag_variable and ds["status_flag"].cf.is_flag_variable
+    for code, meaning in (("TT", "tank_treading"), ("PT", "phase_treading"), ("undecided", "undecided")):
+        assert np.array_equal(ds["regime_flag"].cf == meaning, ds["regime"] == code)
+    assert (ds["status_flag"].cf == "finished").all()
+    assert ds.cf["T"].name == "t"                                      # cf-xarray finds the time
+    one = xr.open_dataset(campaign, engine="hpcves", case="0003")
+    assert one.identical(hpcves.open_case(campaign, "0003"))
+    assert_cf(one)
+    assert "numerics_N" in one.attrs and one.attrs["status"] == "finished"
+
+    tree = xr.open_datatree(campaign, engine="hpcves")
+    assert tree.identical(hpcves.open_campaign(campaign, tree=True))
+    assert set(tree.children) == {"cases", "analysis"}               # a grid: no refinement, no search
+    assert tree["cases"].to_dataset().identical(ds.drop_attrs(deep=False))
+    analysis = tree["analysis"].to_dataset()
+    assert list(analysis["regime"].values) == list(ds["regime"].values)
+    assert {"theta_amplitude", "soft_domains", "pattern_speed"} <= set(analysis.data_vars)
+    assert analysis["soft_domains"].attrs["long_name"].startswith("soft domains")
+    for node in tree.subtree:
+        assert not [k for k in node.attrs if "." in k], node.path
+
+    # the Datasets and the tree as netCDF files, read back by netCDF4-python and h5netcdf
+    ds.to_netcdf(tmp_path / "cases.nc", engine="netcdf4")
+    with netCDF4.Dataset(tmp_path / "cases.nc") as nc:
+        assert nc.Conventions == "CF-1.11" and nc["theta"].units == "rad"
+        assert list(nc["regime_flag"].flag_values) == [0, 1, 2, 3]
+    tree.to_netcdf(tmp_path / "tree.nc", engine="h5netcdf")
+    back = xr.open_datatree(tmp_path / "tree.nc", engine="h5netcdf")
+    assert list(back["analysis/regime"].values) == list(ds["regime"].values)
+    # the raw campaign file opens in both netCDF readers (its groups as HDF5 holds them)
+    for engine in ("h5netcdf", "netcdf4"):
+        raw = xr.open_datatree(campaign, engine=engine, **({"phony_dims": "sort"} if engine == "h5netcdf" else {}))
+        assert raw["blocks/0/timeseries"]["series"].dims == ("case", "sample", "quantity")
+        raw.close()
+
+
+def test_a_run_file_through_netcdf_readers_has_no_missing_values_in_its_coordinates(tmp_path):
+    """The raw run file's rows are preallocated: its dimensions are sample and snapshot indices, and t
+    (NaN beyond what was computed) a variable over them."""
+    xr = pytest.importorskip("xarray")
+    pytest.importorskip("netCDF4")
+    toml = tmp_path / "case.toml"
+    toml.write_text(CASE)
+    path = tmp_path / "case.h5"
+    hpcves.run_case(toml, path, max_steps=60, progress=False)                 # part way: a NaN tail
+    for engine in ("h5netcdf", "netcdf4"):
+        for group in ("timeseries", "snapshots"):
+            raw = xr.open_dataset(path, engine=engine, group=group,
+                                  **({"phony_dims": "sort"} if engine == "h5netcdf" else {}))
+            assert raw["t"].dims == (("sample",) if group == "timeseries" else ("snapshot",))
+            assert np.isnan(raw["t"].values).any()                           # preallocated rows
+            for dim in raw.dims:
+                if dim in raw.coords:
+                    assert not np.isnan(raw[dim].values.astype(float)).any(), (engine, group, dim)
+            raw.close()
+    ds = xr.open_dataset(path, engine="hpcves")
+    assert_cf(ds)
+    assert ds.attrs["status"] == "interrupted" and not np.isnan(ds["time"].values).any()
 
 
 def test_one_case_of_a_campaign_and_its_raw_groups_through_h5netcdf(campaign):

@@ -89,7 +89,8 @@ def test_every_stamped_case_is_the_case_create_makes(tmp_path):
             assert tree(stamped[name]) == tree(made[name]), name
             # the scales are attached to the copy's own datasets, as HDF5's dimension-scale API sees it
             ts = stamped[name]["timeseries"]
-            assert h5py.h5ds.is_attached(ts["theta"].id, ts["t"].id, 0)
+            assert h5py.h5ds.is_attached(ts["theta"].id, ts["sample"].id, 0)
+            assert h5py.h5ds.is_attached(ts["t"].id, ts["sample"].id, 0)
             assert stamped[name]["snapshots/psi"].dims[1][0].name == f"/{name}/snapshots/alpha"
 
 

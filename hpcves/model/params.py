@@ -49,15 +49,20 @@ class ParameterName:
     text: str
     symbol: str
     axis: str
+    long_name: str            # the netCDF/CF ``long_name`` of the (dimensionless) parameter
 
 
 #: the one table of the sweepable parameters' names
 PARAMETER_NAMES = {
-    "shear_rate": ParameterName("S", "S", "shear rate $S$"),
-    "psi_bar": ParameterName("psi_bar", r"$\bar\psi$", r"mean composition $\bar\psi$"),
-    "excess_length": ParameterName("Delta", r"$\Delta$", r"excess length $\Delta$"),
-    "B2": ParameterName("B2", r"$B_2$", r"bending rigidity $B_2$"),
-    "viscosity_ratio": ParameterName("lambda", r"$\lambda$", r"viscosity ratio $\lambda$"),
+    "shear_rate": ParameterName("S", "S", "shear rate $S$", "dimensionless shear rate S"),
+    "psi_bar": ParameterName("psi_bar", r"$\bar\psi$", r"mean composition $\bar\psi$",
+                             "mean soft-phase concentration psi_bar"),
+    "excess_length": ParameterName("Delta", r"$\Delta$", r"excess length $\Delta$",
+                                   "excess length Delta = L / R - 2 pi, R = sqrt(A / pi)"),
+    "B2": ParameterName("B2", r"$B_2$", r"bending rigidity $B_2$",
+                        "bending rigidity B2 of the soft phase (the hard phase's B1 = 1)"),
+    "viscosity_ratio": ParameterName("lambda", r"$\lambda$", r"viscosity ratio $\lambda$",
+                                     "viscosity ratio lambda of the inner to the outer fluid"),
 }
 #: the symbol of each sweepable parameter in tables
 LABELS = {key: name.text for key, name in PARAMETER_NAMES.items()}

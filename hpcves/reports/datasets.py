@@ -7,6 +7,11 @@ the dimensions, carry the ``long_name`` / ``units`` attributes, and put the phys
 Read without locking, like ``hpcves analyze``: a file a campaign is writing is always whole.
 Everything is read into memory (no dask here): a campaign's Dataset takes
 cases x longest run x series x 8 bytes -- pass ``variables`` to read fewer series.
+
+Both follow CF-1.11 (reports/conventions.py): units and long_name on every variable, flags for the
+categorical results, attribute names without dots; ``open_campaign(path, tree=True)`` gives the
+file as an xarray DataTree (cases, analysis, and the refinement or search a file records), and
+reports/backend.py makes both ``xarray.open_dataset(path, engine="hpcves")``.
 """
 from __future__ import annotations
 
@@ -21,6 +26,8 @@ from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
 from hpcves.run.verdict import PARAMETERS
 from hpcves.model.params import ADDED_LATER, parameter_of
+from hpcves.reports.conventions import (CONVENTIONS, netcdf_attrs, parameter_attrs, regime_flag, result_attrs,
+                                        status_flag)
 
 #: analysis/ columns carried per case by open_campaign (the rest are in regimes.csv)
 RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
@@ -92,11 +99,13 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
         attrs = {k: (attr_text(v) if isinstance(v, bytes) else v) for k, v in store.attrs.items()
                  if not k.startswith("physics.") or k.removeprefix("physics.") not in PARAMETERS}
         attrs.update(status=STATUS_NAMES.get(store.status, str(store.status)), message=store.message,
-                     t_reached=float(store.progress[0]), source=str(path))
+                     t_reached=float(store.progress[0]), source=str(path), Conventions=CONVENTIONS,
+                     title=f"hpcves case {case or path.stem}")
+        attrs = netcdf_attrs(attrs)
         physics = {k: float(parameter_of(store.attrs, k, "physics.")) for k in PARAMETERS}
         N = store.width
     t = data.pop("t")
-    coords = {"time": t[1], "xy": ["x", "y"], **physics}
+    coords = {"time": t[1], "xy": ("xy", ["x", "y"], {"long_name": "component"}), **physics}
     if snapshots:
         coords["snapshot"] = data.pop("snapshot_t")[1]
         coords["alpha"] = np.arange(N) / N
@@ -106,19 +115,22 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
         ds["snapshot"].attrs.update(_attrs(SNAPSHOT_ATTRS, "t"))
         ds["alpha"].attrs.update(_attrs(SNAPSHOT_ATTRS, "alpha"))
     for k in PARAMETERS:
-        ds[k].attrs["long_name"] = k.replace("_", " ")
+        ds[k].attrs.update(parameter_attrs(k))
     return ds
 
 
-def open_campaign(path, *, variables=None):
+def open_campaign(path, *, variables=None, tree: bool = False):
     """Every case of a campaign file as one xarray Dataset over (case, sample): each case's series
     from its first sample to its last computed one, NaN beyond (cases differ in length and in
-    sampling, so the time is the 2-D coordinate ``t`` (case, sample), not a shared axis); the swept
-    parameters, status and search index as coordinates along ``case``; and, where the file was
-    analysed (``hpcves analyze``), each case's regime, period, mean inclination and their error bars.
+    sampling, so the time is the 2-D auxiliary coordinate ``t`` (case, sample), not a shared axis);
+    the swept parameters, status and search index as coordinates along ``case``; and, where the file
+    was analysed (``hpcves analyze``), each case's regime, period, mean inclination and their error bars.
 
     ``variables``: the series to read (default: all). A case whose data cannot be read comes back
-    with status "damaged" and NaN series."""
+    with status "damaged" and NaN series. ``tree``: the file as an xarray DataTree instead --
+    ``/cases`` this Dataset, ``/analysis`` every column of the analysis (where analysed), and
+    ``/refinement`` (with ``/refinement/boundaries``) or ``/search``: the verdict of every
+    refinement or search of a refine or search file, replayed from its analysed cases."""
     import xarray as xr
 
     path = Path(path)
@@ -156,7 +168,9 @@ def open_campaign(path, *, variables=None):
                         values = group[column][:]
                         results[column] = ([attr_text(v) for v in values] if values.dtype.kind in "OS"
                                            else np.asarray(values, dtype=float))
-        attrs = {"name": campaign.name, "mode": campaign.mode, "sweep_keys": ",".join(campaign.sweep_keys),
+        analysis = _analysis_table(h5["analysis"]) if "analysis" in h5 and "case" in h5["analysis"] else None
+        attrs = {"title": f"hpcves campaign {campaign.name!r}", "Conventions": CONVENTIONS,
+                 "name": campaign.name, "mode": campaign.mode, "sweep_keys": ",".join(campaign.sweep_keys),
                  "campaign_toml": attr_text(h5.attrs.get("campaign_toml", "")), "source": str(path)}
     names = names or ()
     longest = max((len(c["t"][1]) for c in cases if c is not None), default=0)
@@ -172,14 +186,95 @@ def open_campaign(path, *, variables=None):
             if c is not None:
                 values[i, : len(c[name][1])] = c[name][1]
         data[name] = xr.Variable(("case",) + dims, values, var_attrs)
-    coords = {"case": ids, "status": ("case", statuses), "search": ("case", searches),
-              **{k: ("case", np.asarray(v)) for k, v in parameters.items()}}
+    flags, flag_attrs = status_flag(statuses)
+    coords = {"case": ("case", ids, {"long_name": "case id"}),
+              "status": ("case", statuses, result_attrs("status")),
+              "status_flag": ("case", flags, flag_attrs),
+              "search": ("case", searches, {"long_name": "search (or refinement) of the case; -1 in a grid",
+                                            "units": "1"}),
+              **{k: ("case", np.asarray(v), parameter_attrs(k)) for k, v in parameters.items()}}
     if "centroid" in data:
-        coords["xy"] = ["x", "y"]
+        coords["xy"] = ("xy", ["x", "y"], {"long_name": "component"})
     t = data.pop("t", None)
     if t is not None:
         coords["t"] = t
     ds = xr.Dataset(data, coords=coords, attrs=attrs)
+    ds.coords["sample"] = ("sample", np.arange(ds.sizes.get("sample", 0)),
+                           {"long_name": "index of the sample in its case's record", "units": "1"})
     for column, values in results.items():
-        ds[column] = ("case", values)
-    return ds
+        ds[column] = ("case", values, result_attrs(column))
+    if "regime" in results:
+        ds["regime_flag"] = ("case", *regime_flag(results["regime"]))
+    if not tree:
+        return ds
+    return _campaign_tree(path, ds, analysis)
+
+
+def _analysis_table(group) -> dict:
+    """{column: values} of a file's ``analysis/`` group (text columns as str), and its attributes
+    under "attrs"."""
+    columns = {}
+    for name in group:
+        values = group[name][:]
+        columns[name] = (np.array([attr_text(v) for v in values], dtype=str) if values.dtype.kind in "OS"
+                         else np.asarray(values, dtype=float))
+    return {"columns": columns, "attrs": {k: attr_text(v) if isinstance(v, bytes) else v
+                                          for k, v in group.attrs.items()}}
+
+
+def table_dataset(rows: list[dict], dim: str, columns, attrs: dict | None = None):
+    """CSV-like rows (dicts over ``columns``) as a Dataset over ``dim``: numbers as float, the rest as str."""
+    import xarray as xr
+
+    data = {}
+    for column in columns:
+        values = [row.get(column, np.nan) for row in rows]
+        numeric = all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+                      for v in values)
+        data[column] = (dim, np.asarray(values, dtype=float) if numeric else np.array([str(v) for v in values]),
+                        result_attrs(column))
+    return xr.Dataset(data, coords={dim: (dim, np.arange(len(rows)), {"long_name": f"index of the {dim}"})},
+                      attrs=attrs or {})
+
+
+def _campaign_tree(path: Path, cases, analysis: dict | None):
+    """The DataTree of :func:`open_campaign` (``tree=True``)."""
+    import xarray as xr
+
+    nodes = {"/": xr.Dataset(attrs=cases.attrs), "/cases": cases.drop_attrs(deep=False)}
+    if analysis is not None:
+        from hpcves.reports.analyze import COLUMNS
+
+        columns = analysis["columns"]
+        order = [c for c in COLUMNS if c in columns] + sorted(set(columns) - set(COLUMNS))
+        table = xr.Dataset({k: ("case", columns[k], result_attrs(k)) for k in order if k != "case"},
+                           coords={"case": ("case", columns["case"], {"long_name": "case id"})},
+                           attrs=netcdf_attrs(analysis["attrs"]))
+        table = table.set_coords([k for k in PARAMETERS if k in table])
+        if "regime" in table:
+            table["regime_flag"] = ("case", *regime_flag(table["regime"].values))
+        nodes["/analysis"] = table
+        nodes.update(_replayed(path, cases.attrs["mode"]))
+    return xr.DataTree.from_dict(nodes)
+
+
+def _replayed(path: Path, mode: str) -> dict:
+    """{node: Dataset} of the refinements (refine file) or searches (search file) replayed from the
+    file's analysed cases (reports/analyze.py ``findings``), as refinement.csv, boundaries.csv and
+    critical_shear.csv give them; {} for a grid, or where the analysis is of other cases than the file's."""
+    if mode not in ("refine", "search"):
+        return {}
+    from hpcves.reports import analyze
+    from hpcves.reports import critical
+    from hpcves.reports import refinement
+
+    source, rows = analyze.read_source(path), analyze.read_back(path)
+    if [row["case"] for row in rows] != [case.case_id for case in source.cases]:
+        return {}
+    found = analyze.findings(source, rows)
+    if mode == "refine":
+        return {"/refinement": table_dataset([o.row() for o in found.refined], "refinement",
+                                             refinement.refinement_columns(found.study)),
+                "/refinement/boundaries": table_dataset(found.lines, "point",
+                                                        refinement.boundary_columns(found.study))}
+    return {"/search": table_dataset(found.searches, "search", critical.critical_columns(found.study.search.along))}

@@ -315,8 +315,11 @@ class Blocks:
         group.attrs["hpcves_version"] = __version__
         group.attrs["shape"] = np.array(shape, dtype=np.int64)
         for name, (row, dtype, fill) in row_layout(shape, self.packed).items():
+            # no fill value on the text rows: their default (zero bytes) is the same "", and netCDF-C
+            # (netCDF4-python 1.7) crashes on a fixed-length string of 4096 bytes that has one
+            fill = {} if np.dtype(dtype).kind == "S" else {"fillvalue": np.array(fill, dtype=dtype)}
             group.create_dataset(name, shape=(0, *row), maxshape=(None, *row), chunks=_chunks(name, row), dtype=dtype,
-                                 fillvalue=np.array(fill, dtype=dtype), dcpl=_early())
+                                 dcpl=_early(), **fill)
         _describe(group, shape)
         return block
 

@@ -34,7 +34,7 @@ from hpcves.run import resolution
 from hpcves.files import faults
 from hpcves.run import schedule
 from hpcves.run import store as checkpoint_module
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore, Status
 from hpcves.run.stored import read_stored_start
 from hpcves.model.flow import TensionSolveError
 from hpcves.analysis.regimes import AnalysisSettings
@@ -54,7 +54,7 @@ SNAPSHOT_BUFFER = 64           # snapshots held before they are written (64 x 7 
 
 @dataclass(frozen=True)
 class Outcome:
-    status: int          # checkpoint.FINISHED / FAILED / MODEL_LIMIT / INTERRUPTED
+    status: Status       # FINISHED / FAILED / MODEL_LIMIT / INTERRUPTED
     message: str
     t: float
     steps: int           # steps taken in this call

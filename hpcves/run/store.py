@@ -41,6 +41,7 @@ the other one when a run resumes (:meth:`CaseStore.read_checkpoint`).
 from __future__ import annotations
 
 import contextlib
+import enum
 import functools
 import hashlib
 import math
@@ -70,10 +71,23 @@ DIGESTS_SINCE = 5
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
-PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED, MODEL_LIMIT = range(6)
+class Status(enum.IntEnum):
+    """A case's status: its int8 code in the file, its name in tables (``str(status)``: "model limit")."""
+
+    PENDING = 0
+    RUNNING = 1
+    FINISHED = 2
+    FAILED = 3
+    INTERRUPTED = 4
+    MODEL_LIMIT = 5
+
+    def __str__(self) -> str:
+        return self.name.lower().replace("_", " ")
+
+
+PENDING, RUNNING, FINISHED, FAILED, INTERRUPTED, MODEL_LIMIT = Status
 NOT_DECIDED = (0.0, math.nan, -1.0)
-STATUS_NAMES = {PENDING: "pending", RUNNING: "running", FINISHED: "finished", FAILED: "failed",
-                INTERRUPTED: "interrupted", MODEL_LIMIT: "model limit"}
+STATUS_NAMES = {status: str(status) for status in Status}
 #: statuses of a case that is over: it is not run again (FAILED is with --retry-failed). MODEL_LIMIT:
 #: psi left the range where the linear bending law is physics (runner.beyond_model) -- an outcome of
 #: the model, not a fault of the numerics
@@ -352,25 +366,30 @@ def name_records(ts, snap) -> None:
 
 def describe(ts, snap) -> None:
     """``long_name`` and ``units`` on every series and snapshot field, and HDF5 dimension scales:
-    ``timeseries/t`` along the rows of every series (``timeseries/xy`` = 0, 1 along ``centroid``'s columns),
-    ``snapshots/t`` and ``snapshots/alpha`` along the rows and columns of every field -- what
-    netCDF readers (xarray's h5netcdf engine, ncdump) take as dimensions. Static metadata, written
-    with the layout; files from before it lack them and read the same.
+    ``timeseries/sample`` (0, 1, ...) along the rows of every series, t among them
+    (``timeseries/xy`` = 0, 1 along ``centroid``'s columns), ``snapshots/snapshot`` and
+    ``snapshots/alpha`` along the rows and columns of every field, t and shift -- what netCDF
+    readers (xarray's h5netcdf engine, ncdump) take as dimensions. The rows are preallocated
+    (NaN beyond what was computed), so the scales are indices, never t: a coordinate holds no
+    missing values (CF). Static metadata, written with the layout; older files lack them or have t
+    as the scale, and read the same.
     """
     name_records(ts, snap)
-    ts["t"].make_scale("t")
+    for group, name, rows, long_name in ((ts, "sample", ts["t"].shape[0], "index of the sample"),
+                                         (snap, "snapshot", snap["t"].shape[0], "index of the snapshot")):
+        group.create_dataset(name, data=np.arange(rows, dtype=np.int64))
+        group[name].attrs.update(long_name=long_name, units="1")
+        group[name].make_scale(name)
     for name in SERIES:
-        if name != "t":
-            ts[name].dims[0].attach_scale(ts["t"])
+        ts[name].dims[0].attach_scale(ts["sample"])
     ts.create_dataset("xy", data=np.arange(2, dtype=np.int64))
     ts["xy"].attrs["long_name"] = "component: 0 = x, 1 = y"
     ts["xy"].make_scale("xy")
     ts["centroid"].dims[1].attach_scale(ts["xy"])
-    snap["t"].make_scale("t")
     snap["alpha"].make_scale("alpha")
-    snap["shift"].dims[0].attach_scale(snap["t"])
+    for name in ("t", "shift") + SNAPSHOT_FIELDS:
+        snap[name].dims[0].attach_scale(snap["snapshot"])
     for name in SNAPSHOT_FIELDS:
-        snap[name].dims[0].attach_scale(snap["t"])
         snap[name].dims[1].attach_scale(snap["alpha"])
 
 
@@ -628,8 +647,10 @@ class CaseStore:
         return stored_case(self.config, self.where)
 
     @property
-    def status(self) -> int:
-        return int(self._read("status"))
+    def status(self) -> Status | int:
+        """The case's :class:`Status` (a code no Status has, from a damaged file, as it is)."""
+        code = int(self._read("status"))
+        return Status(code) if code in Status._value2member_map_ else code
 
     @property
     def message(self) -> str:
