@@ -7,12 +7,15 @@ there), so the coarse 2 x 2 grid has one mixed cell. Two refinements (B2 = 0.1, 
 """
 import csv
 import os
+import shutil
 import signal
 
 import h5py
+import numpy as np
 import pytest
 
 from hpcves.reports.analyze import analyze
+from hpcves.reports.datasets import open_campaign
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED
 from hpcves.model.params import ConfigError
@@ -225,6 +228,25 @@ def test_verdict_codes_name_every_regime_and_reason_to_run_again():
             assert Verdict.from_code(verdict.code) == verdict
     assert Verdict("PT+TT").code == -1
     assert [Verdict.from_code(c) for c in (-1.0, float("nan"), 1.5, 4 * len(VERDICT_REGIMES))] == [None] * 4
+
+
+def test_the_datatree_of_a_refine_file_holds_its_refinements_and_boundaries(refined, tmp_path):
+    """open_campaign(tree=True) of an analysed refine file: refinement.csv and boundaries.csv as Datasets."""
+    _, reference, summary, _ = refined
+    output = tmp_path / "refine.h5"
+    shutil.copy(reference, output)
+    analyze(output, tmp_path / "analysis", case_figures=False)
+    tree = open_campaign(output, tree=True)
+    assert set(tree.children) == {"cases", "analysis", "refinement"}
+    table = tree["refinement"].to_dataset(inherit=False)
+    assert list(table["status"].values) == ["converged", "converged"]
+    assert list(table["cases"].values) == [len(o.regimes) for o in summary.searches]
+    lines = tree["refinement/boundaries"].to_dataset(inherit=False)
+    with open(tmp_path / "analysis" / "boundaries.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert lines.sizes["point"] == len(rows) > 0
+    assert np.allclose(lines["shear_rate"].values, [float(r["shear_rate"]) for r in rows])
+    assert set(lines["pair"].values) == {"PT|TT"}
 
 
 def test_analyze_writes_the_boundaries_as_polylines_on_the_phase_diagram(refined, tmp_path):

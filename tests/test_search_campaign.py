@@ -6,13 +6,16 @@ TT to PT between S = 70 and 85 (VALIDATION.md: TT at 40, PT at 80).
 """
 import csv
 import os
+import shutil
 import signal
 
 import h5py
+import numpy as np
 import pytest
 
 from hpcves.campaign import file as campaign_file
 from hpcves.reports.analyze import analyze
+from hpcves.reports.datasets import open_campaign
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED, superblock_version
 from hpcves.model.params import ConfigError
@@ -101,6 +104,22 @@ def test_the_file_holds_every_case_of_every_stage(searched):
             assert g.attrs["physics.shear_rate"] == shear_rate
             assert g.attrs["physics.psi_bar"] == [0.0, 0.3][search]
     assert set(statuses(output).values()) == {FINISHED}
+
+
+def test_the_datatree_of_a_search_file_holds_its_searches(searched, tmp_path):
+    """open_campaign(tree=True) of an analysed search file: /search is critical_shear.csv as a Dataset."""
+    _, reference, summary, _ = searched
+    output = tmp_path / "search.h5"
+    shutil.copy(reference, output)
+    assert open_campaign(output, tree=True).children.keys() == {"cases"}     # not analysed: no results
+    analyze(output, tmp_path / "analysis", case_figures=False)
+    tree = open_campaign(output, tree=True)
+    assert set(tree.children) == {"cases", "analysis", "search"}
+    search = tree["search"].to_dataset()
+    assert list(search["status"].values) == ["not bracketed", "converged"]
+    assert np.isnan(search["S_C"].values[0])
+    assert search["S_C"].values[1] == pytest.approx(summary.searches[1].state.critical, rel=1e-6)
+    assert search["bracket_low"].attrs["long_name"] and search["psi_bar"].attrs["units"] == "1"
 
 
 def test_analyze_replays_the_searches_into_critical_shear_csv(searched, tmp_path):
