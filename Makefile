@@ -41,6 +41,7 @@ bench: setup
 	$(PY) bench/bench_run_loop.py --out BENCHMARKS.md
 	$(PY) bench/bench_dealias.py --out BENCHMARKS.md
 	$(PY) bench/bench_contrast.py --out BENCHMARKS.md
+	$(PY) bench/bench_memory.py --out BENCHMARKS.md
 
 validate: setup
 	$(PY) -m pytest -m slow -q

@@ -326,7 +326,14 @@ def _mpi_world():
 @click.option("--max-time", type=float, default=24.0, show_default=True,
               help="With --plan: the longest job to ask for, in hours (the script resubmits itself "
                    "while work is left).")
-def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io, show_plan, slurm_file, max_time):
+@click.option("--slurm-template", "slurm_template", type=click.Path(),
+              help="With --slurm: your site's batch-script template instead of the default "
+                   "(hpcves/campaign/templates/slurm.sh; its {{ placeholders }}: docs/cluster.md).")
+@click.option("--max-jobs", type=int,
+              help="With --slurm: the most jobs the script's chain may run, resubmissions included "
+                   "(default: twice the jobs the plan needs, plus one).")
+def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io, show_plan, slurm_file, max_time,
+                     slurm_template, max_jobs):
     """Run a study: mpirun -n P hpcves campaign STUDY.toml (or without mpirun, on one core).
 
     With --plan nothing runs: the cases, core-hours, ranks and wall time it will take (and with
@@ -342,12 +349,16 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io
     rank = 0 if comm is None else comm.Get_rank()
     if slurm_file and not show_plan:
         _fail("--slurm goes with --plan (hpcves campaign STUDY.toml --plan --slurm job.sh)")
+    for given, name in ((slurm_template, "--slurm-template"), (max_jobs is not None, "--max-jobs")):
+        if given and not slurm_file:
+            _fail(f"{name} goes with --plan --slurm (hpcves campaign STUDY.toml --plan --slurm job.sh {name} ...)")
     if show_plan:
         if size > 1:
             if rank == 0:
                 click.echo("Error: --plan runs nothing in parallel: leave out mpirun", err=True)
             sys.exit(2)
-        _plan(study_file, out and Path(out), slurm_file and Path(slurm_file), max_time)
+        _plan(study_file, out and Path(out), slurm_file and Path(slurm_file), max_time,
+              slurm_template and Path(slurm_template), max_jobs)
         return
     try:
         _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out and Path(out), quiet, io)
@@ -465,13 +476,14 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
 
 
 @clean_errors
-def _plan(study_file, out, slurm_file, max_time) -> None:
+def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=None) -> None:
     """``hpcves campaign --plan``: what the study will cost, and a batch script sized from it."""
     import shutil
     from pathlib import Path
 
-    from hpcves.campaign.plan import plan
-    from hpcves.campaign.slurm import JobSize, slurm_script
+    from hpcves.campaign.plan import largest_N, memory_per_rank, plan
+    from hpcves.campaign.slurm import JobSize, mem_per_cpu, read_template, slurm_script
+    from hpcves.campaign.slurm import max_jobs as default_max_jobs
     from hpcves.campaign.study import load_study
     from hpcves.campaign.driver import file_bytes
     from hpcves.files.atomic import free_bytes, size_text
@@ -487,6 +499,12 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
         check_output_path(slurm_file)
         if not Path(slurm_file).absolute().parent.is_dir():        # say so before the timing, not after
             _fail(f"{slurm_file}: its directory {Path(slurm_file).absolute().parent} does not exist")
+        try:
+            read_template(slurm_template)
+        except ConfigError as exc:
+            _fail(str(exc))
+        if max_jobs is not None and max_jobs < 1:
+            _fail(f"--max-jobs {max_jobs}: must be at least 1")
     # a step is timed in a scratch directory, removed when the timing ends; SIGTERM (a batch system,
     # `timeout`) would kill the process before that: noted instead, the timing runs stop at their next
     # step, the directory is removed, and the command exits with 128 + 15
@@ -519,17 +537,22 @@ def _plan(study_file, out, slurm_file, max_time) -> None:
         return
     hpcves = shutil.which("hpcves") or str(Path(sys.executable).with_name("hpcves"))
     likely = f"likely {basis.core_seconds / 3600:.3g}, " if estimate.likely else ""
+    jobs = max_jobs or default_max_jobs(estimate.wall(ranks), ask)
+    memory = memory_per_rank(study)
     text = slurm_script(script=Path(slurm_file), study_name=study.name, study_file=Path(study_file), output=path,
-                        size=JobSize(ranks, ask), hpcves=Path(hpcves), python=Path(sys.executable),
-                        workdir=Path.cwd(), stop_timeout=study.stop_timeout,
+                        size=JobSize(ranks, ask, memory, jobs), hpcves=Path(hpcves),
+                        python=Path(sys.executable), workdir=Path.cwd(), stop_timeout=study.stop_timeout,
                         summary=f"{estimate.cases} cases at most; core-hours {likely}at most "
-                                f"{estimate.core_seconds / 3600:.3g}; {_duration(wall)} on {ranks} ranks")
+                                f"{estimate.core_seconds / 3600:.3g}; {_duration(wall)} on {ranks} ranks",
+                        largest_N=largest_N(study), template=slurm_template)
     try:
         Path(slurm_file).write_text(text)
         Path(slurm_file).chmod(0o755)
     except OSError as exc:
         _fail(f"cannot write the batch script: {os_error_text(exc)}")
-    click.echo(f"batch script: {slurm_file} (set --account and --partition in it, then sbatch {slurm_file})")
+    click.echo(f"batch script: {slurm_file}, from {slurm_template or 'the default template'}: {ranks} ranks, "
+               f"{_duration(ask)} a job, at most {jobs} jobs, {mem_per_cpu(memory)} MiB a rank "
+               f"(set --account and --partition in it, then sbatch {slurm_file})")
 
 
 #: the cases a rank should get at least, where that costs little wall time: each rank pays its start-up,

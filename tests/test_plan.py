@@ -1,5 +1,6 @@
 """hpcves campaign --plan: cases, core-hours, ranks and wall time; the SLURM script sized from it."""
 import os
+import re
 import stat
 import subprocess
 
@@ -9,7 +10,8 @@ from jobs import hpcves, mpi_env, start_job
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.plan import Plan, Stage, makespan, plan
 from hpcves.campaign.study import load_study, study_from_toml
-from hpcves.run.timing import StepCost
+from hpcves.campaign.slurm import mem_per_cpu
+from hpcves.run.timing import StepCost, rank_bytes
 
 TINY = """
 [campaign]
@@ -162,6 +164,10 @@ def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):
     assert not (tmp_path / "p.h5").exists()                     # a plan runs nothing
     text = script.read_text()
     assert f"#SBATCH --ntasks={ranks}\n" in text and "#SBATCH --account=CHANGE_ME" in text
+    # memory: the measured model of a rank at the study's N (32), compiling its engine, with the margin
+    assert f"#SBATCH --mem-per-cpu={mem_per_cpu(rank_bytes(32, False))}M\n" in text
+    assert 500 <= mem_per_cpu(rank_bytes(32, False)) <= 700
+    assert re.search(r"^MAX_JOBS=(\d+)$", text, re.M) and "{{" not in text
     assert f"STUDY={study_file.resolve()}\n" in text and f"OUT={(tmp_path / 'p.h5').resolve()}\n" in text
     assert os.stat(script).st_mode & stat.S_IXUSR
     assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
@@ -207,6 +213,16 @@ def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
     assert "submitting" not in again.stdout and "2 jobs in a row advanced nothing" in again.stderr, again.stderr
     assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
     assert (tmp_path / "w.h5.idle_jobs").read_text().strip() == "2"
+    assert (tmp_path / "w.h5.jobs").read_text().strip() == "2"
+
+    # the chain's cap on jobs: the third job of a chain of at most 3 does not resubmit, work left or not
+    (tmp_path / "w.h5.idle_jobs").unlink()
+    (tmp_path / "capped.sh").write_text(re.sub(r"^MAX_JOBS=\d+$", "MAX_JOBS=3", idle, flags=re.M))
+    capped = subprocess.run(["bash", str(tmp_path / "capped.sh")], env=env, capture_output=True, text=True,
+                            cwd=tmp_path, timeout=300)
+    assert capped.returncode == 0, capped.stderr
+    assert "submitting" not in capped.stdout and "this was job 3 of at most 3" in capped.stderr, capped.stderr
+    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
 
     second = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True, cwd=tmp_path,
                             timeout=300)
@@ -214,6 +230,32 @@ def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
     assert "submitting" not in second.stdout and "status: complete" in second.stdout
     assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]    # not again
     assert not (tmp_path / "w.h5.idle_jobs").exists()                     # progress resets the count
+    assert not (tmp_path / "w.h5.jobs").exists()                          # a complete campaign ends the chain
+
+
+def test_a_site_brings_its_own_batch_script_template(tmp_path):
+    """signac-flow users bring their own template; ours had to be edited after writing. Placeholders
+    are filled in, an unknown one is refused (with the near miss) before the step is timed."""
+    study_file = tmp_path / "s.toml"
+    study_file.write_text(TINY.format(name="s", output=tmp_path / "s.h5") + "[sweep]\nshear_rate = [10, 20]\n")
+    site = tmp_path / "site.sh"
+    site.write_text("#!/bin/bash\n#SBATCH --account=phys42 --qos=long\n#SBATCH --ntasks={{ ranks }}\n"
+                    "#SBATCH --mem-per-cpu={{mem_per_cpu}}\n#SBATCH --time={{ time }}\n"
+                    "module load mpi/site\nsrun {{ hpcves }} campaign {{ study_file }} --out {{ output }} --resume\n")
+    script = tmp_path / "job.sh"
+    result = hpcves("campaign", study_file, "--plan", "--slurm", script, "--slurm-template", site, "--max-jobs", 7)
+    assert result.returncode == 0, result.stderr
+    assert f"from {site}" in result.stdout and "at most 7 jobs" in result.stdout
+    text = script.read_text()
+    assert "--account=phys42 --qos=long" in text and "module load mpi/site" in text and "{{" not in text
+    assert f"--mem-per-cpu={mem_per_cpu(rank_bytes(32, False))}M" in text
+    assert f"campaign {study_file.resolve()} --out {(tmp_path / 's.h5').resolve()} --resume" in text
+    site.write_text("#SBATCH --ntasks={{ rank }}\n")
+    wrong = hpcves("campaign", study_file, "--plan", "--slurm", script, "--slurm-template", site)
+    assert wrong.returncode == 2 and "timing" not in wrong.stderr
+    assert "unknown placeholder {{ rank }} (did you mean {{ ranks }}?)" in wrong.stderr
+    alone = hpcves("campaign", study_file, "--plan", "--slurm-template", site)
+    assert alone.returncode == 2 and "--slurm-template goes with --plan --slurm" in alone.stderr
 
 
 def test_a_plan_stopped_by_sigterm_leaves_no_scratch_file(tmp_path):
@@ -236,3 +278,13 @@ def test_a_plan_stopped_by_sigterm_leaves_no_scratch_file(tmp_path):
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == 128 + signal.SIGTERM, stderr
     assert "Traceback" not in stderr and list(scratch.iterdir()) == [], (stderr, list(scratch.iterdir()))
+
+
+def test_docs_cluster_lists_every_placeholder_a_template_may_use():
+    from pathlib import Path
+
+    from hpcves.campaign.slurm import PLACEHOLDERS, TEMPLATE, read_template
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "cluster.md").read_text()
+    assert all(f"`{{{{ {name} }}}}`" in text for name in PLACEHOLDERS)
+    assert read_template(None)[0] == TEMPLATE.read_text()             # the default passes its own check

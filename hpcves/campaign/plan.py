@@ -36,6 +36,7 @@ from hpcves.analysis.search import start_rates
 from hpcves.campaign.queue import computing_ranks, ranks_for
 from hpcves.campaign.study import Study
 from hpcves.run.resolution import expected_N
+from hpcves.run.timing import rank_bytes
 
 #: the plan's wall time is within this factor of the fastest possible one
 NEAR_FASTEST = 1.10
@@ -144,7 +145,7 @@ def plan(study: Study, step_seconds: Callable, layout_seconds: Callable | None =
 
     Every case priced to its t_end; with ``until_decided``, ``likely`` prices it to
     DECIDED_AFTER x decided_shear_times shear times (at most t_end)."""
-    first = _first_cases(study)
+    first = first_cases(study)
     used = {}
     for case in first:
         N = expected_N(case)
@@ -176,7 +177,7 @@ def decided_share(case) -> float:
     return min(1.0, DECIDED_AFTER * run.decided_shear_times / (S * run.t_end))
 
 
-def _first_cases(study: Study) -> list:
+def first_cases(study: Study) -> list:
     """The cases of the first stage, search by search (refinement by refinement): every case of
     a grid, the start of each search's range, each refinement's coarse grid."""
     if study.mode == "grid":
@@ -186,6 +187,22 @@ def _first_cases(study: Study) -> list:
                 for s in start_rates(study.search)]
     return [study.refine_case(i, x, y, "plan", start=start).case for i in range(len(study.refinements))
             for x, y in coarse_points(study.refine_settings) for start in study.point_starts]
+
+
+def largest_N(study: Study) -> int:
+    """The most nodes a case of the study may compute its rates on: N (N_max where N adapts) times
+    the de-aliasing factor, and in a refinement the N its retries of under-resolved points may reach."""
+    cases = first_cases(study)
+    largest = max(round(c.numerics.dealias * max(c.numerics.N, c.numerics.N_max)) for c in cases)
+    if study.refine:
+        largest = max([largest] + [round(c.numerics.dealias * study.refine_settings.max_N) for c in cases])
+    return largest
+
+
+def memory_per_rank(study: Study) -> int:
+    """Bytes a rank of the study's campaign holds at most (run/timing.py rank_bytes at :func:`largest_N`)."""
+    contrast = any(c.physics.viscosity_ratio != 1.0 for c in first_cases(study))
+    return rank_bytes(largest_N(study), contrast)
 
 
 def _stages(study: Study, first: list, seconds: Callable) -> tuple:

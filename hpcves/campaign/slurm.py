@@ -1,28 +1,62 @@
 """A SLURM batch script for a study, sized from its plan (``hpcves campaign --plan --slurm``).
 
-The script runs ``hpcves campaign --resume`` under srun, asks ``hpcves status --json``
-what is left, and submits itself again while work is left (status exit 3) -- a
-study larger than one job's wall time goes on in the next job, from the
-checkpoints -- unless MAX_IDLE_JOBS jobs in a row advanced nothing. Every path in it is absolute, so it runs from any directory.
+The script is a template filled in (``{{ name }}`` placeholders, the syntax of Jinja's variables):
+the default, templates/slurm.sh, runs ``hpcves campaign --resume`` under srun, asks
+``hpcves status --json`` what is left, and submits itself again while work is left (status exit
+3) -- a study larger than one job's wall time goes on in the next job, from the checkpoints --
+unless MAX_IDLE_JOBS jobs in a row advanced nothing or the chain has run its MAX_JOBS. A site
+brings its own template (``--slurm-template FILE``) with the same placeholders
+(:data:`PLACEHOLDERS`; docs/cluster.md). Every path in it is absolute, so it runs from any directory.
 """
 from __future__ import annotations
 
 import math
+import re
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
+
+from hpcves.config import did_you_mean
+from hpcves.model.params import ConfigError
 
 #: seconds before the wall time at which SLURM sends SIGTERM: the campaign's stop_timeout
 #: (every rank checkpoints) plus this margin for the status call and the resubmission
 SIGNAL_MARGIN = 60
 #: jobs in a row that advance nothing (no case added, no simulated time) before the chain stops
 MAX_IDLE_JOBS = 2
+#: the memory asked per rank over what the model (run/timing.py rank_bytes) says a rank holds
+MEMORY_MARGIN = 1.25
+#: the default template
+TEMPLATE = Path(__file__).with_name("templates") / "slurm.sh"
+_PLACEHOLDER = re.compile(r"\{\{\s*(\w+)\s*\}\}")
+
+#: what a template may use, and what each holds (docs/cluster.md shows this table)
+PLACEHOLDERS = {
+    "job_name": "the job's name: hpcves-<study name>",
+    "summary": "the plan in a line: cases, core-hours, wall time on the ranks",
+    "script": "the batch script's own path (shell-quoted)",
+    "ranks": "MPI ranks to ask for (--ntasks)",
+    "time": "the wall time a job asks for, D-HH:MM:SS (--time)",
+    "signal_seconds": "seconds before the wall time that SIGTERM is to come (--signal=TERM@...)",
+    "mem_per_cpu": "memory a rank needs, in MiB with SLURM's unit: e.g. 640M (--mem-per-cpu)",
+    "memory_note": "how mem_per_cpu was sized, in a line",
+    "log": "the log file name: hpcves-<study name>-%j.log",
+    "workdir": "the directory --plan ran in (shell-quoted)",
+    "study_file": "the study file (shell-quoted)",
+    "output": "the campaign file (shell-quoted)",
+    "hpcves": "the hpcves command (shell-quoted)",
+    "python": "the Python that runs hpcves (shell-quoted)",
+    "max_jobs": "the most jobs the chain may run, resubmissions included",
+    "max_idle_jobs": f"jobs in a row that advance nothing before the chain stops ({MAX_IDLE_JOBS})",
+}
 
 
 @dataclass(frozen=True)
 class JobSize:
     ranks: int
     wall_seconds: float          # what the job asks for (#SBATCH --time)
+    rank_bytes: int              # what a rank holds at the study's largest N (run/timing.py rank_bytes)
+    max_jobs: int                # the cap on the chain's jobs
 
 
 def job_time(seconds: float) -> str:
@@ -34,72 +68,67 @@ def job_time(seconds: float) -> str:
     return (f"{days}-" if days else "") + f"{hours:02d}:{minutes:02d}:{seconds:02d}"
 
 
+def max_jobs(wall_seconds: float, job_seconds: float) -> int:
+    """The default cap on a chain's jobs: twice the jobs the plan's wall time needs, plus one (cases
+    slower here than where they were timed, a node lost); the idle-job rule stops a chain that
+    makes no progress long before."""
+    return 2 * max(1, math.ceil(wall_seconds / job_seconds)) + 1
+
+
+def mem_per_cpu(rank_bytes: int) -> int:
+    """MiB to ask per rank: the model's bytes times MEMORY_MARGIN, rounded up to 64 MiB."""
+    return 64 * math.ceil(MEMORY_MARGIN * rank_bytes / 2**20 / 64)
+
+
+def read_template(path: Path | None) -> tuple[str, str]:
+    """(text, where) of the template at ``path`` (None: the default), its placeholders checked."""
+    where = str(path) if path else "the default template"
+    try:
+        text = Path(path or TEMPLATE).read_text()
+    except OSError as exc:
+        raise ConfigError(f"--slurm-template {path}: cannot read it ({exc.strerror or exc})") from None
+    unknown = sorted({m.group(1) for m in _PLACEHOLDER.finditer(text)} - set(PLACEHOLDERS))
+    if unknown:
+        def named(name: str) -> str:
+            suggested = did_you_mean(name, PLACEHOLDERS).removeprefix(name)     # " (did you mean x?)" or ""
+            return "{{ " + name + " }}" + re.sub(r"mean (\w+)\?", r"mean {{ \1 }}?", suggested)
+
+        raise ConfigError(f"{where}: unknown placeholder{'s' * (len(unknown) > 1)} "
+                          + ", ".join(named(u) for u in unknown)
+                          + f"; a template may use {', '.join(PLACEHOLDERS)} (docs/cluster.md)")
+    return text, where
+
+
+def fill(text: str, values: dict[str, str]) -> str:
+    """``text`` with every ``{{ name }}`` replaced by ``values[name]`` (checked by :func:`read_template`)."""
+    return _PLACEHOLDER.sub(lambda m: values[m.group(1)], text)
+
+
 def slurm_script(*, script: Path, study_name: str, study_file: Path, output: Path, size: JobSize, hpcves: Path,
-                 python: Path, workdir: Path, stop_timeout: float, summary: str) -> str:
-    """The batch script's text (paths are made absolute here)."""
+                 python: Path, workdir: Path, stop_timeout: float, summary: str, largest_N: int,
+                 template: Path | None = None) -> str:
+    """The batch script's text: ``template`` (None: the default) filled in (paths made absolute)."""
     q = lambda p: shlex.quote(str(Path(p).absolute()))       # not resolve(): a venv's python is a link
-    signal = int(math.ceil(stop_timeout)) + SIGNAL_MARGIN
-    return f"""#!/bin/bash
-# {study_name}: {summary}
-# Written by hpcves campaign --plan --slurm. Set the account and partition, load what your site
-# provides for MPI, parallel HDF5 and Python (README: "On a cluster"), then:  sbatch {q(script)}
-#
-# SIGTERM reaches every task {signal} s before the wall time: each rank checkpoints its case and
-# the job ends cleanly; while work is left (hpcves status exits 3) the script submits itself
-# again, and the next job continues with --resume, bitwise as if never interrupted.
-#SBATCH --job-name=hpcves-{study_name}
-#SBATCH --account=CHANGE_ME
-#SBATCH --partition=CHANGE_ME
-#SBATCH --ntasks={size.ranks}
-#SBATCH --cpus-per-task=1
-#SBATCH --time={job_time(size.wall_seconds)}
-#SBATCH --signal=TERM@{signal}
-#SBATCH --output=hpcves-{study_name}-%j.log
-
-set -uo pipefail
-# module load openmpi hdf5/parallel python      # your site's names; the same as when hpcves was installed
-export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
-cd {q(workdir)}
-STUDY={q(study_file)}
-OUT={q(output)}
-HPCVES={q(hpcves)}
-PYTHON={q(python)}
-
-# progress in a status --json: the cases in the file and their simulated time added up ("none": no file)
-progress() {{
-    "$PYTHON" -c 'import json, sys
-try:
-    rows = json.load(sys.stdin)["rows"]
-    print(len(rows), sum(r["t"] for r in rows if r["t"] == r["t"]))
-except Exception:
-    print("none")'
-}}
-before=$("$HPCVES" status --json "$OUT" 2>/dev/null | progress)
-status=0
-srun --kill-on-bad-exit=0 "$HPCVES" campaign "$STUDY" --out "$OUT" --resume --quiet || status=$?
-# campaign: 0 done or stopped by the signal, 1 some case failed, 2 bad input or a refused write
-left=0
-"$HPCVES" status --json "$OUT" > "$OUT.status.json" || left=$?
-"$PYTHON" -c 'import json, sys; s = json.load(open(sys.argv[1]))
-print("status:", "complete" if s.get("complete") else "work left: " + str(s.get("left")), s.get("totals", ""))' \\
-    "$OUT.status.json" || true
-# status: 0 complete, 1 complete with failed cases, 3 work left, 2 unreadable or damaged
-# a job that advanced nothing (creation that does not fit in a job, a site problem) may happen once;
-# {MAX_IDLE_JOBS} in a row end the chain instead of resubmitting it forever
-if [ "$(progress < "$OUT.status.json")" = "$before" ]; then
-    idle=$(( $(cat "$OUT.idle_jobs" 2>/dev/null || echo 0) + 1 ))
-    echo "$idle" > "$OUT.idle_jobs"
-else
-    idle=0
-    rm -f "$OUT.idle_jobs"
-fi
-if [ "$left" -eq 3 ] && [ "$status" -le 1 ] && [ "$idle" -lt {MAX_IDLE_JOBS} ]; then
-    echo "work left: submitting the next job"
-    sbatch "$0"
-elif [ "$left" -eq 3 ] && [ "$idle" -ge {MAX_IDLE_JOBS} ]; then
-    echo "work left, but $idle jobs in a row advanced nothing: not resubmitting (see the logs; delete $OUT.idle_jobs and sbatch again once the cause is fixed)" >&2
-elif [ "$left" -eq 3 ]; then
-    echo "work left, but the campaign ended with status $status: not resubmitting; see the log above" >&2
-fi
-exit "$status"
-"""
+    text, _ = read_template(template)
+    memory = mem_per_cpu(size.rank_bytes)
+    values = {
+        "job_name": f"hpcves-{study_name}",
+        "summary": summary,
+        "script": q(script),
+        "ranks": str(size.ranks),
+        "time": job_time(size.wall_seconds),
+        "signal_seconds": str(int(math.ceil(stop_timeout)) + SIGNAL_MARGIN),
+        "mem_per_cpu": f"{memory}M",
+        "memory_note": (f"{memory} MiB a rank: {MEMORY_MARGIN:g} x the {size.rank_bytes / 2**20:.0f} MiB that a "
+                        f"rank holds at N = {largest_N} compiling its engine (run/timing.py rank_bytes, "
+                        "measured: BENCHMARKS.md, \"Memory of a rank\")"),
+        "log": f"hpcves-{study_name}-%j.log",
+        "workdir": q(workdir),
+        "study_file": q(study_file),
+        "output": q(output),
+        "hpcves": q(hpcves),
+        "python": q(python),
+        "max_jobs": str(size.max_jobs),
+        "max_idle_jobs": str(MAX_IDLE_JOBS),
+    }
+    return fill(text, values)

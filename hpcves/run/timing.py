@@ -45,6 +45,23 @@ def seconds_per_step(case: Case, steps: int = 150, repeats: int = 2, stop_reques
     return best
 
 
+#: what a campaign rank holds in memory (bench/bench_memory.py, BENCHMARKS.md "Memory of a rank"): the
+#: peak resident set of a process that runs one case is RANK_BYTES, plus COMPILE_BYTES where it compiles
+#: the engine (numba's cache not there yet: a cluster's first job), plus BYTES_PER_N2 N^2 for the dense
+#: operators at N nodes (CONTRAST_BYTES_PER_N2 with a viscosity contrast: the double layer and GMRES);
+#: the slopes from N = 2048, which lie above those of N <= 1024: the model errs on the large side there
+RANK_BYTES = 222 * 2**20
+COMPILE_BYTES = 232 * 2**20
+BYTES_PER_N2 = 90
+CONTRAST_BYTES_PER_N2 = 122
+
+
+def rank_bytes(N: int, contrast: bool, compiling: bool = True) -> int:
+    """The peak memory of a rank whose cases reach N nodes (rates on N: de-aliased, the larger grid)."""
+    return RANK_BYTES + (COMPILE_BYTES if compiling else 0) + (CONTRAST_BYTES_PER_N2 if contrast
+                                                               else BYTES_PER_N2) * N * N
+
+
 class StepCost:
     """``seconds_per_step`` measured once per kind of step and remembered: ``cost(case)`` for
     every case of a study, ``measured`` for a report.
