@@ -408,7 +408,7 @@ CAMPAIGN_DAMAGE = {
     "another format version": (edit(lambda f: f.attrs.__setitem__("format_version", 99)), "format version 99", ALL),
     "no index": (edit(lambda f: f.__delitem__("index")), "missing index", ALL),
     "case count wrong": (edit(lambda f: f.attrs.__setitem__("n_cases", 9)), "holds 4 cases, its header says 9", ALL),
-    "another study": (edit(lambda f: f.attrs.__setitem__("fingerprint", "0" * 64)), "belongs to", ("resume",)),
+    "another study": (edit(lambda f: f.attrs.__setitem__("name", "other")), "belongs to study 'other'", ("resume",)),
     "a short index": (edit(recreate("index/shear_rate", data=np.array([40.0]))), "", ALL),
     "unknown status": (edit(set_case("0003", "status", 77)), "status 77 is not a status", ALL),
     "samples beyond capacity": (edit(set_case("0000", "timeseries/length", 10_000)), "lies outside", ALL),

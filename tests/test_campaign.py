@@ -157,6 +157,47 @@ def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, refer
     assert_same_results(output, reference)
 
 
+def test_a_grid_grows_by_new_sweep_values_into_its_file(tmp_path, reference):
+    """A finished study given a new shear rate resumes into the same file: its cases keep their ids and
+    every number bit for bit, the new ones follow (and equal a fresh run of the grown study's cases);
+    a sweep value taken away, or a parameter changed, is refused by name."""
+    from jobs import _same, results
+
+    output = tmp_path / "tiny.h5"
+    shutil.copy(reference, output)
+    grown_toml, _ = write_study(tmp_path, t_end=0.3, shear="[40, 60, 80]", output=output)
+    grown = study_from_toml(grown_toml.read_text())
+    said = []
+    summary = run_campaign(grown, output, resume=True, announce=lambda text, *_: said.append(text))
+    assert summary.exit_status == 0 and sorted(r.case_id for r in summary.ran) == ["0004", "0005"]
+    assert any("the study grew: 2 new cases (shear_rate += 60)" in line for line in said), said
+    before, after = results(reference), results(output)
+    for case_id in ("0000", "0001", "0002", "0003"):                    # kept, bit for bit
+        assert _same(before[case_id], after[case_id]), case_id
+    with h5py.File(output, "r") as f:
+        index = {k: f["index"][k][:] for k in ("shear_rate", "psi_bar")}
+        assert list(index["shear_rate"]) == [40, 40, 80, 80, 60, 60] and f.attrs["n_cases"] == 6
+        assert f.attrs["campaign_toml"] == grown_toml.read_text()
+    # the new cases are the grown study's, as a fresh run computes them
+    fresh = tmp_path / "fresh.h5"
+    assert run_campaign(study_from_toml(grown_toml.read_text().replace(str(output), str(fresh))), fresh,
+                        ).exit_status == 0
+    mine = results(fresh)
+    for grown_id, fresh_id in (("0004", "0002"), ("0005", "0003")):
+        a = {k: v for k, v in after[grown_id].items() if k != "attrs"}
+        b = {k: v for k, v in mine[fresh_id].items() if k != "attrs"}
+        assert _same(a, b), (grown_id, fresh_id)
+    # once grown, the same study file resumes with nothing to do and nothing changed
+    said.clear()
+    again = run_campaign(grown, output, resume=True, announce=lambda text, *_: said.append(text))
+    assert again.ran == () and not any("grew" in line for line in said)
+    assert _same(results(output), after)
+    # a value taken away is not growth
+    shrunk = study_from_toml(write_study(tmp_path, t_end=0.3, shear="[40, 60]", output=output)[0].read_text())
+    with pytest.raises(ConfigError, match=r"its case 0002 \(shear_rate = 80, psi_bar = 0.3\) is not in the study"):
+        run_campaign(shrunk, output, resume=True)
+
+
 def test_files_that_are_not_this_campaign_are_refused(tmp_path, reference):
     path, output = write_study(tmp_path, t_end=0.3)
     study = study_from_toml(path.read_text())
@@ -167,7 +208,8 @@ def test_files_that_are_not_this_campaign_are_refused(tmp_path, reference):
     with pytest.raises(ConfigError, match="belongs to study 'tiny'"):
         run_campaign(other, output, resume=True)
     changed = study_from_toml(write_study(tmp_path, t_end=0.2)[0].read_text())
-    with pytest.raises(ConfigError, match="a different version of study 'tiny'"):
+    with pytest.raises(ConfigError, match=r"a different version of study 'tiny': case 0000 \(shear_rate = 40, "
+                                          r"psi_bar = 0.3\): run.t_end: 0.3 -> 0.2 changed, which changes the cases"):
         run_campaign(changed, output, resume=True)
 
     single = tmp_path / "single.h5"

@@ -214,13 +214,49 @@ def test_a_half_added_stage_of_an_older_version_is_dropped_and_made_again(search
     assert_same_results(output, reference)
 
 
-def test_a_search_file_refuses_a_changed_search_or_thresholds(searched, tmp_path):
+def test_a_search_file_refuses_changed_thresholds_or_a_narrower_search(searched, tmp_path):
     study, output, _, _ = searched
-    changed = study_from_toml(study.source.replace("rel_tol = 0.25", "rel_tol = 0.1"))
     stricter = study_from_toml(study.source + "[analysis]\nmin_cycles = 5\n")
-    assert len({study.fingerprint, changed.fingerprint, stricter.fingerprint}) == 3
-    with pytest.raises(ConfigError, match="different version"):
-        run_campaign(changed, output, resume=True)
+    assert stricter.fingerprint != study.fingerprint
+    with pytest.raises(ConfigError, match=r"different version of study 'search': the \[analysis\] thresholds"):
+        run_campaign(stricter, output, resume=True)
+    narrower = study_from_toml(study.source.replace("low = 30.0", "low = 40.0"))
+    with pytest.raises(ConfigError, match=r"the search narrowed \(low 30 -> 40\)"):
+        run_campaign(narrower, output, resume=True)
+    longer = study_from_toml(study.source.replace("t_end = 1.5", "t_end = 2"))
+    with pytest.raises(ConfigError, match="the time rules"):
+        run_campaign(longer, output, resume=True)
+
+
+def test_a_search_grows_by_a_tighter_tolerance_a_wider_range_and_a_new_point(searched, tmp_path):
+    """rel_tol 0.25 -> 0.1, high 120 -> 240 and psi_bar 0.5 added: the searches continue in the same
+    file from the cases they ran, which stay bit for bit and keep their ids and searches."""
+    from jobs import _same, results
+
+    study, reference, summary, _ = searched
+    output = tmp_path / "search.h5"
+    shutil.copy(reference, output)
+    text = (study.source.replace("rel_tol = 0.25", "rel_tol = 0.1").replace("high = 120.0", "high = 240.0")
+            .replace("psi_bar = [0.0, 0.3]", "psi_bar = [0.0, 0.3, 0.5]"))
+    grown = study_from_toml(text.replace(str(reference), str(output)))
+    said = []
+    again = run_campaign(grown, output, resume=True, announce=lambda line, *_: said.append(line))
+    assert again.exit_status == 0
+    assert any("the study grew: high 120 -> 240; rel_tol 0.25 -> 0.1; 1 new search (psi_bar += 0.5)" in line
+               for line in said), said
+    before, after = results(reference), results(output)
+    n = len(summary.ran)
+    assert len(after) > n and all(_same(before[c], after[c]) for c in before if c.startswith("0"))
+    with h5py.File(output, "r") as f:
+        assert list(f["searches/psi_bar"][:]) == [0.0, 0.3, 0.5]
+        searches = list(f["index/search"][:])
+        assert searches[:n] == list(h5py.File(reference, "r")["index/search"][:n])
+        assert 2 in searches[n:]
+    homogeneous, mixed, new = again.searches
+    assert homogeneous.state.status == UNBRACKETED and "S_C > 240" in homogeneous.state.reason   # was > 120
+    assert mixed.state.status == CONVERGED and mixed.state.high / mixed.state.low - 1 <= 0.1
+    assert mixed.state.low >= summary.searches[1].state.low and mixed.state.high <= summary.searches[1].state.high
+    assert new.point["psi_bar"] == 0.5 and new.regimes
 
 
 @pytest.mark.parametrize("text, message", [

@@ -58,6 +58,7 @@ from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
     remove_partial, require_space, size_text
 from hpcves.campaign.file import CampaignFile
+from hpcves.campaign.growth import Growth, growth
 from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
                          FileFormatError,
                          open_file, reading, refuse_unopenable, storage_bytes)
@@ -116,9 +117,10 @@ class Summary:
         return 2 if self.not_written else 1 if self.failed else 0
 
 
-def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> str:
+def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> tuple[str, Growth | None]:
     """Decide, on rank 0 holding the file's lock, whether to create the file or continue it; refuse
-    bad files, damaged cases and what the disk has no room for. Returns "create" or "continue".
+    bad files, damaged cases and what the disk has no room for. Returns ("create", None) or
+    ("continue", how the study continues in the file: growth.py).
 
     A leftover ``.partial`` (a creation, stage or analysis cut short) is removed. With ``overwrite``
     an existing file is only replaced once its successor is complete.
@@ -130,13 +132,16 @@ def prepare_file(study: Study, path: Path, *, resume: bool, overwrite: bool) -> 
             raise FileFormatError(f"{path}: exists already; use --resume to continue it or --overwrite to "
                                   "start over")
         _drop_partial_stage(path)
-        check_file(study, path)
-        return "continue"
+        grown = check_file(study, path)
+        if grown.new:
+            require_space(path, file_bytes(grown.study),
+                          f"a copy of the campaign file with the {len(grown.new)} cases the study adds")
+        return "continue", grown
     needed = file_bytes(study)
     replaced = " (the old file is replaced only once the new one is complete)" if path.exists() else ""
     require_space(path, needed, f"the campaign file ({len(study.cases)} cases, every sample and snapshot "
                                 f"preallocated){replaced}")
-    return "create"
+    return "create", None
 
 
 def _drop_partial_stage(path: Path) -> None:
@@ -155,17 +160,19 @@ def _drop_partial_stage(path: Path) -> None:
                     "them again", path, dropped, "s" * (dropped != 1))
 
 
-def check_file(study: Study, path: Path) -> None:
-    """Refuse a file to continue that is not this study's, or holds a damaged case (each one named)."""
+def check_file(study: Study, path: Path) -> Growth:
+    """How ``study`` continues in the file (growth.py); refuse a file that is not this study's, or holds
+    a damaged case (each one named)."""
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
-        campaign.check_study(study, str(path))
-        damaged = campaign.damaged(study)
+        grown = growth(study, campaign, str(path))
+        damaged = campaign.damaged(grown.study)
     if damaged:
         shown = "; ".join(f"case {case_id}: {problems[0]}" for case_id, problems in damaged[:3])
         more = f"; {len(damaged) - 3} more" if len(damaged) > 3 else ""
         raise FileFormatError(f"{path}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)}, not resumed "
                               f"({shown}{more}); hpcves status lists them; --overwrite starts the study over")
+    return grown
 
 
 def work_list(statuses: dict[str, int], study: Study, retry_failed: bool) -> list[tuple[str, bool]]:
@@ -522,7 +529,8 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
         verdict = bcast(comm, verdict)
     if verdict[0] == "error":
         raise FileFormatError(verdict[1])
-    mode = verdict[1]
+    mode, grown = verdict[1]
+    study = grown.study if grown is not None else study
     try:
         if rank > 0:
             refused = ""
@@ -534,6 +542,13 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
             problems = [p for p in comm.allgather(refused if rank > 0 else "") if p]
             if problems:
                 raise LockError(problems[0])
+        if grown is not None and grown.grows:
+            if rank == 0:
+                announce(f"{path}: the study grew: {'; '.join(grown.changes)}; its computed cases are kept",
+                         None, (0, 0))
+            refused = _grow(path, comm, grown)
+            if refused:
+                raise StorageError(refused)
         return _run_locked(study, path, comm, mode, access, start, retry_failed, stop_flag, display, announce,
                            on_stage)
     finally:
@@ -687,6 +702,17 @@ def _add_stage(path: Path, comm, cases, stage: int, source: str) -> str:
 
     return _change(path, comm, reserve, lambda h5: CampaignFile(h5).add_cases(cases, source),
                    f"cannot add stage {stage}'s cases", "the file is unchanged")
+
+
+def _grow(path: Path, comm, grown: Growth) -> str:
+    """Make the file the grown study's (growth.py): its fingerprint and text, a search's list of searches,
+    and a grid's new cases laid out, in a copy that replaces the file; "" or why it could not be."""
+    def reserve():
+        copy_for_change(path, sum(storage_bytes(c.case) for c in grown.new),
+                        f"adding the {len(grown.new)} cases the study grew by")
+
+    return _change(path, comm, reserve, lambda h5: CampaignFile(h5).grow(grown.study, grown.new),
+                   "cannot grow it to the study", "the file is unchanged")
 
 
 def _change(path: Path, comm, reserve, change, cannot: str, after: str) -> str:

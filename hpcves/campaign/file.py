@@ -133,6 +133,20 @@ class CampaignFile:
         campaign.add_cases(study.cases)
         return campaign
 
+    def grow(self, study: Study, new) -> None:
+        """Make this the file of ``study``, a study grown from its own (campaign/growth.py): its
+        fingerprint and text, its searches (a search study: the file's first, then the new ones),
+        and its ``new`` cases laid out (one process: rank 0, on a copy that then replaces the file)."""
+        if study.search:
+            searches = self.h5["searches"]
+            for key in list(searches):
+                del searches[key]
+            for key in study.sweep:
+                searches.create_dataset(key, data=np.array([p[key] for p in study.searches], dtype="f8"))
+        self.add_cases(new)
+        self.h5.attrs["campaign_toml"] = study.source
+        self.h5.attrs["fingerprint"] = study.fingerprint
+
     def add_cases(self, cases, source: str | None = None) -> None:
         """Lay out new cases and append them to the index (one process: rank 0); with ``source``,
         the campaign file's text replaces the stored one where it differs (a refinement continued
@@ -250,17 +264,6 @@ class CampaignFile:
             if key not in h5["index"] or h5["index"][key].shape[:1] < (n,):
                 raise FileFormatError(f"{where}: index/{key} is missing or shorter than the {n} cases")
         return cls(h5)
-
-    def check_study(self, study: Study, where: str) -> None:
-        """Refuse a file that belongs to another study (or another version of this one)."""
-        if self.fingerprint != study.fingerprint:
-            other = attr_text(self.h5.attrs.get("name", "?"))
-            detail = (f"study {other!r}" if other != study.name
-                      else f"a different version of study {other!r} (some parameter or sweep value changed; files "
-                            "from before physics.bending_law ran the linear law: bending_law = \"linear\" in "
-                            "[physics] resumes them)")
-            raise FileFormatError(f"{where}: belongs to {detail}, not to this campaign file; "
-                                  "use another output file, or --overwrite to start over")
 
     # ------------------------------------------------------------------ contents
     @property
