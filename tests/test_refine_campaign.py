@@ -230,6 +230,38 @@ def test_verdict_codes_name_every_regime_and_reason_to_run_again():
     assert [Verdict.from_code(c) for c in (-1.0, float("nan"), 1.5, 4 * len(VERDICT_REGIMES))] == [None] * 4
 
 
+def test_a_refinement_grows_by_a_new_value_of_a_key_that_is_not_an_axis(refined, tmp_path):
+    """B2 = 0.15 put before 0.1, 0.2: a third refinement, numbered after the file's two, which keep their
+    cases bit for bit; the same study resumed again (sweep order unlike the file's) runs nothing."""
+    from jobs import _same, results
+
+    study, reference, summary, _ = refined
+    output = tmp_path / "refine.h5"
+    shutil.copy(reference, output)
+    text = study.source.replace("B2 = [0.1, 0.2]", "B2 = [0.15, 0.1, 0.2]").replace(str(reference), str(output))
+    grown = study_from_toml(text)
+    said = []
+    again = run_campaign(grown, output, resume=True, announce=lambda line, *_: said.append(line))
+    assert again.exit_status == 0 and again.ran
+    assert any("the study grew: 1 new refinement (B2 += 0.15)" in line for line in said), said
+    before, after = results(reference), results(output)
+    assert all(_same(before[c], after[c]) for c in before if c.startswith("0"))
+    with h5py.File(output, "r") as f:
+        assert list(f["refinements/B2"][:]) == [0.1, 0.2, 0.15]
+        assert set(f["index/search"][len(summary.ran):]) == {2}
+    old = {o.point["B2"]: o.regimes for o in summary.searches}
+    assert [o.point["B2"] for o in again.searches] == [0.1, 0.2, 0.15]
+    assert all(o.regimes == old[o.point["B2"]] for o in again.searches[:2])
+    assert again.searches[2].state.status == CONVERGED
+    said.clear()
+    once_more = run_campaign(grown, output, resume=True, announce=lambda line, *_: said.append(line))
+    assert once_more.ran == () and not any("grew" in line for line in said)
+    assert [o.point["B2"] for o in once_more.searches] == [0.1, 0.2, 0.15]
+    coarser = study_from_toml(text.replace("shear_rate = [30.0, 120.0]", "shear_rate = [20.0, 120.0]"))
+    with pytest.raises(ConfigError, match=r"its axes' values, the coarse grid \(shear_rate"):
+        run_campaign(coarser, output, resume=True)
+
+
 def test_the_datatree_of_a_refine_file_holds_its_refinements_and_boundaries(refined, tmp_path):
     """open_campaign(tree=True) of an analysed refine file: refinement.csv and boundaries.csv as Datasets."""
     _, reference, summary, _ = refined

@@ -135,14 +135,15 @@ class CampaignFile:
 
     def grow(self, study: Study, new) -> None:
         """Make this the file of ``study``, a study grown from its own (campaign/growth.py): its
-        fingerprint and text, its searches (a search study: the file's first, then the new ones),
+        fingerprint and text, its searches or refinements (the file's first, then the new ones),
         and its ``new`` cases laid out (one process: rank 0, on a copy that then replaces the file)."""
-        if study.search:
-            searches = self.h5["searches"]
-            for key in list(searches):
-                del searches[key]
-            for key in study.sweep:
-                searches.create_dataset(key, data=np.array([p[key] for p in study.searches], dtype="f8"))
+        for name, points in (("searches", study.searches), ("refinements", study.refinements)):
+            if points:
+                group = self.h5[name]
+                for key in list(group):
+                    del group[key]
+                for key in (study.sweep if name == "searches" else points[0]):
+                    group.create_dataset(key, data=np.array([p[key] for p in points], dtype="f8"))
         self.add_cases(new)
         self.h5.attrs["campaign_toml"] = study.source
         self.h5.attrs["fingerprint"] = study.fingerprint

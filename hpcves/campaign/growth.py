@@ -10,8 +10,9 @@ for bit:
   matched to the study's by their parameters, so their ids stay what they were);
 * a search: a wider range (low lower, high higher), a tighter ``rel_tol``, a larger
   ``max_cases``, other ``points``, new sweep values (new searches, numbered after the file's);
-* a refinement: a larger ``max_cases`` or a lower ``min_resize_tail`` (which its fingerprint leaves
-  out already: nothing to do here).
+* a refinement: new values of the swept keys that are not its axes (new refinements, numbered
+  after the file's); a larger ``max_cases`` or a lower ``min_resize_tail`` its fingerprint leaves
+  out already. Its axes' values make the coarse grid its cells refine: not a growth.
 
 :func:`growth` says which, on rank 0, from the file's cases and the study text it keeps.
 """
@@ -42,6 +43,8 @@ class Growth:
 def growth(study: Study, campaign, where: str) -> Growth:
     """How ``study`` continues in the open campaign file ``campaign``; FileFormatError where it is
     another study, or another version of this one (what changed is named)."""
+    if study.mode == "refine" and campaign.mode == "refine" and campaign.name == study.name:
+        return _refine(study, campaign, where)          # its refinements in the file's order, always
     if campaign.fingerprint == study.fingerprint:
         return Growth(study)
     other = campaign.name
@@ -50,9 +53,7 @@ def growth(study: Study, campaign, where: str) -> Growth:
                               f"({study.name!r}, {study.mode}); use another output file, or --overwrite to start over")
     if study.mode == "grid":
         return _grid(study, campaign, where)
-    if study.mode == "search":
-        return _search(study, campaign, where)
-    raise _changed(study.name, where, "its parameters, time rules, refinement plane or thresholds")
+    return _search(study, campaign, where)
 
 
 def _changed(name: str, where: str, what: str) -> FileFormatError:
@@ -188,3 +189,30 @@ def _search(study: Study, campaign, where: str) -> Growth:
     if not changes and grown.fingerprint != campaign.fingerprint:
         changes.append("the study file's text")
     return Growth(grown, (), tuple(changes))
+
+
+def _refine(study: Study, campaign, where: str) -> Growth:
+    keys = list(study.refinements[0])
+    group = campaign.h5["refinements"]
+    if sorted(group) != sorted(keys):
+        raise _changed(study.name, where, f"the swept keys ({', '.join(sorted(group))} -> {', '.join(keys)})")
+    points = [dict(zip(keys, (float(v) for v in values))) for values in zip(*(group[k][:] for k in keys))]
+    if campaign.fingerprint == study.fingerprint and points == list(study.refinements):
+        return Growth(study)
+    lost = [p for p in points if p not in study.refinements]
+    if lost:
+        raise _changed(study.name, where,
+                       f"the sweep: its refinement at {lost[0]} is not in the study (a value removed?)")
+    old = _file_study(campaign, where)
+    as_before = dataclasses.replace(study, sweep={**study.sweep, **{k: old.sweep[k] for k in keys}})
+    if as_before.fingerprint != campaign.fingerprint:
+        found = [f"{k}: {old.sweep[k]} -> {study.sweep[k]}" for k in study.refine.axes if old.sweep[k] != study.sweep[k]]
+        raise _changed(study.name, where, ("its axes' values, the coarse grid (" + "; ".join(found) + ")") if found
+                       else "its base case, time rules, [refine] plane or [analysis] thresholds")
+    added = [p for p in study.refinements if p not in points]
+    grown = dataclasses.replace(study, refinements=tuple(points + added))
+    changes = (f"{len(added)} new refinement{'s' * (len(added) != 1)} ({_added(old.sweep, study.sweep)})",) \
+        if added else ()
+    if not changes and grown.fingerprint != campaign.fingerprint:
+        changes = ("the study file's text",)
+    return Growth(grown, (), changes)
