@@ -43,14 +43,14 @@ class Growth:
 def growth(study: Study, campaign, where: str) -> Growth:
     """How ``study`` continues in the open campaign file ``campaign``; FileFormatError where it is
     another study, or another version of this one (what changed is named)."""
-    if study.mode == "refine" and campaign.mode == "refine" and campaign.name == study.name:
-        return _refine(study, campaign, where)          # its refinements in the file's order, always
-    if campaign.fingerprint == study.fingerprint:
-        return Growth(study)
     other = campaign.name
     if other != study.name or campaign.mode != study.mode:
         raise FileFormatError(f"{where}: belongs to study {other!r} ({campaign.mode}), not to this campaign file "
                               f"({study.name!r}, {study.mode}); use another output file, or --overwrite to start over")
+    if study.mode == "refine":
+        return _refine(study, campaign, where)          # its refinements in the file's order, always
+    if campaign.fingerprint == study.fingerprint:
+        return Growth(study)
     if study.mode == "grid":
         return _grid(study, campaign, where)
     return _search(study, campaign, where)
