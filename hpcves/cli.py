@@ -875,8 +875,12 @@ def _case_selection(which: str):
               help="Case figures without the streamlines around the shapes (about 2 s a case less).")
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
               help="Processes that draw the case figures.")
+@click.option("--markers", is_flag=True,
+              help="Draw the cases as markers on the figures for a paper too (a search's or refinement's "
+                   "phase diagrams; phase_diagram*_cases always shows every case).")
 @clean_errors
-def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_figures, no_streamlines, jobs):
+def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_figures, no_streamlines, jobs,
+                    markers):
     """Regimes (TT / PT / TU / undecided), periods, tables and figures of a campaign or run file.
 
     Writes regimes.csv, regimes.md, periods.md, phase diagrams and period
@@ -898,7 +902,8 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
     try:
         report = analyze(file, out, overrides=parse_overrides(overrides), write_to_file=not no_write_back,
                          case_figures="none" if no_case_figures else _case_selection(which), axes=axes_pair,
-                         streamlines=not no_streamlines, jobs=jobs, progress=lambda text: line.due(0.2) and line.show(text))
+                         streamlines=not no_streamlines, jobs=jobs, markers=markers,
+                         progress=lambda text: line.due(0.2) and line.show(text))
     finally:
         line.close()
     rows = report.rows

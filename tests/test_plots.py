@@ -113,21 +113,57 @@ def test_the_velocity_panel_leaves_a_few_spikes_off_its_scale_and_says_so():
         plt.close(fig)
 
 
-def test_regions_fall_to_the_nearest_case_on_each_axis_scale():
-    rows = [_row(regime, S, psi) for S, regime in ((5.0, "TT"), (20.0, "PT"), (80.0, "PT"))
-            for psi in (0.3, 0.5)]
-    rows[1] = _row("undecided", 5.0, 0.5)
-    S = np.array([6.0, 9.9, 10.1, 39.0, 41.0])          # log axis: the 5 | 20 edge is at 10, 20 | 80 at 40
-    psi = np.array([0.35, 0.45])
-    codes = plots.region_map(rows, "shear_rate", "psi_bar", S, psi, x_log=True, y_log=False)
-    tt, pt = plots.SHADED.index("TT"), plots.SHADED.index("PT")
-    assert codes.tolist() == [[tt, tt, pt, pt, pt], [-1, -1, pt, pt, pt]]
-    # a search's rows keep their own edges: S_C = 12 at psi = 0.3, 50 at psi = 0.5
-    search = [_row("TT", 11.0, 0.3), _row("PT", 13.0, 0.3), _row("TT", 45.0, 0.5), _row("PT", 55.0, 0.5),
-              _row("TT", 4.0, 0.5)]
-    codes = plots.region_map(search, "shear_rate", "psi_bar", np.array([11.5, 12.5, 30.0, 49.0, 51.0]),
-                             np.array([0.32, 0.48]), x_log=True, y_log=False)
-    assert codes.tolist() == [[tt, pt, pt, pt, pt], [tt, tt, tt, tt, pt]]
+def test_a_region_is_drawn_only_where_the_cases_around_it_agree():
+    """The demo's 3 x 2 grid (TT at S = 10, 40 and psi_bar = 0.3, PT elsewhere) was shaded by the nearest
+    case: a TT rectangle ending at S = 60, psi_bar = 0.4, where no case was. Now a rectangle is filled
+    only where its four corner cases share a regime; a search's rows fill the stretches both share."""
+    from hpcves.analysis.regions import row_intervals, row_regions
+
+    demo = [_row(regime, S, psi) for S, psi, regime in ((10, 0.3, "TT"), (40, 0.3, "TT"), (80, 0.3, "PT"),
+                                                         (10, 0.5, "PT"), (40, 0.5, "PT"), (80, 0.5, "PT"))]
+    assert plots.decided_regions(demo, "shear_rate", "psi_bar") == []
+    grid = demo + [_row(regime, S, 0.1) for S, regime in ((10, "TT"), (40, "TT"), (80, "undecided"))]
+    assert plots.decided_regions(grid, "shear_rate", "psi_bar") == [((10, 40, 0.1, 0.3), "TT")]
+    # a point run twice with different regimes (two starts) decides nothing
+    assert plots.decided_regions(grid + [_row("PT", 10, 0.1)], "shear_rate", "psi_bar") == []
+    assert row_intervals([(4, "TT"), (11, "TT"), (13, "PT"), (20, "PT"), (30, "undecided"), (40, "PT")]) == [
+        (4, 11, "TT"), (13, 20, "PT")]
+    # two searches, S_C in (11, 13) at psi_bar = 0.3 and in (45, 55) at 0.5: TT below both brackets,
+    # PT above both, the white between them holding the boundary
+    search = {(4.0, 0.3): "TT", (11.0, 0.3): "TT", (13.0, 0.3): "PT", (100.0, 0.3): "PT",
+              (4.0, 0.5): "TT", (45.0, 0.5): "TT", (55.0, 0.5): "PT", (100.0, 0.5): "PT"}
+    assert row_regions(search) == [((4.0, 11.0, 0.3, 0.5), "TT"), ((55.0, 100.0, 0.3, 0.5), "PT")]
+    flipped = {(y, x): outcome for (x, y), outcome in search.items()}
+    assert row_regions(flipped, rows_along_x=False) == [((0.3, 0.5, 4.0, 11.0), "TT"), ((0.3, 0.5, 55.0, 100.0), "PT")]
+
+
+def test_a_refinement_fills_the_cells_its_corners_decide():
+    """refine.regions: the coarse cells split as the refinement split them; mixed cells stay white."""
+    from hpcves.analysis.refine import RefineSettings, Axis, regions
+
+    settings = RefineSettings(x=Axis("shear_rate", (10.0, 40.0), 0.8, log=True), y=Axis("psi_bar", (0.3, 0.5), 0.25),
+                              max_cases=20)
+    tt = {(10.0, 0.3): "TT", (10.0, 0.5): "TT", (40.0, 0.3): "TT", (40.0, 0.5): "TT"}
+    assert regions(settings, tt) == [((10.0, 40.0, 0.3, 0.5), "TT")]
+    mixed = {**tt, (40.0, 0.5): "PT"}
+    assert regions(settings, mixed) == []                      # a mixed cell whose split has not run yet
+    split = {**mixed, (20.0, 0.3): "TT", (20.0, 0.5): "TT"}
+    assert regions(settings, split) == [((10.0, 20.0, 0.3, 0.5), "TT")]    # the half with TT corners only
+
+
+def test_the_paper_diagram_is_a_column_wide_vector_figure(tmp_path):
+    rows = [_row(regime, S, psi) for S, psi, regime in ((10, 0.3, "TT"), (40, 0.3, "TT"), (10, 0.5, "TT"),
+                                                         (40, 0.5, "PT"))]
+    fig = plots.paper_diagram(rows, "shear_rate", "psi_bar", [((10, 40, 0.3, 0.4), "TT")],
+                              lines=[[(30, 0.5), (40, 0.45)]], log_keys={"shear_rate"})
+    assert tuple(fig.get_size_inches()) == (plots.PAPER_WIDTH, 0.8 * plots.PAPER_WIDTH)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log" and ax.get_xlim()[0] < 10 and ax.get_xlim()[1] > 40
+    assert not ax.collections                                   # no markers unless asked for
+    fig.savefig(tmp_path / "p.pdf")
+    assert b"/Subtype /Image" not in (tmp_path / "p.pdf").read_bytes()     # nothing rasterised
+    marked = plots.paper_diagram(rows, "shear_rate", "psi_bar", [], markers=True)
+    assert sum(len(c.get_offsets()) for c in marked.axes[0].collections) == 4
 
 
 def test_the_critical_curve_breaks_where_a_search_did_not_converge():

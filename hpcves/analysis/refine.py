@@ -503,3 +503,32 @@ def polylines(settings: RefineSettings, results: dict, cells=None) -> list[tuple
             seen.add(nearest)
         lines.append((found[start].pair, [found[k] for k in line]))
     return lines
+
+
+# ---------------------------------------------------------------------- decided regions (the figures)
+def regions(settings: RefineSettings, results: dict) -> list[tuple[tuple, str]]:
+    """The cells that the cases around them decide: every cell of the coarse grid, split as the
+    refinement split it, whose four corners have been run and whose known points (corners, edges,
+    inside) all share one decided outcome -- as ((x0, x1, y0, y1) in parameter values, outcome).
+    Mixed cells, and cells with a corner not run, are left out: the boundaries lie in them."""
+    known = _coordinates(settings, results)
+    outcomes = [(ux, uy, results[p]) for ux, uy, p in known]
+    xs = [settings.x.u(v) for v in settings.x.values]
+    ys = [settings.y.u(v) for v in settings.y.values]
+    todo = [Cell(a, b, c, d) for a, b in zip(xs, xs[1:]) for c, d in zip(ys, ys[1:])]
+    out = []
+    while todo:
+        cell = todo.pop()
+        corners = cell.corners(settings)
+        if not all(p in results for p in corners):
+            continue
+        found = _outcomes_on(cell, settings, outcomes)
+        if not _mixed(found):
+            (x0, y0), (x1, y1) = point(settings, cell.x0, cell.y0), point(settings, cell.x1, cell.y1)
+            out.append(((x0, x1, y0, y1), found.pop()))
+            continue
+        splits = _splits(cell, settings, results, known)
+        if any(splits):
+            todo.extend(cell.halves(*splits))
+    out.sort(key=lambda r: (r[0][0], r[0][2]))
+    return out

@@ -8,6 +8,7 @@ case, docs/file-format.md) and into ``regimes.csv`` / ``regimes.md`` and
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import time
@@ -446,9 +447,11 @@ def parse_overrides(items) -> dict:
 
 
 def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file: bool = True,
-            case_figures="auto", axes=None, progress=None, streamlines: bool = True, jobs: int = 1) -> Report:
+            case_figures="auto", axes=None, progress=None, streamlines: bool = True, jobs: int = 1,
+            markers: bool = False) -> Report:
     """Classify every case of ``path``; write the tables and figures to ``out_dir`` (default:
-    ``<file>_analysis`` next to it) and the results back into the file.
+    ``<file>_analysis`` next to it) and the results back into the file. ``markers``: the cases drawn
+    on the figures for a paper too (a search's or refinement's phase diagrams).
 
     ``case_figures``: whose one-page figures to draw -- "auto" (every case's up to 100 cases, else the first
     100 flagged ones'), True or "all", False or "none", "flagged" (the cases without a regime), or a
@@ -466,7 +469,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
     try:
         written, searches, refinements = _write_outputs(source, rows, out, axes, case_figures, progress,
-                                                        streamlines, jobs)
+                                                        streamlines, jobs, markers)
     except OSError as exc:
         where = exc.filename or out
         raise StorageError(f"{where}: cannot write the tables and figures ({exc.strerror or exc}); "
@@ -491,6 +494,7 @@ class Findings:
     refined: list               # RefineOutcome of every refinement (refine campaigns)
     study: object = None        # the Study of a refine or search campaign
     lines: list = ()            # boundaries.csv rows (refine campaigns)
+    markers: bool = False       # the cases as markers on the figures for a paper too
 
     @property
     def diagrams(self) -> bool:
@@ -579,9 +583,13 @@ def period_table(f: Findings, out: Path) -> list[Path]:
 
 
 def phase_diagrams(f: Findings, out: Path) -> list[Path]:
-    """The regimes over the plane, one per facet (a point drawn by its last run), with the critical shear
-    rates of a search or the boundaries of a refinement drawn over them; for a grid also the periods
-    against its rows."""
+    """The regimes over the plane, one per facet (a point drawn by its last run). A grid: every case
+    drawn over the regions its cases decide, and the periods against its rows. A search or a
+    refinement: the figure for a paper (plots.paper_diagram: the decided regions filled, the critical
+    values or the traced boundaries through the white between them, a journal column wide; the cases
+    as markers with ``f.markers``), and ``phase_diagram*_cases``, every case drawn with the critical
+    rates or the boundaries over them."""
+    from hpcves.analysis.refine import regions as refined_regions
     from hpcves.reports import plots
 
     if not f.diagrams:
@@ -591,22 +599,64 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
     for fixed, subset in facets([r for r in f.rows if r["case"] not in repeated], f.others):
         suffix = facet_suffix(fixed)
         title = plots.parameter_text(shared_parameters(subset, (f.x_key, f.y_key)))
+        mine = lambda rows: [r for r in rows if all(r[k] == v for k, v in fixed.items() if k in r)]  # noqa: E731
+        regions = None
+        if f.refined and {f.x_key, f.y_key} == set(f.study.refine.axes):
+            regions = [region for o in f.refined if all(o.point.get(k, v) == v for k, v in fixed.items())
+                       for region in _oriented(refined_regions(o.settings, o.regimes), o.settings, f.x_key)]
         fig = plots.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
-                                  nearest="point" if f.refined else "row",
+                                  regions=regions,
                                   log_keys=f.study.refine_settings.log_keys() if f.refined else None)
         along = f.study.search.along if f.searches else None
         if f.searches and along in (f.x_key, f.y_key):
-            plots.mark_critical(fig.axes[0], [r for r in f.searches if all(r[k] == v for k, v in fixed.items())],
-                                f.y_key if f.x_key == along else f.x_key, s_on_x=f.x_key == along, along=along)
-        if f.refined and {f.x_key, f.y_key} == set(f.study.refine.axes):
-            plots.mark_boundaries(fig.axes[0], [r for r in f.lines if all(r[k] == v for k, v in fixed.items()
-                                                                          if k in r)],      # a start: every one's
-                                  f.x_key, f.y_key)
-        written += _save(fig, out / f"phase_diagram{suffix}")
-        cells = len({r[f.x_key] for r in subset}) * len({r[f.y_key] for r in subset})
-        if f.source.mode == "grid" and cells <= MAX_PERIOD_CELLS:
-            written += _save(plots.period_figure(subset, f.y_key, f.x_key, title=title), out / f"periods{suffix}")
+            plots.mark_critical(fig.axes[0], mine(f.searches), f.y_key if f.x_key == along else f.x_key,
+                                s_on_x=f.x_key == along, along=along)
+        if regions is not None:
+            plots.mark_boundaries(fig.axes[0], mine(f.lines), f.x_key, f.y_key)      # a start: every one's
+        if f.source.mode == "grid":
+            written += _save(fig, out / f"phase_diagram{suffix}")
+            cells = len({r[f.x_key] for r in subset}) * len({r[f.y_key] for r in subset})
+            if cells <= MAX_PERIOD_CELLS:
+                written += _save(plots.period_figure(subset, f.y_key, f.x_key, title=title), out / f"periods{suffix}")
+            continue
+        written += _save(fig, out / f"phase_diagram{suffix}_cases")
+        paper = _paper_figure(f, subset, mine, regions, title)
+        if paper is not None:
+            written += _save(paper, out / f"phase_diagram{suffix}", dpi=300)
     return written
+
+
+def _oriented(regions, settings, x_key: str):
+    """A refinement's regions with x the diagram's x (its axes may be the other way round)."""
+    if settings.x.key == x_key:
+        return regions
+    return [((y0, y1, x0, x1), regime) for (x0, x1, y0, y1), regime in regions]
+
+
+def _paper_figure(f: Findings, subset: list[dict], mine, regions, title: str):
+    """plots.paper_diagram of a search's or a refinement's facet (None: its plane is not the one searched
+    or refined)."""
+    from hpcves.reports import plots
+
+    log_keys = set(plots.LOG_KEYS) | (set(f.study.refine_settings.log_keys()) if f.refined else set())
+    if regions is not None:
+        lines = {}
+        for r in sorted(mine(f.lines), key=lambda r: (r["line"], r["order"])):
+            lines.setdefault(r["line"], []).append((r[f.x_key], r[f.y_key]))
+        return plots.paper_diagram(subset, f.x_key, f.y_key, regions, lines=list(lines.values()), markers=f.markers,
+                                   log_keys=log_keys, title=title)
+    along = f.study.search.along if f.searches else None
+    if along not in (f.x_key, f.y_key):
+        return None
+    other = f.y_key if f.x_key == along else f.x_key
+    column = f.study.search.column
+    place = (lambda v, y: (v, y)) if f.x_key == along else (lambda v, y: (y, v))     # noqa: E731
+    converged = sorted((r for r in mine(f.searches) if np.isfinite(r[column])), key=lambda r: r[other])
+    brackets = [(place(r["bracket_low"], r[other]), place(r["bracket_high"], r[other])) for r in converged]
+    line = [place(r[column], r[other]) for r in converged]
+    return plots.paper_diagram(subset, f.x_key, f.y_key, plots.decided_regions(subset, f.x_key, f.y_key),
+                               lines=[line] if len(line) > 1 else [], brackets=brackets, markers=f.markers,
+                               log_keys=log_keys, title=title)
 
 
 #: the period figure (a table drawn cell by cell, 1.6 x 0.8 inches a cell) is drawn up to this many cells;
@@ -718,11 +768,11 @@ WRITERS = (regime_tables, refinement_tables, critical_shear_tables, critical_she
 
 
 def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,
-                   streamlines: bool = True, jobs: int = 1):
+                   streamlines: bool = True, jobs: int = 1, markers: bool = False):
     """The tables and figures of an analysis into ``out`` (every writer of WRITERS, then the case
     pages asked for): (paths written, critical_shear rows, refinement rows)."""
     out.mkdir(parents=True, exist_ok=True)
-    found = findings(source, rows, axes)
+    found = dataclasses.replace(findings(source, rows, axes), markers=markers)
     written = [path for writer in WRITERS for path in writer(found, out)]
     pages = {r["case"] for r in case_pages.chosen(rows, case_figures)}
     if pages:
@@ -733,11 +783,11 @@ def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figur
     return written, found.searches, [o.row() for o in found.refined]
 
 
-def _save(fig, stem: Path) -> list[Path]:
-    """Save a figure as PNG and PDF."""
+def _save(fig, stem: Path, dpi: int = 150) -> list[Path]:
+    """Save a figure as PNG (at ``dpi``) and PDF (vector)."""
     paths = [stem.with_name(f"{stem.name}.{ext}") for ext in ("png", "pdf")]
     for path in paths:
-        fig.savefig(path, dpi=150)
+        fig.savefig(path, dpi=dpi)
     return paths
 
 

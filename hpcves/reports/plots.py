@@ -308,19 +308,26 @@ def parameter_text(fixed: dict) -> str:
 AXIS_LABELS = {key: name.axis for key, name in PARAMETER_NAMES.items()}
 
 
-def _log_scale(values) -> bool:
+#: parameters whose effect goes with their logarithm: on a log axis wherever they are positive
+LOG_KEYS = ("shear_rate", "viscosity_ratio")
+
+
+def _log_scale(values, key: str = "") -> bool:
     values = np.asarray(sorted(set(values)), dtype=float)
+    if values.size >= 2 and values.min() > 0 and key in LOG_KEYS:
+        return True
     return values.size >= 3 and values.min() > 0 and values.max() / values.min() >= 20
 
 
 @matplotlib.rc_context({"font.size": 14})          # readable in a talk; the caller's settings are restored
 def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", annotate_periods: bool = True,
-                  nearest: str = "row", log_keys=None):
-    """Regimes over two swept parameters: one marker per case, coloured by regime;
+                  regions=None, log_keys=None):
+    """Regimes over two swept parameters, every case drawn: one marker per case, coloured by regime;
     undecided cases are grey crosses, model-limit ones purple diamonds, failed ones black crosses;
-    PT/TU points carry their period; the legend beside the axes. The regions are shaded by the
-    nearest case (region_map: ``nearest`` "row" for grids and searches, "point" for refined maps).
-    ``log_keys``: the parameters drawn on a log axis (default: those swept over a factor of 20 or more)."""
+    PT/TU points carry their period; the legend beside the axes. Shaded: the ``regions`` that the
+    cases decide (default: :func:`decided_regions`; a refinement passes its cells), never beyond them.
+    ``log_keys``: the parameters drawn on a log axis (default: the shear rate and the viscosity
+    ratio, and any other swept over a factor of 20 or more)."""
     fig = Figure(figsize=(10, 6), constrained_layout=True)
     ax = fig.subplots()
     size = 140 if len(rows) <= 60 else 50                      # a refined map has hundreds of points
@@ -339,7 +346,7 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
                                 xytext=(0, 9), ha="center", fontsize=9)
     for axis, key in ((ax.xaxis, x_key), (ax.yaxis, y_key)):
         values = sorted({r[key] for r in rows})
-        if (key in log_keys) if log_keys is not None else _log_scale(values):
+        if (key in log_keys) if log_keys is not None else _log_scale(values, key):
             (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
             if log_keys is None and len(values) <= MAX_SWEEP_TICKS:   # ticks at the swept values
                 axis.set_ticks(values, [f"{v:g}" for v in values])
@@ -349,7 +356,7 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)
-    shade_regions(ax, rows, x_key, y_key, nearest=nearest)
+    fill_regions(ax, decided_regions(rows, x_key, y_key) if regions is None else regions)
     _legend_outside(ax)
     if title:
         ax.set_title(title, fontsize=13)
@@ -357,8 +364,8 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
 
 
 def plain_log_ticks(axis) -> None:
-    """Major ticks of a log axis at 1, 2, 5, 10, 20, ..., written as numbers, not 10^1 and 10^2; no minor ones."""
-    axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+    """Major ticks of a log axis at 1, 2, 3, 5, 10, 20, ..., written as numbers, not 10^1 and 10^2; no minor ones."""
+    axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 3.0, 5.0)))
     axis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
     axis.set_minor_locator(matplotlib.ticker.NullLocator())
 
@@ -368,82 +375,39 @@ SHADED = ("TT", "PT", "TU")
 SHADE_ALPHA = 0.16
 
 
-def region_map(rows: list[dict], x_key: str, y_key: str, x_grid: np.ndarray, y_grid: np.ndarray,
-               x_log: bool, y_log: bool, nearest: str = "row") -> np.ndarray:
-    """Index into SHADED of the case each point of the grid falls to (-1 where that case is not
-    TT, PT or TU), shape (y_grid.size, x_grid.size), on each axis's own scale (log values on a
-    log axis). ``nearest="row"``: the nearest row of cases (rows along the parameter with fewer
-    distinct values), then the nearest case within it -- on a regular sweep the edges lie half-way
-    between the points, on a search's rows each row keeps its own brackets. ``nearest="point"``:
-    the nearest case, each axis scaled to its range (a refined map, whose points cluster along
-    the boundaries)."""
-    xs = np.array([r[x_key] for r in rows], dtype=float)
-    ys = np.array([r[y_key] for r in rows], dtype=float)
-    code = np.array([SHADED.index(r["regime"]) if r["regime"] in SHADED else -1 for r in rows])
-    if nearest == "point":
-        return _nearest_point(xs, ys, code, x_grid, y_grid, x_log, y_log)
-    by_rows = np.unique(ys).size <= np.unique(xs).size          # rows of constant y (else columns)
-    along, across = (xs, ys) if by_rows else (ys, xs)
-    along_grid, across_grid = (x_grid, y_grid) if by_rows else (y_grid, x_grid)
-    along_log, across_log = (x_log, y_log) if by_rows else (y_log, x_log)
+def decided_regions(rows: list[dict], x_key: str, y_key: str) -> list[tuple[tuple, str]]:
+    """The regions the cases of a grid (or of a search's rows) decide: analysis/regions.py, rows along
+    the parameter with more distinct values. A point run more than once with different regimes
+    (several starts) decides nothing."""
+    from hpcves.analysis.regions import row_regions
 
-    def scale(values, log):
-        return np.log(values) if log else np.asarray(values, dtype=float)
-
-    levels = np.unique(across)
-    row_of = _nearest(scale(levels, across_log), scale(across_grid, across_log))
-    out = np.empty((across_grid.size, along_grid.size), dtype=int)
-    for k, level in enumerate(levels):
-        members = np.flatnonzero(across == level)
-        order = members[np.argsort(along[members])]
-        nearest = order[_nearest(scale(along[order], along_log), scale(along_grid, along_log))]
-        out[row_of == k] = code[nearest]
-    return out if by_rows else out.T
+    outcomes = {}
+    for r in rows:
+        point = (r[x_key], r[y_key])
+        outcomes[point] = r["regime"] if outcomes.get(point, r["regime"]) == r["regime"] else "mixed"
+    along_x = len({x for x, _ in outcomes}) >= len({y for _, y in outcomes})
+    return row_regions(outcomes, rows_along_x=along_x)
 
 
-def _nearest_point(xs, ys, code, x_grid, y_grid, x_log, y_log) -> np.ndarray:
-    """region_map's ``nearest="point"``: the code of the nearest case (scipy's k-d tree)."""
-    from scipy.spatial import cKDTree
+def fill_regions(ax, regions, alpha: float = 2 * SHADE_ALPHA) -> list[str]:
+    """Fill each region ((x0, x1, y0, y1), regime) of a shaded regime in its pale colour, behind
+    everything; the regimes filled."""
+    from matplotlib.patches import Rectangle
 
-    def scaled(values, log, reference):
-        values = np.log(values) if log else np.asarray(values, dtype=float)
-        low, high = (np.log(reference) if log else reference).min(), (np.log(reference) if log else reference).max()
-        return (values - low) / (high - low if high > low else 1.0)
-
-    tree = cKDTree(np.column_stack([scaled(xs, x_log, xs), scaled(ys, y_log, ys)]))
-    gx, gy = np.meshgrid(scaled(x_grid, x_log, xs), scaled(y_grid, y_log, ys))
-    _, index = tree.query(np.column_stack([gx.ravel(), gy.ravel()]))
-    return code[index].reshape(y_grid.size, x_grid.size)
-
-
-def _nearest(sorted_values: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Index of the nearest of ``sorted_values`` to each of ``points`` (1-D)."""
-    right = np.clip(np.searchsorted(sorted_values, points), 1, max(sorted_values.size - 1, 1))
-    if sorted_values.size == 1:
-        return np.zeros(points.size, dtype=int)
-    left = right - 1
-    return np.where(np.abs(points - sorted_values[left]) <= np.abs(points - sorted_values[right]), left, right)
+    filled = []
+    for (x0, x1, y0, y1), regime in regions:
+        if regime in SHADED:
+            colour = pale(REGIME_STYLE[regime][0], alpha)
+            ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor=colour, edgecolor=colour, linewidth=0.3,
+                                   zorder=0))
+            filled.append(regime)
+    return filled
 
 
-def shade_regions(ax, rows: list[dict], x_key: str, y_key: str, resolution: int = 300,
-                  nearest: str = "row") -> None:
-    """Shade the axes by the regime of the nearest case (region_map): a guide to the eye between
-    the sampled points, not a located boundary."""
-    if sum(1 for r in rows if r["regime"] in SHADED) == 0 or len(rows) < 2:
-        return
-    ax.autoscale_view()
-    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-    x_log, y_log = ax.get_xscale() == "log", ax.get_yscale() == "log"
-    edges = [np.geomspace(a, b, resolution + 1) if log else np.linspace(a, b, resolution + 1)
-             for a, b, log in ((x0, x1, x_log), (y0, y1, y_log))]
-    centres = [np.sqrt(e[:-1] * e[1:]) if log else 0.5 * (e[:-1] + e[1:]) for e, log in zip(edges, (x_log, y_log))]
-    codes = region_map(rows, x_key, y_key, centres[0], centres[1], x_log, y_log, nearest)
-    colours = matplotlib.colors.ListedColormap([matplotlib.colors.to_rgba(REGIME_STYLE[r][0], SHADE_ALPHA)
-                                                for r in SHADED])
-    ax.pcolormesh(edges[0], edges[1], np.ma.masked_less(codes, 0), cmap=colours, vmin=-0.5,
-                  vmax=len(SHADED) - 0.5, shading="flat", zorder=0, rasterized=True, edgecolors="none")
-    ax.set_xlim(x0, x1)
-    ax.set_ylim(y0, y1)
+def pale(colour: str, alpha: float = 2 * SHADE_ALPHA) -> tuple:
+    """``colour`` laid over white at ``alpha``, as an opaque colour: touching patches show no seams."""
+    r, g, b = matplotlib.colors.to_rgb(colour)
+    return (1 - alpha + alpha * r, 1 - alpha + alpha * g, 1 - alpha + alpha * b)
 
 
 #: a log axis gets ticks at the swept values when there are at most this many
@@ -566,6 +530,62 @@ def mark_boundaries(ax, lines: list[dict], x_key: str, y_key: str) -> None:
         labels[label] = True
     if labels:
         _legend_outside(ax)
+
+
+#: a journal column: 8.6 cm (Phys. Rev., J. Fluid Mech. and Soft Matter columns are 8.3-8.9 cm), 8 pt type
+PAPER_WIDTH = 3.4
+PAPER_RC = {"font.size": 8, "axes.labelsize": 8, "axes.titlesize": 8, "legend.fontsize": 7, "xtick.labelsize": 7,
+            "ytick.labelsize": 7, "axes.linewidth": 0.6, "xtick.major.width": 0.6, "ytick.major.width": 0.6,
+            "xtick.minor.width": 0.4, "ytick.minor.width": 0.4}
+
+
+def paper_diagram(rows: list[dict], x_key: str, y_key: str, regions, lines=(), brackets=(), markers: bool = False,
+                  log_keys=(), title: str = ""):
+    """A phase diagram for a paper, a journal column wide: the ``regions`` the cases decide
+    (((x0, x1, y0, y1), regime): analysis/regions.py, refine.regions) filled, the boundaries
+    (``lines``: polylines [(x, y), ...]) drawn through the white between them, a search's
+    ``brackets`` (((x, y), (x, y)) segments: where its critical value lies) as bars, and the cases
+    as small markers only with ``markers``. Nothing is drawn beyond the outermost cases.
+    ``log_keys``: the parameters on a log axis. Vector graphics throughout: save it as PDF."""
+    from matplotlib.patches import Patch
+
+    with matplotlib.rc_context(PAPER_RC):
+        fig = Figure(figsize=(PAPER_WIDTH, 0.8 * PAPER_WIDTH), constrained_layout=True)
+        ax = fig.subplots()
+        present = fill_regions(ax, regions)
+        handles = [Patch(facecolor=pale(REGIME_STYLE[r][0]), edgecolor="none", label=REGIME_STYLE[r][2])
+                   for r in SHADED if r in present]
+        for k, line in enumerate(lines):
+            xs, ys = zip(*line)
+            ax.plot(xs, ys, color="k", lw=0.9, zorder=3, label="boundary" if k == 0 else None)
+        for k, ((xa, ya), (xb, yb)) in enumerate(brackets):
+            ax.plot([xa, xb], [ya, yb], color="k", lw=0.6, zorder=3, marker="|" if ya == yb else "_", ms=3,
+                    label="bracket of the critical value" if k == 0 else None)
+        if markers:
+            for regime, (colour, marker, label) in REGIME_STYLE.items():
+                chosen = [r for r in rows if r["regime"] == regime]
+                if chosen:
+                    ax.scatter([r[x_key] for r in chosen], [r[y_key] for r in chosen], s=6, c=colour, marker=marker,
+                               linewidths=0.3, edgecolors="k" if marker not in "xX" else None, zorder=4,
+                               label=label)
+        for axis, key in ((ax.xaxis, x_key), (ax.yaxis, y_key)):
+            if key in log_keys:
+                (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
+                plain_log_ticks(axis)
+        ax.update_datalim([(r[x_key], r[y_key]) for r in rows])        # the cases' extent, a little margin
+        ax.margins(0.03)
+        ax.autoscale_view()
+        for axis, limits in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+            if axis.get_scale() == "log" and math.log10(limits[1] / limits[0]) > 1.5:    # 1, 2, 5: room for them
+                axis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
+        ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
+        line_handles, _ = ax.get_legend_handles_labels()
+        ax.legend(handles=handles + line_handles, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=3,
+                  frameon=False, handlelength=1.2, columnspacing=1.0, borderaxespad=0.2)
+        if title:
+            fig.suptitle(title)
+    return fig
 
 
 def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", along: str = "shear_rate"):
