@@ -218,3 +218,17 @@ def test_a_figure_is_drawn_without_pyplot(tmp_path):
     fig.savefig(tmp_path / "theta.png", dpi=50)
     assert (tmp_path / "theta.png").stat().st_size > 1000
     assert fig not in [plt.figure(n) for n in plt.get_fignums()]
+
+
+def test_a_boundary_is_smoothed_between_its_crossings_on_the_axes_scales():
+    line = [(10.0, 0.3), (20.0, 0.3), (20.0, 0.5), (40.0, 0.5)]            # a staircase of cell edges
+    xs, ys = plots.smoothed(line, (True, False))
+    assert (xs[0], ys[0]) == pytest.approx((10.0, 0.3)) and (xs[-1], ys[-1]) == pytest.approx((40.0, 0.5))
+    assert len(xs) == 16                                     # 4 points -> 2 + 2 x 3 -> 2 + 2 x 7
+    assert np.all(np.diff(xs) >= -1e-12) and np.all(np.diff(ys) >= 0)        # a monotone staircase stays so
+    assert 10.0 - 1e-12 <= xs.min() and xs.max() <= 40.0 + 1e-12 and 0.3 <= ys.min() and ys.max() <= 0.5
+    # the corner at (20, 0.3) is cut: no point of the curve is on it; in log S the cut is symmetric
+    assert not np.any(np.isclose(xs, 20.0) & np.isclose(ys, 0.3))
+    first_cut = xs[1]
+    assert first_cut == pytest.approx(10.0 * 2 ** (1 / 16))       # a quarter of a quarter of the way, in log S
+    assert plots.smoothed([(1.0, 2.0), (3.0, 4.0)])[0].tolist() == [1.0, 3.0]  # a segment is left alone

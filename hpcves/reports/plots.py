@@ -539,6 +539,20 @@ PAPER_RC = {"font.size": 8, "axes.labelsize": 8, "axes.titlesize": 8, "legend.fo
             "xtick.minor.width": 0.4, "ytick.minor.width": 0.4}
 
 
+def smoothed(line, logs=(False, False), rounds: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """A polyline through a boundary's crossings with its corners cut (Chaikin: each segment's points at
+    1/4 and 3/4 replace its ends, ``rounds`` times; the ends stay), on the axes' scales (``logs``): the
+    staircase of a refinement's cell edges drawn as the smooth curve it brackets. Every point of the
+    result lies on a segment of the polyline's ``rounds``-fold cut, between neighbouring crossings."""
+    points = np.array([[math.log(v) if log else v for v, log in zip(p, logs)] for p in line], dtype=float)
+    for _ in range(rounds if len(points) > 2 else 0):
+        a, b = points[:-1], points[1:]
+        cut = np.empty((2 * len(a), 2))
+        cut[0::2], cut[1::2] = 0.75 * a + 0.25 * b, 0.25 * a + 0.75 * b
+        points = np.vstack([points[:1], cut, points[-1:]])
+    return tuple(np.exp(points[:, k]) if log else points[:, k] for k, log in enumerate(logs))
+
+
 def paper_diagram(rows: list[dict], x_key: str, y_key: str, regions, lines=(), brackets=(), markers: bool = False,
                   log_keys=(), title: str = ""):
     """A phase diagram for a paper, a journal column wide: the ``regions`` the cases decide
@@ -556,7 +570,7 @@ def paper_diagram(rows: list[dict], x_key: str, y_key: str, regions, lines=(), b
         handles = [Patch(facecolor=pale(REGIME_STYLE[r][0]), edgecolor="none", label=REGIME_STYLE[r][2])
                    for r in SHADED if r in present]
         for k, line in enumerate(lines):
-            xs, ys = zip(*line)
+            xs, ys = smoothed(line, [key in log_keys for key in (x_key, y_key)])
             ax.plot(xs, ys, color="k", lw=0.9, zorder=3, label="boundary" if k == 0 else None)
         for k, ((xa, ya), (xb, yb)) in enumerate(brackets):
             ax.plot([xa, xb], [ya, yb], color="k", lw=0.6, zorder=3, marker="|" if ya == yb else "_", ms=3,
