@@ -421,7 +421,7 @@ def _legend_outside(ax) -> None:
 
 def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = ""):
     """The period table as a figure: cells coloured by S x period (the 1/S law makes it flat),
-    holding the period +- its uncertainty; other regimes named."""
+    holding the period T +- its uncertainty and the S T the colour shows; other regimes named."""
     row_values = sorted({r[row_key] for r in rows})
     col_values = sorted({r[col_key] for r in rows})
     cells = {(r[row_key], r[col_key]): r for r in rows}
@@ -438,14 +438,14 @@ def period_figure(rows: list[dict], row_key: str, col_key: str, title: str = "")
                 scale = r["shear_rate"] if "shear_rate" in r else 1.0
                 scaled[i, j] = r["period"] * scale
                 error, dominant = accuracy.error_bar(r, "period")
-                texts[i, j] = f"{r['period']:.4g}\n$\\pm${error:.1g} [{dominant}]"
+                texts[i, j] = f"T = {r['period']:.4g}\n$\\pm${error:.1g} [{dominant}]\nS T = {scaled[i, j]:.3g}"
             else:
                 texts[i, j] = r["regime"]
     image = ax.imshow(np.ma.masked_invalid(scaled), cmap="YlOrBr", aspect="auto", origin="lower")
     for (i, j), text in texts.items():              # white on the dark end of the colour scale
         dark = np.isfinite(scaled[i, j]) and image.norm(scaled[i, j]) > 0.6
-        ax.text(j, i, text, ha="center", va="center", fontsize=10, color="white" if dark else "black")
-    fig.colorbar(image, ax=ax, label="S x period")
+        ax.text(j, i, text, ha="center", va="center", fontsize=9, color="white" if dark else "black")
+    fig.colorbar(image, ax=ax, label="S T: the colour (the 1/S law makes it flat)")
     ax.set_xticks(range(len(col_values)), [f"{v:g}" for v in col_values])
     ax.set_yticks(range(len(row_values)), [f"{v:g}" for v in row_values])
     ax.set_xlabel(AXIS_LABELS.get(col_key, col_key))
