@@ -123,8 +123,9 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     settled = not np.all(window)
     tw = t[window]
     rows = 4 if kymographs and len(snapshots["t"]) >= 2 else 3
-    fig = Figure(figsize=(12, 3.1 * rows + 0.4), constrained_layout=True)
-    grid = fig.add_gridspec(rows, 2, height_ratios=[1, 1, 1.2, 1.1][:rows])
+    ratios = [1, 1, 0.6, 1.1][:rows]            # the shapes' strip is about a tenth as high as it is wide
+    fig = Figure(figsize=(12, 3.1 * sum(ratios) + 0.6), constrained_layout=True)
+    grid = fig.add_gridspec(rows, 2, height_ratios=ratios)
     xlabel = f"t (settled from t = {tw[0]:.3g})" if settled else "t"
 
     ax = fig.add_subplot(grid[0, 0])
@@ -184,7 +185,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
                 color="tab:red")
     ax.set_xlabel(xlabel)
     ax.set_ylabel("velocity along the membrane")
-    ax.legend(frameon=False, fontsize=8, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3)
+    ax.legend(frameon=False, fontsize=8, loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2)
 
     ax = fig.add_subplot(grid[2, :])
     snap_t = np.asarray(snapshots["t"])
@@ -192,7 +193,7 @@ def case_figure(series: dict, snapshots: dict, title: str = "", n_shapes: int = 
     if n:
         indices = _shape_indices(snap_t, tw[0] if settled else snap_t[0], period, n_shapes)
         mappable = shape_strip(ax, snapshots, indices, physics=physics)
-        fig.colorbar(mappable, ax=ax, shrink=0.7, label=r"$\psi$ (1 = soft)")
+        fig.colorbar(mappable, ax=ax, fraction=0.02, pad=0.01, aspect=12, label=r"$\psi$ (1 = soft)")
         if physics is not None and "velocity_x" in snapshots:
             ax.set_title("streamlines in the frame moving with the vesicle", fontsize=9)
     if kymographs and n >= 2:
