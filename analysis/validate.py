@@ -162,8 +162,14 @@ def separation(lines):
     early, _, _ = run_case("separation_early", case(0.0, 0.5, dt=2e-5, t_end=0.05, sample=1e-4, snapshot=0.01))
     series, snaps, _ = run_case("separation", case(0.0, 0.5, dt=5e-4, t_end=2.0, sample=0.005, snapshot=0.25))
     energy = early["E_bending"] + early["E_phase"]
-    fig, ax = plt.subplots(figsize=(11, 2.6), constrained_layout=True)
-    shape_strip(ax, snaps, range(len(snaps["t"])))
+    fig, ax = plt.subplots(figsize=(11, 2.2), constrained_layout=True)
+    mappable = shape_strip(ax, snaps, range(len(snaps["t"])))
+    ax.plot([-0.25, 0.25], [-0.8, -0.8], color="k", lw=2)           # the strip has no axes: a scale bar
+    ax.text(0.3, -0.8, "0.5", ha="left", va="center", fontsize=8)
+    ax.set_ylim(-0.88, 0.6)
+    fig.colorbar(mappable, ax=ax, fraction=0.02, pad=0.01, aspect=10, label=r"$\psi$ (1 = soft)")
+    ax.set_title(r"S = 0, $\bar\psi$ = 0.5, N = 128: the shape every 0.25, coloured by $\psi$ "
+                 "(lengths in the units of the model; the bar is 0.5 long)", fontsize=9)
     fig.savefig(FIGURES / "separation.png", dpi=100)
     plt.close(fig)
     psi, H = snaps["psi"][-1], snaps["curvature"][-1]
