@@ -20,6 +20,7 @@ import click
 
 from hpcves import __version__
 from hpcves.analysis import accuracy
+from hpcves.errors import HpcvesError
 from hpcves.model.params import ConfigError
 from hpcves.files.atomic import check_output_path
 
@@ -49,7 +50,7 @@ def clean_errors(func):
     def wrapper(*args, **kwargs):
         try:
             return func(*args, **kwargs)
-        except ConfigError as exc:          # includes FileFormatError, LockError, StorageError
+        except HpcvesError as exc:          # ConfigError, FileFormatError, LockError, StorageError
             _fail(str(exc))
         except OSError as exc:              # a full disk, permissions, a directory where a file belongs
             _fail(os_error_text(exc))
@@ -379,13 +380,13 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io
 
 
 def _on_rank_0(comm, size, rank, work):
-    """``work()`` on rank 0, its value on every rank; a ConfigError there ends every rank with its
+    """``work()`` on rank 0, its value on every rank; an HpcvesError there ends every rank with its
     message (on rank 0) and exit status 2."""
     result = None
     if rank == 0:
         try:
             result = ("ok", work())
-        except ConfigError as exc:
+        except HpcvesError as exc:
             result = ("error", str(exc))
     if size > 1:
         result = comm.bcast(result, root=0)
@@ -457,7 +458,7 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
             summary = run_campaign(study, path, comm if size > 1 else None, resume=resume,
                                    retry_failed=retry_failed, overwrite=overwrite, io=io, stop_flag=stop,
                                    display=terminal.show, announce=terminal.announce, on_stage=terminal.on_stage)
-    except ConfigError as exc:
+    except HpcvesError as exc:
         if rank == 0:
             _error(exc)
         sys.exit(2)
@@ -491,7 +492,7 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
 
     try:
         study = load_study(study_file)
-    except ConfigError as exc:
+    except HpcvesError as exc:
         _fail(str(exc))
     if not max_time > 0:
         _fail(f"--max-time {max_time:g}: must be > 0 hours")
@@ -501,7 +502,7 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
             _fail(f"{slurm_file}: its directory {Path(slurm_file).absolute().parent} does not exist")
         try:
             read_template(slurm_template)
-        except ConfigError as exc:
+        except HpcvesError as exc:
             _fail(str(exc))
         if max_jobs is not None and max_jobs < 1:
             _fail(f"--max-jobs {max_jobs}: must be at least 1")

@@ -14,7 +14,7 @@ import h5py
 import numpy as np
 import pytest
 from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, case_store, case_view, freeze_when, hpcves, job_pids,
-                  running_cases, start_job, thaw, wait_until)
+                  mpi_env, running_cases, start_job, thaw, wait_until)
 
 from hpcves.campaign import access
 from hpcves.campaign import driver as campaign_module
@@ -22,6 +22,7 @@ from hpcves.campaign.driver import run_campaign
 from hpcves.run.blocks import QUANTITIES
 from hpcves.files.lock import CampaignLock
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
+from hpcves.errors import FileFormatError
 from hpcves.model.params import ConfigError
 from hpcves.campaign.study import study_from_toml
 from hpcves.cli import CampaignProgress
@@ -194,7 +195,7 @@ def test_a_grid_grows_by_new_sweep_values_into_its_file(tmp_path, reference):
     assert _same(results(output), after)
     # a value taken away is not growth
     shrunk = study_from_toml(write_study(tmp_path, t_end=0.3, shear="[40, 60]", output=output)[0].read_text())
-    with pytest.raises(ConfigError, match=r"its case 0002 \(shear_rate = 80, psi_bar = 0.3\) is not in the study"):
+    with pytest.raises(FileFormatError, match=r"its case 0002 \(shear_rate = 80, psi_bar = 0.3\) is not in the study"):
         run_campaign(shrunk, output, resume=True)
 
 
@@ -202,29 +203,29 @@ def test_files_that_are_not_this_campaign_are_refused(tmp_path, reference):
     path, output = write_study(tmp_path, t_end=0.3)
     study = study_from_toml(path.read_text())
     shutil.copy(reference, output)
-    with pytest.raises(ConfigError, match="exists already; use --resume"):
+    with pytest.raises(FileFormatError, match="exists already; use --resume"):
         run_campaign(study, output)
     other = study_from_toml(write_study(tmp_path, name="other", t_end=0.2)[0].read_text())
-    with pytest.raises(ConfigError, match="belongs to study 'tiny'"):
+    with pytest.raises(FileFormatError, match="belongs to study 'tiny'"):
         run_campaign(other, output, resume=True)
     changed = study_from_toml(write_study(tmp_path, t_end=0.2)[0].read_text())
-    with pytest.raises(ConfigError, match=r"a different version of study 'tiny': case 0000 \(shear_rate = 40, "
+    with pytest.raises(FileFormatError, match=r"a different version of study 'tiny': case 0000 \(shear_rate = 40, "
                                           r"psi_bar = 0.3\): run.t_end: 0.3 -> 0.2 changed, which changes the cases"):
         run_campaign(changed, output, resume=True)
 
     single = tmp_path / "single.h5"
     with h5py.File(single, "w") as h5:
         CaseStore.create(h5, study.cases[0].case)
-    with pytest.raises(ConfigError, match="single-run file"):
+    with pytest.raises(FileFormatError, match="single-run file"):
         run_campaign(study, single, resume=True)
 
     truncated = tmp_path / "truncated.h5"
     truncated.write_bytes(reference.read_bytes()[:5000])
-    with pytest.raises(ConfigError, match="truncated.h5: .*(corrupt|truncated|damaged|readable)"):
+    with pytest.raises(FileFormatError, match="truncated.h5: .*(corrupt|truncated|damaged|readable)"):
         run_campaign(study, truncated, resume=True)
     garbage = tmp_path / "garbage.h5"
     garbage.write_bytes(os.urandom(4096))
-    with pytest.raises(ConfigError, match="not a readable HDF5 file"):
+    with pytest.raises(FileFormatError, match="not a readable HDF5 file"):
         run_campaign(study, garbage, resume=True)
 
 
@@ -261,6 +262,37 @@ def test_a_second_campaign_on_the_same_file_is_refused(tmp_path):
     assert result.returncode == 2, result.stderr
     assert "is writing this file" in result.stderr and f"pid {os.getpid()}" in result.stderr
     assert not output.exists()
+
+
+RANKS_RAISE = """
+import sys
+from mpi4py import MPI
+from hpcves.campaign.driver import run_campaign
+from hpcves.campaign.study import load_study
+try:
+    run_campaign(load_study(sys.argv[1]), sys.argv[2], MPI.COMM_WORLD)
+except Exception as exc:
+    print(f"rank {MPI.COMM_WORLD.Get_rank()}: {type(exc).__name__}", flush=True)
+"""
+
+
+@needs_mpi
+def test_every_rank_raises_the_error_rank_0_met_with_its_type(tmp_path):
+    """Rank 0 finds the file locked (LockError); the other ranks raised FileFormatError instead."""
+    import subprocess
+    import sys
+
+    path, output = write_study(tmp_path)
+    script = tmp_path / "ranks.py"
+    script.write_text(RANKS_RAISE)
+    lock = CampaignLock(output).acquire()
+    try:
+        result = subprocess.run([MPIRUN, "-n", "2", sys.executable, str(script), str(path), str(output)],
+                                capture_output=True, text=True, timeout=HANG, env=mpi_env())
+    finally:
+        lock.release()
+    assert sorted(result.stdout.split("\n")[:-1]) == ["rank 0: LockError", "rank 1: LockError"], (result.stdout,
+                                                                                                  result.stderr)
 
 
 # ---------------------------------------------------------------------- real MPI jobs

@@ -18,6 +18,7 @@ from hpcves.reports.analyze import analyze
 from hpcves.reports.datasets import open_campaign
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED
+from hpcves.errors import FileFormatError
 from hpcves.model.params import ConfigError
 from hpcves.analysis.refine import CONVERGED, polylines
 from hpcves.campaign.study import study_from_toml
@@ -258,7 +259,7 @@ def test_a_refinement_grows_by_a_new_value_of_a_key_that_is_not_an_axis(refined,
     assert once_more.ran == () and not any("grew" in line for line in said)
     assert [o.point["B2"] for o in once_more.searches] == [0.1, 0.2, 0.15]
     coarser = study_from_toml(text.replace("shear_rate = [30.0, 120.0]", "shear_rate = [20.0, 120.0]"))
-    with pytest.raises(ConfigError, match=r"its axes' values, the coarse grid \(shear_rate"):
+    with pytest.raises(FileFormatError, match=r"its axes' values, the coarse grid \(shear_rate"):
         run_campaign(coarser, output, resume=True)
 
 

@@ -18,6 +18,7 @@ from hpcves.reports.analyze import analyze
 from hpcves.reports.datasets import open_campaign
 from hpcves.campaign.driver import run_campaign
 from hpcves.run.store import FINISHED, superblock_version
+from hpcves.errors import FileFormatError
 from hpcves.model.params import ConfigError
 from hpcves.analysis.search import CONVERGED, UNBRACKETED
 from hpcves.reports.critical import CRITICAL_COLUMNS
@@ -218,13 +219,13 @@ def test_a_search_file_refuses_changed_thresholds_or_a_narrower_search(searched,
     study, output, _, _ = searched
     stricter = study_from_toml(study.source + "[analysis]\nmin_cycles = 5\n")
     assert stricter.fingerprint != study.fingerprint
-    with pytest.raises(ConfigError, match=r"different version of study 'search': the \[analysis\] thresholds"):
+    with pytest.raises(FileFormatError, match=r"different version of study 'search': the \[analysis\] thresholds"):
         run_campaign(stricter, output, resume=True)
     narrower = study_from_toml(study.source.replace("low = 30.0", "low = 40.0"))
-    with pytest.raises(ConfigError, match=r"the search narrowed \(low 30 -> 40\)"):
+    with pytest.raises(FileFormatError, match=r"the search narrowed \(low 30 -> 40\)"):
         run_campaign(narrower, output, resume=True)
     longer = study_from_toml(study.source.replace("t_end = 1.5", "t_end = 2"))
-    with pytest.raises(ConfigError, match="the time rules"):
+    with pytest.raises(FileFormatError, match="the time rules"):
         run_campaign(longer, output, resume=True)
 
 

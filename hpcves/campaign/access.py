@@ -23,6 +23,7 @@ from pathlib import Path
 from hpcves.campaign.file import CampaignFile
 from hpcves.campaign.polling import bcast, wait_until
 from hpcves.campaign.relay import Relay, RemoteCampaign
+from hpcves.errors import HpcvesError
 from hpcves.model.params import ConfigError
 from hpcves.run.store import FileFormatError, open_file, safe_flush
 
@@ -49,7 +50,7 @@ class FileAccess:
         try:
             h5 = self.open_h5(path, "r+")
             campaign = CampaignFile(h5)
-        except ConfigError as exc:
+        except HpcvesError as exc:
             if h5 is not None:
                 h5.close()
             self._opened(str(exc))

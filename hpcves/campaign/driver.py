@@ -63,7 +63,7 @@ from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED,
                          FileFormatError,
                          open_file, reading, refuse_unopenable, storage_bytes)
 from hpcves.files.lock import CampaignLock, LockError, real_path
-from hpcves.model.params import ConfigError
+from hpcves.errors import HpcvesError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
 from hpcves.campaign.polling import Backoff, bcast, wait
@@ -508,7 +508,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     those failed), and ``display(master)`` at every scheduling turn.
 
     Collective: every rank calls it with the same study. Bad input raises
-    ConfigError on every rank (the message is rank 0's).
+    the same hpcves error (errors.py) on every rank (the message is rank 0's).
     """
     size = 1 if comm is None else comm.Get_size()
     rank = 0 if comm is None else comm.Get_rank()
@@ -522,13 +522,13 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
             refuse_unopenable(given, "r+" if resume else "a")      # before a lock file is made beside it
             lock.acquire()
             verdict = ("ok", prepare_file(study, path, resume=resume, overwrite=overwrite))
-        except ConfigError as exc:
+        except HpcvesError as exc:           # every rank raises the same class, with rank 0's message
             lock.release()
-            verdict = ("error", str(exc).replace(str(path), str(given)))
+            verdict = ("error", type(exc), str(exc).replace(str(path), str(given)))
     if size > 1:
         verdict = bcast(comm, verdict)
     if verdict[0] == "error":
-        raise FileFormatError(verdict[1])
+        raise verdict[1](verdict[2])
     mode, grown = verdict[1]
     study = grown.study if grown is not None else study
     try:
@@ -597,14 +597,15 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
                     on_stage(outcomes)
                     plan = ("add", new) if new else ("done",)
                 except Exception as exc:      # told to every rank, which would wait for the plan for ever
-                    failure, config = exc, isinstance(exc, ConfigError)
-                    plan = ("error", config, str(exc) if config else f"{type(exc).__name__}: {exc}")
+                    failure, own = exc, isinstance(exc, HpcvesError)
+                    plan = ("error", type(exc) if own else RuntimeError, str(exc) if own else
+                            f"{type(exc).__name__}: {exc}")
             if size > 1:
                 plan = bcast(comm, plan)
             if failure is not None:
                 raise failure
             if plan[0] == "error":
-                raise (ConfigError if plan[1] else RuntimeError)(plan[2])
+                raise plan[1](plan[2])
             if plan[0] != "add":
                 break
             study = study.with_cases(plan[1]) if rank == 0 else study
@@ -744,7 +745,7 @@ def _change(path: Path, comm, reserve, change, cannot: str, after: str) -> str:
                 change(h5)
             finally:
                 h5.close()                        # the structure is on disk
-        except (*HDF5_ERRORS, ConfigError) as exc:
+        except (*HDF5_ERRORS, HpcvesError) as exc:
             remove_partial(path)
             reason = str(exc).strip().splitlines()[0] if str(exc).strip() else str(exc)
             refused = f"{path}: {cannot} ({reason}); {after}"

@@ -40,17 +40,13 @@ from pathlib import Path
 
 from hpcves.files import faults
 from hpcves.config import not_a_regular_file
-from hpcves.model.params import ConfigError
+from hpcves.errors import StorageError  # noqa: F401 -- raised here; callers import it from here too
 
 #: what a file needs beyond its datasets' raw bytes, per case (object headers, attributes, the config
 #: text: 25 kB measured at N = 32, 128 and 256; 39 kB at N = 64 since the series carry units and
 #: dimension scales, store.describe) and per file, with room to spare
 METADATA_BYTES_PER_CASE = 56 * 1024
 METADATA_BYTES_PER_FILE = 1 << 20
-
-
-class StorageError(ConfigError):
-    """The file system refused a write (full disk, quota, read-only, I/O error): nothing was damaged."""
 
 
 def partial_path(path) -> Path:

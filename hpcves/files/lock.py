@@ -31,16 +31,12 @@ import struct
 import time
 from pathlib import Path
 
-from hpcves.model.params import ConfigError
+from hpcves.errors import LockError  # noqa: F401 -- raised here; callers import it from here too
 
 log = logging.getLogger(__name__)
 
 _FLOCK = "@hhqqi0q"      # struct flock: l_type, l_whence, l_start, l_len, l_pid (Linux, 64-bit off_t)
 _UNSUPPORTED = (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL)
-
-
-class LockError(ConfigError):
-    """The file is being written by another process (or cannot be locked at all)."""
 
 
 def real_path(path) -> Path:

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field, fields
 from typing import Literal
 
+from hpcves.errors import ConfigError  # noqa: F401 -- where the model's users import it from
 from hpcves.model import bending
 
 #: Perimeter of the 1/2 : 1/3 ellipse, the published reference shape.
@@ -35,10 +36,6 @@ INITIAL_PHASES = ("published", "domains", "random")
 #: Beyond this excess length the smoothed start (geometry.smoothed_ellipse) crosses itself: its flanks
 #: touch at Delta = 7.7708 (bisection, tests/test_geometry.py).
 SMOOTHED_MAX_EXCESS_LENGTH = 7.77
-
-
-class ConfigError(ValueError):
-    """A parameter or input file is invalid; the message says which and why."""
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatEr
                          attr_text, open_file, reading)
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.files.lock import CampaignLock, real_path
+from hpcves.errors import HpcvesError
 from hpcves.model.params import ConfigError
 from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
 from hpcves.model.params import ADDED_LATER, LABELS
@@ -163,7 +164,7 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, pro
     path = real_path(source.path)
     try:
         guard = CampaignLock(source.path).acquire() if source.kind == "campaign" else open_file(path, "r+")
-    except ConfigError as exc:
+    except HpcvesError as exc:                  # the lock (another campaign writes it) or the file itself
         return str(exc)
     try:
         changed = _changes(source, None if isinstance(guard, CampaignLock) else guard)
@@ -175,7 +176,7 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, pro
         try:
             with open_file(partial, "r+") as h5:
                 _store(h5, rows, settings)
-        except (*HDF5_ERRORS, ConfigError) as exc:
+        except (*HDF5_ERRORS, HpcvesError) as exc:
             remove_partial(path)
             return f"cannot write into a copy of it ({str(exc).strip().splitlines()[0]}); the file is unchanged"
         faults.point("analysis-stored")

@@ -56,6 +56,7 @@ from hpcves.files.atomic import METADATA_BYTES_PER_CASE, StorageError
 from hpcves.config import case_from_toml, case_to_toml, not_a_regular_file
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
+from hpcves.errors import FileFormatError, HpcvesError
 from hpcves.model.params import Case, ConfigError
 from hpcves.run.schedule import clock
 from hpcves.numerics.spectral import Spectral, resample
@@ -111,10 +112,6 @@ SNAPSHOT_RECORDS = ("t", "shift") + SNAPSHOT_FIELDS
 _N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
 
 
-class FileFormatError(ConfigError):
-    """An HDF5 file or group that is not (or no longer) a readable hpcves case."""
-
-
 @dataclass(frozen=True)
 class Column:
     """Where a record lies inside a packed array (campaign format 3: run/blocks.py): indices ``first`` to
@@ -147,17 +144,17 @@ class Column:
 
 
 #: what h5py raises when the file under it is damaged (unreadable metadata, objects of the wrong kind);
-#: ConfigError is a ValueError too: catch it first where it has to go through (see :func:`reading`)
+#: hpcves's own errors are ValueErrors too: catch them first where they have to go through (see :func:`reading`)
 HDF5_ERRORS = (OSError, KeyError, RuntimeError, ValueError, TypeError, IndexError, AttributeError)
 
 
 @contextlib.contextmanager
 def reading(where: str):
     """Reading a file: what h5py raises from damaged metadata becomes one FileFormatError naming
-    ``where``; hpcves's own errors (ConfigError) pass unchanged."""
+    ``where``; hpcves's own errors (errors.HpcvesError) pass unchanged."""
     try:
         yield
-    except ConfigError:
+    except HpcvesError:
         raise
     except HDF5_ERRORS as exc:
         raise FileFormatError(f"{where}: damaged file ({type(exc).__name__}: {_first_line(exc)})") from None
