@@ -5,15 +5,13 @@ machinery around it: case files, HDF5 output with checkpoints, campaigns on MPI,
 the analysis, the command line. The Python API (:mod:`hpcves.api`) is reachable
 from here -- ``hpcves.load_case``, ``run_case``, ``load_study``, ``run_campaign``,
 ``analyze``, ``classify``, ``open_case``, ``open_campaign`` -- and imported on
-first use, so that ``import hpcves`` (and every module's ``from hpcves import
-__version__``) stays light and no module below the API depends on it.
+first use, so that ``import hpcves`` stays light and no module below the API
+depends on it; likewise ``hpcves.__version__`` (:mod:`hpcves.version`).
 
 One case runs on one core: :func:`hpcves.run.runner.run` holds the BLAS and
 OpenMP thread pools at one thread while it runs (threadpoolctl), whatever was
 imported first.
 """
-
-__version__ = "0.1.0"
 
 API = ("load_case", "load_study", "run_case", "run_campaign", "analyze", "classify", "open_case",
        "open_campaign", "AnalysisSettings")
@@ -21,7 +19,11 @@ __all__ = ("__version__",) + API
 
 
 def __getattr__(name):
-    """The names of the Python API, from :mod:`hpcves.api` on first use (PEP 562)."""
+    """The names of the Python API, from :mod:`hpcves.api` on first use (PEP 562), and the version."""
+    if name == "__version__":
+        from hpcves.version import __version__
+
+        return __version__
     if name in API:
         from hpcves import api
 
@@ -30,4 +32,4 @@ def __getattr__(name):
 
 
 def __dir__():
-    return sorted(set(globals()) | set(API))
+    return sorted(set(globals()) | set(API) | {"__version__"})

@@ -18,7 +18,7 @@ from collections import Counter
 
 import click
 
-from hpcves import __version__
+from hpcves.version import __version__
 from hpcves.analysis import accuracy
 from hpcves.errors import HpcvesError
 from hpcves.model.params import ConfigError

@@ -1,6 +1,6 @@
 """The package's layers: each module imports only from its own layer or the ones below it.
 
-Order, bottom to top (README, "Code layout"): errors, numerics, model, config, analysis, files, run,
+Order, bottom to top (README, "Code layout"): version, errors, numerics, model, config, analysis, files, run,
 campaign, reports, api, cli. The root package (hpcves/__init__.py: the version, and the API's
 names fetched from hpcves.api on first use) imports nothing at import time. Read from the source with ast, function-level imports included, so
 a cycle cannot hide inside a function.
@@ -12,7 +12,7 @@ import pytest
 
 import hpcves
 
-LAYERS = ("errors", "numerics", "model", "config", "analysis", "files", "run", "campaign", "reports", "api", "cli")
+LAYERS = ("version", "errors", "numerics", "model", "config", "analysis", "files", "run", "campaign", "reports", "api", "cli")
 ROOT = pathlib.Path(hpcves.__file__).parent
 
 
@@ -54,12 +54,15 @@ def test_every_module_lives_in_a_layer():
         assert name == "hpcves" or layer_of(name) in LAYERS, f"{name}: not in a layer of {LAYERS}"
 
 
-def test_the_root_package_imports_only_the_api_and_only_on_first_use():
+def test_the_root_package_imports_only_the_api_and_the_version_and_only_on_first_use():
     path = ROOT / "__init__.py"
     tree = ast.parse(path.read_text())
     at_import = [n for n in tree.body if isinstance(n, (ast.Import, ast.ImportFrom))]
     assert not at_import, f"hpcves/__init__.py imports at import time: line {at_import[0].lineno}"
-    assert {m for _, m in imports_of(path, "hpcves")} == {"hpcves.api"}
+    assert {m for _, m in imports_of(path, "hpcves")} == {"hpcves.api", "hpcves.version"}
+    import importlib.metadata
+
+    assert hpcves.__version__ == importlib.metadata.version("hpcves")     # pyproject.toml reads it too
     import subprocess
     import sys
     code = ("import sys, hpcves; assert 'hpcves.api' not in sys.modules and 'xarray' not in sys.modules; "
@@ -73,6 +76,8 @@ def test_the_root_package_imports_only_the_api_and_only_on_first_use():
 def test_no_module_imports_from_a_layer_above_its_own(name, path):
     if name == "hpcves":
         return                       # the root package: the test above
+    rooted = [f"line {line}" for line, target in imports_of(path, name) if target == "hpcves"]
+    assert not rooted, f"{name} imports the root package (whose names come from the API above it): {rooted}"
     here = LAYERS.index(layer_of(name)) if layer_of(name) else -1
     upward = [f"line {line}: {target}" for line, target in imports_of(path, name)
               if layer_of(target) is not None and LAYERS.index(layer_of(target)) > here]

@@ -38,7 +38,7 @@ import numpy as np
 
 from dataclasses import dataclass
 
-from hpcves import __version__
+from hpcves.version import __version__
 from hpcves.files import faults
 from hpcves.config import case_to_toml
 from hpcves.files.atomic import partial_path

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves import __version__
+from hpcves.version import __version__
 from hpcves.analysis import accuracy
 from hpcves.analysis import grids
 from hpcves.files import faults

@@ -32,7 +32,7 @@ import collections.abc
 import h5py
 import numpy as np
 
-from hpcves import __version__
+from hpcves.version import __version__
 from hpcves.files import faults
 from hpcves.model.params import Case
 from hpcves.run.diagnostics import SERIES, SNAPSHOT_FIELDS

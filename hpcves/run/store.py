@@ -50,7 +50,7 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from hpcves import __version__
+from hpcves.version import __version__
 from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_CASE, StorageError
 from hpcves.config import case_from_toml, case_to_toml, not_a_regular_file
