@@ -107,7 +107,7 @@ class Relay:
 
 
 class RemoteCaseStore:
-    """A worker's view of one case: the CaseStore interface, served by rank 0."""
+    """A worker's view of one case: the run's interface to it (store.CaseRecord), served by rank 0."""
 
     def __init__(self, campaign: "RemoteCampaign", case_id: str, config: str | None = None):
         self.campaign, self.comm, self.case_id = campaign, campaign.comm, case_id

@@ -18,6 +18,7 @@ the uninterrupted one bit for bit.
 """
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
 import logging
@@ -34,7 +35,7 @@ from hpcves.run import resolution
 from hpcves.files import faults
 from hpcves.run import schedule
 from hpcves.run import store as checkpoint_module
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseStore, Status
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseRecord, Status
 from hpcves.run.stored import read_stored_start
 from hpcves.model.flow import TensionSolveError
 from hpcves.analysis.regimes import AnalysisSettings
@@ -159,7 +160,7 @@ def one_thread():
     return threadpool_limits(limits=1)
 
 
-def run(store: CaseStore, flush: Callable[[], None], *, resume: bool = False,
+def run(store: CaseRecord, flush: Callable[[], None], *, resume: bool = False,
         progress: Callable[[Tick], None] | None = None,
         stop_requested: Callable[[], bool] = lambda: False,
         max_steps: int | None = None, analysis: AnalysisSettings = AnalysisSettings(),
@@ -275,7 +276,7 @@ def _run(store, flush, resume, progress, stop_requested, max_steps, analysis, st
         return record.finish(FAILED, f"{what}: {reason} ({kept})", state)
 
 
-def _last_sample(store: CaseStore, state: State) -> tuple[float, int]:
+def _last_sample(store: CaseRecord, state: State) -> tuple[float, int]:
     """(t, step) of the last sample a run resumed at ``state`` keeps (the state's own where there is none
     yet, or the file predates the step series). ``store`` may be a relay's RemoteCaseStore: only its
     CaseStore interface is used."""
@@ -315,16 +316,16 @@ class Moment(NamedTuple):
     checkpoint: bool = False   # ... on its checkpoint grid
 
 
-class Cadence:
+class Cadence(abc.ABC):
     """What the run loop asks of a cadence: ``due(moment)``, a call that may end the run (an Outcome)
     or not (None), and ``wake()``: the wall time (time.perf_counter) before which it cannot be due at
     a moment without a sample, snapshot, checkpoint, end or stop (the loop skips such moments)."""
 
-    def due(self, m: Moment) -> bool:
-        raise NotImplementedError
+    @abc.abstractmethod
+    def due(self, m: Moment) -> bool: ...
 
-    def __call__(self, m: Moment) -> "Outcome | None":
-        raise NotImplementedError
+    @abc.abstractmethod
+    def __call__(self, m: Moment) -> "Outcome | None": ...
 
     def wake(self) -> float:
         return math.inf
@@ -336,7 +337,7 @@ class _Record:
     are written in blocks (a write of one row costs about as much as one of hundreds), always
     before a checkpoint, which counts them."""
 
-    def __init__(self, store: CaseStore, flush: Callable[[], None], solver: Solver, start_step: int,
+    def __init__(self, store: CaseRecord, flush: Callable[[], None], solver: Solver, start_step: int,
                  wall_before: float):
         self.store, self.flush, self.solver = store, flush, solver
         self.start_step, self.wall_before = start_step, wall_before

@@ -19,6 +19,7 @@ state says how many samples and snapshots a resumed run keeps.
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 from hpcves.model.params import Case
 from hpcves.numerics.stepcontrol import StepControl, advance
@@ -51,6 +52,43 @@ def _legacy_slack(x: float) -> float:
     """The slack of hpcves before the coincidence fix: a file it finished may hold one sample or
     snapshot fewer at t_end (CaseStore.problems accepts either count)."""
     return min(COINCIDENT, ROUNDOFF * max(abs(x), 1.0))
+
+
+class Clock(Protocol):
+    """What the run loop and the store ask of a clock (:class:`FixedClock`, :class:`AdaptiveClock`):
+    the rows a run records and when, how far it is, and its next step."""
+
+    def legacy(self) -> "Clock":
+        """The clock of hpcves before the coincidence fix (a file it finished reads with it)."""
+
+    def capacities(self) -> tuple[int, int]:
+        """Rows to preallocate: (samples, snapshots)."""
+
+    def recorded(self, step: int, t: float) -> tuple[int, int]:
+        """(samples, snapshots) a run has recorded once it has taken ``step`` steps to ``t``."""
+
+    def finished_counts(self) -> tuple[int, int]:
+        """(samples, snapshots) of a run that reached its end."""
+
+    def recorded_through(self, step: int, t: float) -> tuple[int, int]:
+        """The rows recorded up to and including the state at (``step``, ``t``)."""
+
+    def sample_due(self, state) -> bool: ...
+
+    def snapshot_due(self, state) -> bool: ...
+
+    def checkpoint_due(self, state) -> bool: ...
+
+    def events(self, state) -> tuple[bool, bool, bool]:
+        """(sample, snapshot, checkpoint) due at ``state``."""
+
+    def done(self, state) -> bool: ...
+
+    def fraction(self, state) -> float:
+        """How far the run is, 0 to 1."""
+
+    def take_step(self, solver, state, rates):
+        """The next state (and its rates) from ``state``."""
 
 
 class FixedClock:
@@ -228,5 +266,5 @@ class AdaptiveClock:
         return taken.state, taken.rejections
 
 
-def clock(case: Case) -> FixedClock | AdaptiveClock:
+def clock(case: Case) -> Clock:
     return AdaptiveClock(case) if case.numerics.adaptive else FixedClock(case)

@@ -46,6 +46,7 @@ import functools
 import hashlib
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import h5py
 import numpy as np
@@ -413,6 +414,45 @@ class GroupPlace:
     def column(self, path: str) -> Column | None:
         """Each record is a dataset of its own here."""
         return None
+
+
+class CaseRecord(Protocol):
+    """What a run reads and writes of its case (runner.run): :class:`CaseStore` in a file of this
+    process, campaign/relay.py's ``RemoteCaseStore`` through rank 0."""
+
+    @property
+    def case(self) -> Case: ...
+
+    @property
+    def status(self) -> "Status | int": ...
+
+    @property
+    def progress(self) -> np.ndarray:
+        """[t, t_end, wall seconds, steps per second]."""
+
+    def read_checkpoint(self) -> "tuple[State, int, int] | None":
+        """(state, samples, snapshots) of the newest valid checkpoint, or None."""
+
+    def passed_over(self) -> str:
+        """Why the newest checkpoint slot was passed over for the other ("" if it was not)."""
+
+    def newest_checkpoint_slot(self) -> str | None: ...
+
+    def timeseries(self) -> dict: ...
+
+    def set_status(self, status: int, message: str | None = None, traceback: str | None = None) -> None: ...
+
+    def set_progress(self, t: float, t_end: float, wall: float, steps_per_second: float) -> None: ...
+
+    def append_samples(self, rows: list[dict]) -> None: ...
+
+    def append_snapshots(self, snaps: list[dict]) -> None: ...
+
+    def truncate(self, n_samples: int, n_snapshots: int) -> None: ...
+
+    def set_decision(self, code: int, t: float, step: int) -> None: ...
+
+    def write_checkpoint(self, state: State, flush) -> None: ...
 
 
 class CaseStore:
