@@ -110,7 +110,7 @@ class CampaignBars:
     with how many cases ended and failed (those that ended before this call count too)."""
 
     def __init__(self, name: str):
-        self.name, self.bar, self.master = name, None, None
+        self.name, self.bar, self.stage = name, None, None
         self.total, self.before, self.shown = 0, (0, 0), 0.0
 
     def callbacks(self) -> dict:
@@ -125,27 +125,23 @@ class CampaignBars:
         self.total, self.before = n_cases, ended_before
         self.bar = tqdm(total=100.0, desc=self.name, bar_format=_BAR)
 
-    def show(self, master, every: float = 0.2) -> None:
-        """Called at every scheduling turn; redraws at most every ``every`` seconds."""
-        self.master = master
+    def show(self, stage, every: float = 0.2) -> None:
+        """Called with a driver.StageProgress at every scheduling turn; redraws at most every ``every`` s."""
+        self.stage = stage
         if self.bar is None or time.monotonic() - self.shown < every:
             return
-        from hpcves.run.store import ENDED, FAILED
-
         self.shown = time.monotonic()
-        ended = [r for r in master.results if r.status in ENDED]
-        failed = self.before[1] + sum(1 for r in ended if r.status == FAILED)
-        self.bar.n = 100.0 * (master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0)
-        self.bar.set_postfix_str(f"{self.before[0] + len(ended)}/{self.total} cases, {len(master.busy)} running, "
-                                 f"{failed} failed", refresh=False)
+        self.bar.n = 100.0 * stage.fraction
+        self.bar.set_postfix_str(f"{self.before[0] + stage.ended}/{self.total} cases, {stage.running} running, "
+                                 f"{self.before[1] + stage.failed} failed", refresh=False)
         self.bar.refresh()
 
     def close(self) -> None:
         if self.bar is not None:
-            if self.master is not None:
-                self.show(self.master, every=0.0)         # where the stage ended
+            if self.stage is not None:
+                self.show(self.stage, every=0.0)          # where the stage ended
             self.bar.close()
-        self.bar, self.master, self.shown = None, None, 0.0
+        self.bar, self.stage, self.shown = None, None, 0.0
 
 
 _BAR = "{desc}: {percentage:3.0f}%|{bar}| [{elapsed}<{remaining}{postfix}]"

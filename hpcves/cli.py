@@ -20,6 +20,7 @@ import click
 
 from hpcves.version import __version__
 from hpcves.analysis import accuracy
+from hpcves.campaign import IO_MODES
 from hpcves.errors import HpcvesError
 from hpcves.model.params import ConfigError
 from hpcves.files.atomic import check_output_path
@@ -281,19 +282,16 @@ class CampaignProgress(_StatusLine):
         self.n_done_before, self.n_failed_before = ended_before
         self.start = time.monotonic()
 
-    def __call__(self, master) -> None:
+    def __call__(self, stage) -> None:
+        """Show ``stage``, a driver.StageProgress."""
         if not self.due(0.5):
             return
-        from hpcves.run.store import ENDED, FAILED
-
-        ended = [r for r in master.results if r.status in ENDED]
-        failed = self.n_failed_before + sum(1 for r in ended if r.status == FAILED)
-        fraction = master.cost_done() / master.cost_total if master.cost_total > 0 else 1.0
         elapsed = time.monotonic() - self.start
+        fraction = stage.fraction
         eta = elapsed * (1.0 - fraction) / fraction if fraction > 0.0 else float("inf")
         bar = "#" * int(round(20 * fraction))
-        self.show(f"[{bar:<20}] {self.n_done_before + len(ended)}/{self.n_total} cases | "
-                  f"{len(master.busy)} running | {failed} failed | {100 * fraction:.0f} % | "
+        self.show(f"[{bar:<20}] {self.n_done_before + stage.ended}/{self.n_total} cases | "
+                  f"{stage.running} running | {self.n_failed_before + stage.failed} failed | {100 * fraction:.0f} % | "
                   f"ETA {_duration(eta)}")
 
 
@@ -315,7 +313,7 @@ def _mpi_world():
 @click.option("--overwrite", is_flag=True, help="Delete an existing campaign file and start over.")
 @click.option("--out", "out", type=click.Path(), help="Campaign file (default: [campaign] output).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--io", "io", type=click.Choice(["auto", "mpio", "relay"]), default="auto", show_default=True,
+@click.option("--io", "io", type=click.Choice(IO_MODES), default="auto", show_default=True,
               help="How several ranks write the file: mpio (parallel HDF5, every rank writes its cases), "
                    "relay (rank 0 writes for everyone: for an h5py without MPI, or a file system where "
                    "MPI-IO misbehaves), auto (mpio if h5py has MPI).")
@@ -413,9 +411,9 @@ class _CampaignTerminal:
         if n_cases is not None and not self.quiet:
             self.display = CampaignProgress(n_cases, ended_before)
 
-    def show(self, master):
+    def show(self, stage):
         if self.display is not None:
-            self.display(master)
+            self.display(stage)
 
     def close(self):
         if self.display is not None:

@@ -150,7 +150,7 @@ def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, refer
             display[:] = [CampaignProgress(n_cases, ended_before, stream=shown)]
 
     again = run_campaign(study, output, resume=True, announce=announce,     # failed cases are left alone
-                         display=lambda master: display and display[0](master))
+                         display=lambda stage: display and display[0](stage))
     assert again.ran == () and again.exit_status == 1
     assert "4/4 cases | 0 running | 1 failed | 100 %" in shown.getvalue(), shown.getvalue()
     retried = run_campaign(study, output, resume=True, retry_failed=True)

@@ -86,6 +86,17 @@ NOT_WRITTEN = -1
 
 
 @dataclass(frozen=True)
+class StageProgress:
+    """Where a stage stands, for a progress display: its cases that ended (and of them failed) in this
+    call, those running, and the share of its cost (steps x N^2) done, running cases by how far they got."""
+
+    ended: int
+    failed: int
+    running: int
+    fraction: float
+
+
+@dataclass(frozen=True)
 class CaseResult:
     case_id: str
     status: int
@@ -309,8 +320,13 @@ class Master:
                 self.fraction[task.case_id] = 0.0
                 active = True
         if self.display is not None:
-            self.display(self)
+            self.display(self.progress())
         return active
+
+    def progress(self) -> StageProgress:
+        ended = [r for r in self.results if r.status in ENDED]
+        return StageProgress(len(ended), sum(1 for r in ended if r.status == FAILED), len(self.busy),
+                             self.cost_done() / self.cost_total if self.cost_total > 0 else 1.0)
 
     def received(self) -> list[tuple[int, tuple]]:
         """[(rank, message)] of the messages that have arrived whole, each rank's in the order it sent
@@ -505,7 +521,7 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     Rank 0 calls ``announce(text, None, (0, 0))`` with the campaign's
     first line, ``announce(text, n_cases, (n_ended, n_failed))`` once the work
     of a stage is known (the cases that ended before it, and how many of
-    those failed), and ``display(master)`` at every scheduling turn.
+    those failed), and ``display(progress)`` (a :class:`StageProgress`) at every scheduling turn.
 
     Collective: every rank calls it with the same study. Bad input raises
     the same hpcves error (errors.py) on every rank (the message is rank 0's).
