@@ -48,7 +48,7 @@ import logging
 import threading
 import time
 import traceback
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -255,17 +255,18 @@ def _verdict(store, case_id: str, analysis: AnalysisSettings) -> tuple[int, floa
 class Master:
     """Hands out cases, runs cases itself between scheduling turns (on few ranks), shows progress."""
 
-    def __init__(self, comm, campaign: CampaignFile, study: Study, todo, statuses: dict[str, int], flush,
-                 stop_flag, stop_timeout: float, display=None, relay: Relay | None = None):
-        self.comm = comm
-        self.relay = relay                       # applies the other ranks' file writes (--io relay)
-        self.size = 1 if comm is None else comm.Get_size()
+    def __init__(self, run: "CampaignRun", campaign: CampaignFile, flush, todo, statuses: dict[str, int]):
+        """The stage of ``run`` whose cases to run are ``todo`` (work_list), of the cases' ``statuses``."""
+        study = run.study
+        self.comm = run.comm
+        self.relay = run.access.relay(campaign, flush)     # applies the other ranks' file writes (--io relay)
+        self.size = run.size
         self.campaign, self.study, self.flush = campaign, study, flush
         self.queue = WorkQueue(todo, lambda c: study.by_id(c).cost, campaign.chain_links(), statuses,
                                lambda c: campaign.store(c).end_fields())
-        self.stop_flag = stop_flag
-        self.stop_timeout = stop_timeout
-        self.display = display
+        self.stop_flag = run.stop_flag
+        self.stop_timeout = study.stop_timeout
+        self.display = run.display
         self.busy: dict[int, str] = {}           # rank -> case id
         self.fraction: dict[str, float] = {}     # case id -> fraction of its t_end reached
         self.waiting: set[int] = set()
@@ -500,6 +501,31 @@ def worker_loop(comm, campaign: CampaignFile, flush, stop_flag, analysis: Analys
 
 
 # ---------------------------------------------------------------------- the whole job
+@dataclass
+class CampaignRun:
+    """One call of :func:`run_campaign` on one rank: what its parts share. ``study`` grows as a staged
+    study adds its cases (on rank 0, which keeps the cases)."""
+
+    study: Study
+    path: Path
+    comm: object                          # None: this process alone
+    access: FileAccess
+    retry_failed: bool
+    stop_flag: Callable[[], bool]
+    display: Callable | None
+    announce: Callable[[str, int | None, tuple[int, int]], None]
+    on_stage: Callable[[list], None]
+    start: float = field(default_factory=time.perf_counter)
+
+    @property
+    def size(self) -> int:
+        return 1 if self.comm is None else self.comm.Get_size()
+
+    @property
+    def rank(self) -> int:
+        return 0 if self.comm is None else self.comm.Get_rank()
+
+
 def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, retry_failed: bool = False,
                  overwrite: bool = False, io: str = "auto", stop_flag: Callable[[], bool] = lambda: False,
                  display=None,
@@ -565,24 +591,20 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
             refused = _grow(path, comm, grown)
             if refused:
                 raise StorageError(refused)
-        return _run_locked(study, path, comm, mode, access, start, retry_failed, stop_flag, display, announce,
-                           on_stage)
+        run = CampaignRun(study, path, comm, access, retry_failed, stop_flag, display, announce, on_stage, start)
+        return _run_locked(run, mode)
     finally:
         lock.release()
 
 
-def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed, stop_flag, display, announce,
-                on_stage):
-    size = 1 if comm is None else comm.Get_size()
-    rank = 0 if comm is None else comm.Get_rank()
+def _run_locked(run: CampaignRun, mode: str) -> Summary:
+    """The campaign once the file is this study's and locked: created or continued, stage after stage."""
+    study, path, comm, access, rank = run.study, run.path, run.comm, run.access, run.rank
     if mode == "create":
         if rank == 0:
-            announce(f"creating {path} ({len(study.cases)} cases, "
-                     f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, (0, 0))
+            run.announce(f"creating {path} ({len(study.cases)} cases, "
+                         f"{size_text(sum(storage_bytes(c.case) for c in study.cases))})", None, (0, 0))
         _create(study, path, comm)
-        mode_seen = "create"
-    else:
-        mode_seen = "continue"
     h5, campaign, flush = access.open(path)
     not_written = ""
     try:
@@ -590,33 +612,32 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
         driver = None
         if rank == 0 and study.staged:
             driver = (SearchDriver if study.search else RefineDriver)(study)
-            if mode_seen == "continue":
-                study = driver.cases_from_file(study, campaign)
+            if mode == "continue":
+                run.study = driver.cases_from_file(study, campaign)
         stage, ended = 0, None
         while True:
-            ran, stopped, refused = _run_stage(study, path, comm, campaign, flush, access, mode_seen, stage,
-                                               retry_failed and stage == 0, stop_flag, display, announce, ended)
+            ran, stopped, refused = _run_stage(run, campaign, flush, mode, stage, ended)
             ended = time.perf_counter()
             results += ran
             not_written = not_written or refused
-            if not study.staged:
+            if not run.study.staged:
                 break
             access.sync(h5)                  # rank 0 is about to read the cases the others wrote
             plan, failure = ("stop",), None
             if rank == 0 and not stopped:
                 try:
                     driver.ran(ran)
-                    outcomes, new = driver.next_stage(study, campaign)
+                    outcomes, new = driver.next_stage(run.study, campaign)
                     campaign.store_verdicts(driver.fresh)     # classified once: a resume or status reads them
                     driver.fresh.clear()
                     faults.point("verdicts-stored")
-                    on_stage(outcomes)
+                    run.on_stage(outcomes)
                     plan = ("add", new) if new else ("done",)
                 except Exception as exc:      # told to every rank, which would wait for the plan for ever
                     failure, own = exc, isinstance(exc, HpcvesError)
                     plan = ("error", type(exc) if own else RuntimeError, str(exc) if own else
                             f"{type(exc).__name__}: {exc}")
-            if size > 1:
+            if run.size > 1:
                 plan = bcast(comm, plan)
             if failure is not None:
                 raise failure
@@ -624,11 +645,12 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
                 raise plan[1](plan[2])
             if plan[0] != "add":
                 break
-            study = study.with_cases(plan[1]) if rank == 0 else study
+            if rank == 0:
+                run.study = run.study.with_cases(plan[1])
             if h5 is not None:
                 h5.close()
                 h5 = None
-            refused = _add_stage(path, comm, plan[1], stage + 1, study.source)
+            refused = _add_stage(path, comm, plan[1], stage + 1, run.study.source)
             if refused:
                 not_written = refused
                 if rank == 0:
@@ -640,12 +662,12 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
         summary = None
         if rank == 0:
             counts = {name: 0 for name in STATUS_NAMES.values()}
-            failed, again = [], run_again(study)
+            failed, again = [], run_again(run.study)
             for row in campaign.table():
                 counts[row["status"]] = counts.get(row["status"], 0) + 1
                 if row["status"] == "failed" and row["case"] not in again:
                     failed.append((row["case"], row["message"]))
-            summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - start,
+            summary = Summary(tuple(results), counts, tuple(failed), time.perf_counter() - run.start,
                               tuple(outcomes), not_written, len(again))
     finally:
         if h5 is not None:
@@ -653,40 +675,39 @@ def _run_locked(study, path, comm, mode, access: FileAccess, start, retry_failed
                 h5.close()
             except HDF5_ERRORS:
                 pass                               # a refused write was reported already
-    if size > 1:
+    if run.size > 1:
         summary = comm.bcast(summary, root=0)
     return summary
 
 
-def _run_stage(study, path, comm, campaign, flush, access: FileAccess, mode, stage, retry_failed, stop_flag,
-               display, announce, ended=None) -> tuple[list[CaseResult], bool, str]:
+def _run_stage(run: CampaignRun, campaign, flush, mode: str, stage: int,
+               ended: float | None = None) -> tuple[list[CaseResult], bool, str]:
     """Run every unfinished case of the file on every rank: (results, whether it was stopped, why the
     file system refused a write or "") on rank 0; ``ended``: when the stage before ended (perf_counter),
-    to say how long rank 0 took between the two."""
-    size = 1 if comm is None else comm.Get_size()
-    rank = 0 if comm is None else comm.Get_rank()
+    to say how long rank 0 took between the two. Failed cases run again with ``run.retry_failed``, in the
+    first stage only."""
+    study, size = run.study, run.size
     results, stopped, refused = [], False, ""
-    if rank == 0:
+    if run.rank == 0:
         statuses = campaign.statuses()
-        todo = work_list(statuses, study, retry_failed)
+        todo = work_list(statuses, study, run.retry_failed and stage == 0)
         to_run = {case_id for case_id, _ in todo}
         before = [s for case_id, s in statuses.items() if case_id not in to_run]
         ended_before = (len(before), sum(1 for s in before if s == FAILED))
         if stage == 0:
-            announce(_announcement(study, path, statuses, size, mode, access), None, (0, 0))
+            run.announce(_announcement(study, run.path, statuses, size, mode, run.access), None, (0, 0))
         if todo or not study.staged:
             line = _stage_line(study, statuses, todo, stage, size)
             if ended is not None:
                 line += f"; {time.perf_counter() - ended:.1f} s between stages"
-            announce(line, len(statuses), ended_before)
-        master = Master(comm, campaign, study, todo, statuses, flush, stop_flag, study.stop_timeout, display,
-                        access.relay(campaign, flush))
+            run.announce(line, len(statuses), ended_before)
+        master = Master(run, campaign, flush, todo, statuses)
         results = master.run()
         stopped, refused = master.stopping, master.not_written
     else:
-        worker_loop(comm, campaign, flush, stop_flag, study.analysis, study.staged)
+        worker_loop(run.comm, campaign, flush, run.stop_flag, study.analysis, study.staged)
     if size > 1:
-        wait(comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
+        wait(run.comm.Ibarrier())     # everyone is done writing before the collective close (or the next stage)
     return results, stopped, refused
 
 
