@@ -24,6 +24,7 @@ setup:
 	@./scripts/bootstrap.sh
 
 test: setup
+	$(PY) -m ruff check hpcves analysis tests bench
 	$(PY) -m pytest -m "not slow and not faults" -q --durations=15
 
 demo: setup

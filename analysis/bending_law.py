@@ -21,11 +21,10 @@ import multiprocessing
 import sys
 import time
 
-
-from hpcves.run import diagnostics
-from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.analysis.periodicity import crossing_period, estimate_period
 from hpcves.analysis.regimes import flip_period
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.run import diagnostics
 from hpcves.run.runner import one_thread
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
@@ -72,7 +71,8 @@ def deflated_run(psi_bar: float, delta: float, S: float, N: int, law: str, t_end
         series = {k: store.timeseries()[k][:n] for k in ("psi_min", "psi_max", "tail_theta", "tail_psi")}
     return {"kind": "deflated", "psi_bar": psi_bar, "delta": delta, "S": S, "N": N, "law": law,
             "reached": outcome.t, "steps": outcome.steps,
-            "outcome": STATUS_NAMES[outcome.status] + (f": {outcome.message.split(' (')[0]}" if outcome.message else ""),
+            "outcome": STATUS_NAMES[outcome.status]
+            + (f": {outcome.message.split(' (')[0]}" if outcome.message else ""),
             "psi_range": (float(series["psi_min"].min()), float(series["psi_max"].max())),
             "tail": float(max(series["tail_theta"].max(), series["tail_psi"].max())), "seconds": outcome.wall}
 

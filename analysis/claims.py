@@ -50,7 +50,8 @@ CLAIMS = (
     Claim("table1_sc", "table1", "S_C = 72, 9, 71 at psi_bar = 0.3, 0.5, 0.7 (B2 = 0.1)", ("sc_psi",)),
     Claim("sc_b1_b2", "fig. criticalshearate (a)", "S_C ~ B1 - B2", ("sc_b2",)),
     Claim("sc_gap", "fig. criticalshearate (b, c)", "S_C grows with the bending-energy gap Delta E_b", ("sc_psi",)),
-    Claim("sc_symmetric", "fig. criticalshearate (c)", "at B2 = 0.8, S_C and Delta E_b are symmetric about psi_bar = 0.5",
+    Claim("sc_symmetric", "fig. criticalshearate (c)",
+          "at B2 = 0.8, S_C and Delta E_b are symmetric about psi_bar = 0.5",
           ("sc_psi",)),
     Claim("fig7a_tu", "fig. phasediagram (a)", "psi_bar = 0.48: tumbling for S < 4 and Delta > 0.8", DELTA_S),
     Claim("fig7a_tu_onset", "fig. phasediagram (a)", "no tumbling for Delta < 0.8", DELTA_S),
@@ -60,13 +61,15 @@ CLAIMS = (
     Claim("fig9", "fig. dynamicspt", "Delta = 2.3, S = 28, psi_bar = 0.48 phase-treads", CASES),
     Claim("fig10a_tu", "fig. phasediagram2 (a)", "Delta = 0.94: tumbling for S < 4 near psi_bar = 0.5 (0.4-0.6 here)",
           DELTA_094),
-    Claim("fig10a_order", "fig. phasediagram2 (a)", "Delta = 0.94: above that, tank-treading, then phase-treading at higher S",
+    Claim("fig10a_order", "fig. phasediagram2 (a)",
+          "Delta = 0.94: above that, tank-treading, then phase-treading at higher S",
           DELTA_094),
     Claim("fig10b_tu", "fig. phasediagram2 (b)", "Delta = 2.3: tumbling for S < 4 near psi_bar = 0.5 (0.44-0.58 here)",
           DELTA_230),
     Claim("fig10b_pt", "fig. phasediagram2 (b)", "Delta = 2.3: phase-treading for S >= 4 at psi_bar 0.44-0.58",
           DELTA_230),
-    Claim("fig10b_tt", "fig. phasediagram2 (b)", "Delta = 2.3: tank-treading for psi_bar > 0.58 or < 0.44 over a wide range of S",
+    Claim("fig10b_tt", "fig. phasediagram2 (b)",
+          "Delta = 2.3: tank-treading for psi_bar > 0.58 or < 0.44 over a wide range of S",
           DELTA_230),
     Claim("fig10b_sc", "fig. phasediagram2 (b)", "Delta = 2.3, psi_bar = 0.44: S_C = 120", DELTA_230),
 )
@@ -173,7 +176,8 @@ def sc_psi(report) -> dict:
             rho = _spearman([p[0] for p in pairs], [p[1] for p in pairs])
             key = "sc_gap"
             entry = out.setdefault(key, {"value": "", "verdict": AGREES})
-            entry["value"] += ("; " if entry["value"] else "") + f"B2 = {B2:g}: rank correlation {rho:.2f} ({len(pairs)} searches)"
+            entry["value"] += (("; " if entry["value"] else "")
+                               + f"B2 = {B2:g}: rank correlation {rho:.2f} ({len(pairs)} searches)")
             if rho < 0.5:
                 entry["verdict"] = DIFFERS
     by_psi = {round(s["psi_bar"], 6): s for s in searches if math.isclose(s["B2"], 0.8)}
@@ -188,7 +192,8 @@ def sc_psi(report) -> dict:
     if asymmetry:
         worst = max(asymmetry)
         typical = sorted(a for a, _, _ in asymmetry)[len(asymmetry) // 2]
-        out["sc_symmetric"] = {"value": f"psi_bar and 1 - psi_bar differ by {typical:.0%} (median over {len(asymmetry)} "
+        out["sc_symmetric"] = {"value": f"psi_bar and 1 - psi_bar differ by {typical:.0%} "
+                                        f"(median over {len(asymmetry)} "
                                         f"pairs of S_C and Delta E_b), at most {worst[0]:.0%} ({worst[1]} at "
                                         f"{worst[2]:g} / {1 - worst[2]:g})",
                                "verdict": AGREES if worst[0] <= 0.1 else MOSTLY if typical <= 0.1 else DIFFERS}

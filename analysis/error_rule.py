@@ -27,10 +27,10 @@ import time
 import numpy as np
 
 from hpcves.analysis import accuracy
-from hpcves.run import diagnostics
-from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.analysis.periodicity import analyse
 from hpcves.analysis.regimes import flip_period
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.run import diagnostics
 from hpcves.run.runner import one_thread
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
@@ -84,9 +84,11 @@ def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str
     """The Markdown report of the measurement, and whether the rule of accuracy.py covers every run."""
     lines = ["# The discretisation error of periods and inclinations against rtol", "",
              f"Measured {time.strftime('%Y-%m-%d')} by `analysis/error_rule.py` ({seconds / 60:.0f} min of runs, "
-             "one at a time on a shared 2-core machine); hpcves/analysis/accuracy.py states the rule these numbers set. "
+             "one at a time on a shared 2-core machine); hpcves/analysis/accuracy.py states the rule these "
+             "numbers set. "
              f"Each run at rtol is compared with a run at rtol = {REFERENCE_RTOL:g} on the same sample times, "
-             "period and mean theta read by the estimator of `hpcves analyze` (hpcves.analysis.periodicity.analyse).", "",
+             "period and mean theta read by the estimator of `hpcves analyze` "
+             "(hpcves.analysis.periodicity.analyse).", "",
              "Columns: |dT| / T, the relative difference of the periods; stat, what the two estimates' "
              "statistical errors allow together ((sigma_run + sigma_ref) / T); excess / rtol, the part of |dT| "
              "beyond that, per unit rtol: what the discretisation error bar has to cover. |d theta|: the "
@@ -128,7 +130,8 @@ def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str
               "sin 2 theta, as `hpcves analyze` reads a tumbling case):", "", *tumbling, "", TUMBLING_NOTE,
               "", f"PT and TT: largest ratios period excess {worst_period:.4f}, inclination {worst_theta:.4f} rad. "
               "The rule "
-              f"in hpcves/analysis/accuracy.py, PERIOD_PER_RTOL = {accuracy.PERIOD_PER_RTOL:g} and INCLINATION_PER_RTOL = "
+              f"in hpcves/analysis/accuracy.py, PERIOD_PER_RTOL = {accuracy.PERIOD_PER_RTOL:g} and "
+              "INCLINATION_PER_RTOL = "
               f"{accuracy.INCLINATION_PER_RTOL:g}, "
               + ("covers every run above (|dT| <= stat + PERIOD_PER_RTOL rtol T, |d theta| <= INCLINATION_PER_RTOL "
                  "rtol)." if covered else "DOES NOT COVER every run above."), ""]

@@ -10,9 +10,9 @@ import sys
 from pathlib import Path
 
 from hpcves.campaign.file import CampaignFile
-from hpcves.run.store import STATUS_NAMES, open_file
 from hpcves.model.params import ConfigError
 from hpcves.reports.plots import campaign_figure, case_figure, case_title
+from hpcves.run.store import STATUS_NAMES, open_file
 
 
 def main(argv=None):

@@ -3,9 +3,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from hpcves.run.store import CaseStore, open_file
 from hpcves.model.params import ConfigError
 from hpcves.reports.plots import case_figure, case_title
+from hpcves.run.store import CaseStore, open_file
 
 
 def main(argv=None):

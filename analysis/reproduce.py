@@ -35,19 +35,24 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import claims
-from hpcves.analysis import accuracy
-from hpcves.analysis import grids
-from hpcves.reports import case_pages
-from hpcves.reports import attractor_map
-from hpcves.reports.analyze import (analyze, grid_use_of, pattern_cell, period_cell, read_source, regime_counts,
-                                    run_labels)
-from hpcves.reports.refinement import superseded
-from hpcves.reports.tables import markdown_table
+from hpcves.analysis import accuracy, grids
 from hpcves.campaign.file import read_table
 from hpcves.campaign.progress import WORK_LEFT
-from hpcves.reports.critical import critical_table
 from hpcves.campaign.study import load_study
 from hpcves.model.params import LABELS
+from hpcves.reports import attractor_map, case_pages
+from hpcves.reports.analyze import (
+    analyze,
+    grid_use_of,
+    pattern_cell,
+    period_cell,
+    read_source,
+    regime_counts,
+    run_labels,
+)
+from hpcves.reports.critical import critical_table
+from hpcves.reports.refinement import superseded
+from hpcves.reports.tables import markdown_table
 
 JOBS = {"coarse": Path("jobs/reproduce"), "fine": Path("jobs/reproduce/fine")}
 FIGURES = {"coarse": Path("docs/reproduction"), "fine": Path("docs/reproduction/fine")}
@@ -64,7 +69,8 @@ MIN_GOOD_CYCLES = 5          # PT cases with fewer settled periods are flagged
 def run_campaigns(jobs: dict, mpirun: list[str], np_: int, hpcves: str, ledger: Path,
                   retry_failed: bool = False) -> dict:
     """Run (or continue) every campaign; return its wall time in seconds in this call (0 if it was
-    complete); ``retry_failed``: run its failed cases again too (``hpcves campaign --retry-failed``). The wall times of every call are added up in ``ledger`` (JSON), so that an interrupted
+    complete); ``retry_failed``: run its failed cases again too (``hpcves campaign --retry-failed``).
+    The wall times of every call are added up in ``ledger`` (JSON), so that an interrupted
     and resumed reproduction still reports what all of it took.
 
     A campaign that ends with work left (``hpcves status``: exit status 3) stops the reproduction
@@ -281,7 +287,8 @@ def doubts(reports: dict) -> list[tuple[str | None, str]]:
                 continue
             lam = r.get("viscosity_ratio", 1.0)
             label = (f"{name} case {r['case']} (S = {r['shear_rate']:g}, psi_bar = {r['psi_bar']:g}, "
-                     f"Delta = {r['excess_length']:g}, B2 = {r['B2']:g}" + (f", lambda = {lam:g})" if lam != 1 else ")"))
+                     f"Delta = {r['excess_length']:g}, B2 = {r['B2']:g}"
+                     + (f", lambda = {lam:g})" if lam != 1 else ")"))
             line = None
             if r["status"] != "finished":
                 line = f"{label}: {r['status']}: {r['reason']}"

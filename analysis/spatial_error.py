@@ -139,10 +139,12 @@ def render(results: dict) -> tuple[list[str], dict, bool]:
                 worst["inclination"] = max(worst["inclination"], dm / r["tail"])
                 covered &= bool(dm <= accuracy.spatial_inclination_error(r["mean"], r["tail"])
                                 + _zero_if_nan(r["mean_err"]) + _zero_if_nan(ref["mean_err"]))
-            lines.append(f"| | | | | {N} | {r['tail']:.1e}{'' if ruled else ' *'} | {r['period']:.7g} | " + " | ".join(cells)
+            lines.append(f"| | | | | {N} | {r['tail']:.1e}{'' if ruled else ' *'} | {r['period']:.7g} | "
+                         + " | ".join(cells)
                          + f" | {r['mean']:.6f} | {dm:.1e} | {dm / r['tail']:.3g} |")
     lines += ["", f"\\* a tail beyond {accuracy.TAIL_RULED_UP_TO:g} (run.max_spectral_tail's default, "
-              "accuracy.TAIL_RULED_UP_TO): a run the watch would have stopped; the rule gives it no bar, and its ratios "
+              "accuracy.TAIL_RULED_UP_TO): a run the watch would have stopped; the rule gives it no bar, "
+              "and its ratios "
               "are not in the largest below.", "",
               f"TT and PT with tails up to {accuracy.TAIL_RULED_UP_TO:g}: largest ratios period excess / tail "
               f"{worst['period']:.3g}, inclination / tail "

@@ -18,15 +18,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hpcves.run import runner  # noqa: E402
 from hpcves.analysis.periodicity import crossing_period  # noqa: E402
 from hpcves.analysis.regimes import classify  # noqa: E402
-from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402
 from hpcves.model.params import REFERENCE_EXCESS_LENGTH, Case, Numerics, Physics, RunControl  # noqa: E402
-from hpcves.reports.plots import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
 from hpcves.numerics.spectral import Spectral  # noqa: E402
-from hpcves.run.timestepping import Solver, State  # noqa: E402
+from hpcves.reports.plots import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
+from hpcves.run import runner  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
+from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402
+from hpcves.run.timestepping import Solver, State  # noqa: E402
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 
@@ -88,7 +88,8 @@ def homogeneous(lines):
     ax.legend(frameon=False)
     fig.savefig(FIGURES / "homogeneous_theta.png", dpi=110)
     lines += ["![theta(t) of the homogeneous vesicle](docs/validation/homogeneous_theta.png)", "",
-              "| S | settled theta [rad] | variation over the last 20 % | settled (|theta - final| < 1e-4) after strain |",
+              "| S | settled theta [rad] | variation over the last 20 % "
+              "| settled (|theta - final| < 1e-4) after strain |",
               "| ---: | ---: | ---: | ---: |"]
     lines += [f"| {S:g} | {m:.5f} | {v:.1e} | {s:.1f} |" for S, m, v, s in rows]
     spread = max(r[1] for r in rows) - min(r[1] for r in rows)

@@ -18,12 +18,11 @@ import multiprocessing
 import sys
 import time
 
-
-from hpcves.run import diagnostics
-from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.analysis.periodicity import crossing_period
-from report import replace_section
+from hpcves.model.params import Case, Numerics, Physics, RunControl
+from hpcves.run import diagnostics
 from hpcves.run.runner import one_thread
+from report import replace_section
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 

@@ -54,10 +54,11 @@ ACCESS = {"auto": "serial", "mpio": "mpio", "relay": "relay"}
 
 def job(study_path: str, io: str) -> None:
     """Under mpirun: run the study, time the checkpoint writes on every rank, print JSON on rank 0."""
-    from hpcves.run import store as checkpoint
-    from hpcves.campaign.driver import run_campaign
     from mpi4py import MPI
+
+    from hpcves.campaign.driver import run_campaign
     from hpcves.campaign.study import load_study
+    from hpcves.run import store as checkpoint
 
     spent = [0.0, 0]
     original = checkpoint.CaseStore.write_checkpoint

@@ -18,13 +18,12 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_solver import machine  # noqa: E402
-from report import replace_section  # noqa: E402
-
 import hpcves.model.flow as flow_module  # noqa: E402
+from bench_solver import machine  # noqa: E402
 from hpcves.model.params import Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
 from hpcves.run.timestepping import Solver  # noqa: E402
+from report import replace_section  # noqa: E402
 
 #: label -> (Physics keywords, dt)
 CASES = {"psi_bar = 0.3, Delta = 0.194, S = 80": (dict(psi_bar=0.3, shear_rate=80.0), 1e-3),

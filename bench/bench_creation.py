@@ -44,17 +44,19 @@ MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
 
 def job(n: int, io: str, directory: str) -> None:
     """Under mpirun: lay the file out once, print the seconds on rank 0."""
+    from mpi4py import MPI
+
     from hpcves.campaign import driver
     from hpcves.campaign.access import choose_io, file_access
     from hpcves.campaign.study import study_from_toml
-    from mpi4py import MPI
 
     comm = MPI.COMM_WORLD if MPI.COMM_WORLD.Get_size() > 1 else None
     output = Path(directory) / "creation.h5"
     study = study_from_toml(STUDY.format(output=output, n=n))
     args = (study, output, comm)
     if "access" in inspect.signature(driver._create).parameters:      # the hpcves before rank 0 laid out alone
-        access = file_access(choose_io(io, comm.Get_size()), comm, 11, 12) if comm else file_access("auto", None, 11, 12)
+        access = (file_access(choose_io(io, comm.Get_size()), comm, 11, 12) if comm
+                  else file_access("auto", None, 11, 12))
         args += (access,)
     if comm:
         comm.Barrier()

@@ -79,7 +79,8 @@ def main(argv=None):
         b = found[(p, S, setting, "numpy")]
         if engine != "numpy" and (a["steps"], a["rejected"]) != (b["steps"], b["rejected"]):
             print(f"* {setting}, psi_bar = {p}, S = {S:g}: steps (rejected) {a['steps']} ({a['rejected']}) {engine}, "
-                  f"{b['steps']} ({b['rejected']}) numpy; periods differ by {abs(a['period'] - b['period']) / b['period']:.1e}")
+                  f"{b['steps']} ({b['rejected']}) numpy; periods differ by "
+                  f"{abs(a['period'] - b['period']) / b['period']:.1e}")
     return found
 
 

@@ -23,11 +23,10 @@ import time
 
 import numpy as np
 
-from report import replace_section
-
 from hpcves.analysis import periodicity
 from hpcves.config import case_from_dict, group_from_dict
 from hpcves.model.params import Physics
+from report import replace_section
 
 CASE = {"physics": {"shear_rate": 80.0, "psi_bar": 0.3, "excess_length": 0.19385328260599, "B2": 0.3},
         "numerics": {"N": 128, "rtol": 1e-2}, "run": {"t_end": 4.0, "sample_interval": 0.01}}
@@ -61,8 +60,9 @@ def config_rows() -> list:
              f"{per_call(lambda: group_from_dict('physics', physics)):.0f} (physics only)",
              message(lambda: case_from_dict(bad_type)), message(lambda: case_from_dict(bad_keys))]]
     try:
-        import pydantic
         import typing
+
+        import pydantic
         hints = typing.get_type_hints(Physics)
         model = pydantic.create_model(
             "Physics", __config__=pydantic.ConfigDict(strict=True, extra="forbid"),

@@ -23,9 +23,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_solver import machine  # noqa: E402
-from report import replace_section  # noqa: E402
-
 from hpcves.run.timing import rank_bytes  # noqa: E402
+from report import replace_section  # noqa: E402
 
 SIZES = (64, 128, 256, 512, 1024, 2048)
 RATIOS = (1.0, 4.0)
@@ -73,7 +72,8 @@ def main() -> None:
                 rows.append((N, ratio, compiling, rss, model))
                 print(f"N = {N:5d}, lambda = {ratio:g}, {'compiling' if compiling else 'cached'}: peak "
                       f"{rss / 2**20:8.1f} MiB, model {model / 2**20:8.1f} MiB ({model / rss:.2f} x)", flush=True)
-    lines = [f"## {HEADING}", "", f"Measured {datetime.date.today()} on {machine()} (`bench/bench_memory.py`): the peak resident set "
+    lines = [f"## {HEADING}", "",
+             f"Measured {datetime.date.today()} on {machine()} (`bench/bench_memory.py`): the peak resident set "
              f"of a fresh process that runs one case for {STEPS} steps (compiled engine, writing samples and "
              "snapshots), what a campaign rank holds; and `run/timing.py rank_bytes`, the model that "
              "`--plan --slurm` asks memory by.", "",

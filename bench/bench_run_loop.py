@@ -35,13 +35,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_solver import machine  # noqa: E402
-from report import replace_section  # noqa: E402
-
 from hpcves.api import run_case  # noqa: E402
 from hpcves.campaign.study import load_study  # noqa: E402
 from hpcves.run import schedule  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
 from hpcves.run.timestepping import Solver  # noqa: E402
+from report import replace_section  # noqa: E402
 
 STUDY = Path(__file__).resolve().parents[1] / "jobs" / "reproduce" / "psi048_delta_S.toml"
 SHEAR_RATE, EXCESS_LENGTH = 1.352, 0.415
@@ -178,7 +177,8 @@ def main(argv=None):
              "timed where it runs, against the steps in the same run: wall clock, one process, so a load change "
              f"hits both; medians): **{in_place_first:.0%}** on top of the first {STEPS} steps and "
              f"**{in_place_next:.0%}** on top of the next {STEPS} (what a long run pays; the decisions' share grows "
-             f"with the record). Where it goes over {2 * STEPS} steps (the run of median share, {share(step_seconds, parts):.0%} "
+             f"with the record). Where it goes over {2 * STEPS} steps (the run of median share, "
+             f"{share(step_seconds, parts):.0%} "
              f"in all; the steps {step_seconds:.2f} s):", "",
              "| part | share of the steps' time |", "| --- | ---: |"]
     lines += [f"| {label} | {seconds / step_seconds:.1%} |"

@@ -130,7 +130,8 @@ def run(cases: int, ranks: int, io: str, refine: bool, directory: Path) -> dict:
     workers = [cpu[r] for r in cpu if r != 0]
     return {"cases": n, "ranks": ranks, "io": io, "refine": refine, "creation": created or float("nan"),
             "campaign": wall, "rate": n / max(wall - (created or 0.0), 1e-9),
-            "cpu_rank0": cpu.get(0, float("nan")), "cpu_worker": statistics.median(workers) if workers else float("nan"),
+            "cpu_rank0": cpu.get(0, float("nan")),
+            "cpu_worker": statistics.median(workers) if workers else float("nan"),
             "status_json": status_json, "status_check": status_check, "analyze": analyze,
             "analyze_gb": memory / 2**20, "file_mb": output.stat().st_size / 1e6,
             "stage_ms_per_case": 1e3 * sum(stages) / max(n, 1) if stages else float("nan"), "log": log[-2000:]}

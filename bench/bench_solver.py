@@ -22,14 +22,14 @@ import numpy as np
 import scipy
 from scipy.linalg import lapack
 
-from hpcves.model import geometry
 from hpcves.analysis.periodicity import crossing_period
+from hpcves.model import geometry
 from hpcves.model.flow import cholesky_solve
 from hpcves.model.forces import bending_force
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import Spectral
-from hpcves.run.timestepping import Solver
 from hpcves.run.runner import one_thread
+from hpcves.run.timestepping import Solver
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 

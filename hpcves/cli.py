@@ -7,10 +7,10 @@ input (configuration, files).
 from __future__ import annotations
 
 import functools
-import os
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import time
@@ -18,12 +18,12 @@ from collections import Counter
 
 import click
 
-from hpcves.version import __version__
 from hpcves.analysis import accuracy
 from hpcves.campaign import IO_MODES
 from hpcves.errors import HpcvesError
-from hpcves.model.params import ConfigError
 from hpcves.files.atomic import check_output_path
+from hpcves.model.params import ConfigError
+from hpcves.version import __version__
 
 
 def _error(message) -> None:
@@ -480,11 +480,11 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
     import shutil
     from pathlib import Path
 
+    from hpcves.campaign.driver import file_bytes
     from hpcves.campaign.plan import largest_N, memory_per_rank, plan
     from hpcves.campaign.slurm import JobSize, mem_per_cpu, read_template, slurm_script
     from hpcves.campaign.slurm import max_jobs as default_max_jobs
     from hpcves.campaign.study import load_study
-    from hpcves.campaign.driver import file_bytes
     from hpcves.files.atomic import free_bytes, size_text
     from hpcves.run.timing import StepCost, classify_seconds, layout_seconds
 
@@ -584,7 +584,8 @@ def _overhead_text(basis, ranks: int) -> str:
     if per >= CASES_PER_RANK or ranks == 1:
         return text + f"\n{shown} cases a rank at the suggestion{schedules}"
     fewer = ranks_for(max(1, basis.cases // CASES_PER_RANK))
-    return (text + f"\n{shown} cases a rank at the suggestion{schedules}, fewer than {CASES_PER_RANK}: the cases are few "
+    return (text + f"\n{shown} cases a rank at the suggestion{schedules}, fewer than {CASES_PER_RANK}: "
+            "the cases are few "
             f"for their length -- {fewer} rank{'s' * (fewer != 1)} ({CASES_PER_RANK} cases each) would take "
             f"{_duration(basis.wall(fewer))} instead of {_duration(basis.wall(ranks))}")
 
@@ -608,10 +609,9 @@ def _job_seconds(wall: float) -> float:
 
 def _plan_text(estimate, study, suggested: int) -> str:
     """The plan as tables: each stage's cases and core-hours, then the wall time against ranks."""
-    from hpcves.reports.tables import markdown_table
-
     from hpcves.campaign.plan import DECIDED_AFTER
     from hpcves.campaign.queue import ranks_for
+    from hpcves.reports.tables import markdown_table
 
     likely = estimate.likely
     critical = "critical-shear" if study.search is None or study.search.along == "shear_rate" else "critical-lambda"
@@ -823,7 +823,8 @@ def _status_table(name, rows, totals, writing, left) -> None:
     header = ["case", *keys, "status", "t / t_end", "wall", "steps/s", "reason"]
     lines = []
     for r in rows:
-        lines.append([r["case"], *(f"{r[k]:g}" if isinstance(r[k], float) else r[k] or "-" for k in keys), r["status"], f"{r['t']:.4g} / {r['t_end']:.4g}",
+        lines.append([r["case"], *(f"{r[k]:g}" if isinstance(r[k], float) else r[k] or "-" for k in keys), r["status"],
+                      f"{r['t']:.4g} / {r['t_end']:.4g}",
                       _duration(r["wall"]) if r["wall"] > 0 else "-",
                       f"{r['steps_per_second']:,.0f}" if r["steps_per_second"] > 0 else "-",
                       (r["message"].splitlines() or [""])[0][:80]])

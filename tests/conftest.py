@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from hpcves.model.params import Case, Numerics, Physics, RunControl
-from hpcves.run.timestepping import Solver
 from hpcves.run.runner import one_thread
+from hpcves.run.timestepping import Solver
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 

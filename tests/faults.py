@@ -37,8 +37,7 @@ import h5py
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from jobs import (alive, case_views, command, differences, job_pids, kill_job, mpi_env, start_job,  # noqa: E402
-                  wait_until)
+from jobs import alive, case_views, command, differences, job_pids, kill_job, mpi_env, start_job, wait_until  # noqa: E402
 
 STUDY = """[campaign]
 name = "faults"
@@ -284,7 +283,8 @@ def report(trials: list[Trial], timelines: dict, seed: int, wall: float) -> str:
         f"**{identical} of {len(trials)} trials resumed to results bitwise identical to an uninterrupted run**, "
         f"after {sum(t.landed for t in trials)} SIGKILLs of live jobs "
         f"({sum(1 for t in trials if t.landed)} trials with a kill; {late} {'kill' if late == 1 else 'kills'} came "
-        f"after the job had ended and {'does' if late == 1 else 'do'} not count; {refused} {'resume was' if refused == 1 else 'resumes were'} "
+        f"after the job had ended and {'does' if late == 1 else 'do'} not count; {refused} "
+        f"{'resume was' if refused == 1 else 'resumes were'} "
         "refused by the lock while the ranks of a killed mpirun were still alive, and ran once they were gone).", "",
         "Where the kills landed: " + ", ".join(f"{n} {k}" for k, n in sorted(landings.items(), key=lambda x: -x[1]))
         + f"; {torn} of them inside a checkpoint write.", "",

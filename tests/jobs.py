@@ -278,7 +278,8 @@ def results(path):
     """
     out = {}
     with h5py.File(path, "r", locking=False) as f:
-        out["/attrs"] = {k: v for k, v in f.attrs.items() if k not in ("hpcves_version", "campaign_toml", "format_version")}
+        out["/attrs"] = {k: v for k, v in f.attrs.items()
+                         if k not in ("hpcves_version", "campaign_toml", "format_version")}
         for name, d in f["index"].items():
             if name == "verdict":                 # the codes; the wall seconds they were stored with vary
                 out[f"/index/{name}"] = d[:, 0]

@@ -5,15 +5,14 @@ import h5py
 import numpy as np
 import pytest
 
+from hpcves.analysis import grids
 from hpcves.config import case_from_toml
 from hpcves.model import geometry
 from hpcves.model.params import Case, ConfigError, Numerics, Physics
 from hpcves.numerics.spectral import fft_sizes, resample, spectral_tail, tail_on
-from hpcves.analysis import grids
 from hpcves.run import resolution, schedule
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED
 from hpcves.run.timestepping import Solver
-
 from jobs import GROWING, history, resume_in_process, run_in_process, same_case_files
 
 
@@ -81,7 +80,8 @@ def test_a_resized_state_keeps_length_area_and_the_psi_integral_and_its_history(
         assert grown.psi.mean() == pytest.approx(state.psi.mean(), abs=1e-15)      # int psi ds = L mean(psi)
         length = np.sum(np.abs(larger.sp.ds_complex(larger.shape(grown).z))) * larger.sp.length / N
         assert length == pytest.approx(case.physics.length, rel=1e-11)
-        assert (grown.t, grown.step, grown.dt_prev, grown.dt_next) == (state.t, state.step, state.dt_prev, state.dt_next)
+        assert ((grown.t, grown.step, grown.dt_prev, grown.dt_next)
+                == (state.t, state.step, state.dt_prev, state.dt_next))
         back, returned = larger.resized(grown, 64)       # and back: the same state to round-off
         for name in ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_psi", "prev2_psi"):
             assert np.max(np.abs(getattr(returned, name) - getattr(state, name))) < 1e-7, name
@@ -198,7 +198,8 @@ def test_grid_use_counts_each_interval_on_the_grid_its_first_sample_goes_on_with
     assert grids.shares(use) == {64: (0.25, 0.25), 96: (0.75, 0.75)}
     assert grids.use_text(use) == "64: 25 % of the steps (25 % of the time), 96: 75 % of the steps (75 % of the time)"
     before = grids.grid_use(t, N)                             # a file written before the step series
-    assert grids.use_text(grids.combined([before, before])) == "64: 25 % of the simulated time, 96: 75 % of the simulated time"
+    assert (grids.use_text(grids.combined([before, before]))
+            == "64: 25 % of the simulated time, 96: 75 % of the simulated time")
 
 
 DECIDING = """
@@ -272,8 +273,8 @@ max_N = 256
                          ids=["PT period", "TT inclination"])
 def test_the_error_bars_with_the_grids_part_cover_a_coarse_run_against_a_fine_one(tmp_path, psi_bar, S, Delta,
                                                                                  t_end, quantity):
-    from hpcves.reports.analyze import analyze
     from hpcves.analysis import accuracy
+    from hpcves.reports.analyze import analyze
 
     rows = {}
     for N in (48, 96):                 # 48 nodes: tails 9e-4 and 2e-3 (docs/spatial_error.md); 96: 1e-6, 1e-5
@@ -379,12 +380,11 @@ psi_bar = [0.3]
 
 def test_a_search_campaign_with_N_auto_runs_under_mpi_as_it_runs_serially(tmp_path):
     """[search] with N adapting: every case keeps its own N history, and two ranks give the serial file."""
-    from hpcves.campaign.driver import run_campaign
-    from hpcves.campaign.study import study_from_toml
     from hpcves.analysis.search import CONVERGED
-    from jobs import MPIRUN, assert_same_results, case_store, hpcves
-
+    from hpcves.campaign.driver import run_campaign
     from hpcves.campaign.file import CampaignFile
+    from hpcves.campaign.study import study_from_toml
+    from jobs import MPIRUN, assert_same_results, case_store, hpcves
 
     serial, parallel = tmp_path / "serial.h5", tmp_path / "mpi.h5"
     text = SEARCH_AUTO.format(output=serial)

@@ -1,22 +1,21 @@
 """hpcves analyze end to end: a tiny campaign -> regimes, tables, figures, results in the file."""
 import csv
+import math
 import subprocess
 import sys
 
 import h5py
-import math
-
 import numpy as np
 import pytest
 
 from hpcves.analysis import accuracy
-from hpcves.run import runner
-from hpcves.reports.analyze import COLUMNS, analyze, read_back
 from hpcves.campaign.driver import run_campaign
-from hpcves.files.lock import CampaignLock
-from hpcves.run.store import CaseStore
-from hpcves.config import case_from_toml
 from hpcves.campaign.study import study_from_toml
+from hpcves.config import case_from_toml
+from hpcves.files.lock import CampaignLock
+from hpcves.reports.analyze import COLUMNS, analyze, read_back
+from hpcves.run import runner
+from hpcves.run.store import CaseStore
 
 STUDY = """
 [campaign]
@@ -175,13 +174,11 @@ def test_error_bars_say_which_part_dominates_and_tumbling_gets_none():
 
 
 def test_shape_sequences_and_an_animation_are_drawn_from_a_campaign(campaign, tmp_path):
+    from click.testing import CliRunner
     from PIL import Image
 
-    from hpcves.reports import figures
-
-    from click.testing import CliRunner
-
     from hpcves.cli import main
+    from hpcves.reports import figures
 
     def hpcves(*args):                    # in this process: the import of a subprocess costs ~1.5 s a call
         result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=True)

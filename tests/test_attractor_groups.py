@@ -16,7 +16,8 @@ def test_runs_group_into_the_attractors_they_reached():
             Run("random 3", "PT", ONE, 0.2618, 2e-4, 0.70, 2e-4)]          # another period: another orbit
     found = group(runs)
     assert [a.starts for a in found] == [("ellipse", "random 1"), ("smoothed", "one domain"), ("random 3",)]
-    assert found[0].text() == "TT, 2 soft domains, both on tips, two-fold symmetric, theta 0.2979: from ellipse, random 1"
+    assert found[0].text() == ("TT, 2 soft domains, both on tips, two-fold symmetric, theta 0.2979: "
+                               "from ellipse, random 1")
     assert found[1].text().startswith("PT, 1 soft domain, period 0.63792")
 
 

@@ -8,7 +8,6 @@ import pytest
 from hpcves.analysis.pattern import soft_domains
 from hpcves.config import case_from_toml
 from hpcves.run.store import FINISHED, CaseStore, open_file
-
 from jobs import run_in_process
 
 FIG9 = """

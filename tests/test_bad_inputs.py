@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from jobs import case_view, writing_format
-
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.blocks import QUANTITIES
-from hpcves.run.store import CaseStore
+from hpcves.campaign.study import study_from_toml
 from hpcves.cli import main
 from hpcves.config import case_from_toml
 from hpcves.run import runner
-from hpcves.campaign.study import study_from_toml
+from hpcves.run.blocks import QUANTITIES
+from hpcves.run.store import CaseStore
+from jobs import case_view, writing_format
 
-BASE_RUN = "[numerics]\nN = 32\ndt = 1e-3\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.02\nsample_interval = 0.005\nsnapshot_interval = 0.01\n"
+BASE_RUN = ("[numerics]\nN = 32\ndt = 1e-3\n[run]\nmax_spectral_tail = 1.0\nt_end = 0.02\nsample_interval = 0.005\n"
+            "snapshot_interval = 0.01\n")
 
 #: case files: (text, words the one line must hold)
 CASE_FILES = {
@@ -640,10 +640,10 @@ def test_a_plan_for_a_file_larger_than_the_free_disk_times_a_step_and_says_so(tm
 
 def test_a_byte_order_mark_is_read_past():
     """Some editors begin UTF-8 files with a byte-order mark, which TOML's parser took for a statement."""
-    from hpcves.config import load_case
-
     import tempfile
     from pathlib import Path
+
+    from hpcves.config import load_case
 
     with tempfile.TemporaryDirectory() as d:
         plain, marked = Path(d) / "plain.toml", Path(d) / "marked.toml"
@@ -661,7 +661,8 @@ def test_links_and_missing_folders_are_refused_in_one_line(tmp_path):
     (tmp_path / "dangling.toml").symlink_to(tmp_path / "nowhere.toml")
     (tmp_path / "null.h5").symlink_to("/dev/null")
     before = sorted(os.listdir(tmp_path))
-    for args, words in ((("run", tmp_path / "dangling.toml", "--out", tmp_path / "o.h5"), "dangling.toml: no such file"),
+    for args, words in ((("run", tmp_path / "dangling.toml", "--out", tmp_path / "o.h5"),
+                         "dangling.toml: no such file"),
                         (("run", case, "--out", tmp_path / "no" / "where" / "o.h5"), "cannot create it"),
                         (("run", case, "--out", tmp_path / "null.h5"), "a character device, not a file")):
         line = refused(invoke(*args))

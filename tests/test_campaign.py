@@ -13,19 +13,33 @@ import signal
 import h5py
 import numpy as np
 import pytest
-from jobs import (HANG, MPIRUN, assert_same_results, case_statuses, case_store, case_view, freeze_when, hpcves, job_pids,
-                  mpi_env, running_cases, start_job, thaw, wait_until)
 
 from hpcves.campaign import access
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.blocks import QUANTITIES
-from hpcves.files.lock import CampaignLock
-from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
-from hpcves.errors import FileFormatError
-from hpcves.model.params import ConfigError
 from hpcves.campaign.study import study_from_toml
 from hpcves.cli import CampaignProgress
+from hpcves.errors import FileFormatError
+from hpcves.files.lock import CampaignLock
+from hpcves.model.params import ConfigError
+from hpcves.run.blocks import QUANTITIES
+from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
+from jobs import (
+    HANG,
+    MPIRUN,
+    assert_same_results,
+    case_statuses,
+    case_store,
+    case_view,
+    freeze_when,
+    hpcves,
+    job_pids,
+    mpi_env,
+    running_cases,
+    start_job,
+    thaw,
+    wait_until,
+)
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 

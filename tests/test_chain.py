@@ -7,7 +7,6 @@ import dataclasses
 import h5py
 import numpy as np
 import pytest
-from jobs import MPIRUN, assert_same_results, case_statuses, case_store, freeze_when, hpcves, kill_job, running_cases, start_job
 
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
@@ -15,9 +14,20 @@ from hpcves.campaign.queue import WorkQueue
 from hpcves.campaign.study import study_from_toml
 from hpcves.model import continuation, geometry
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
-from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING
 from hpcves.numerics.spectral import resample
+from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING
 from hpcves.run.timestepping import Solver
+from jobs import (
+    MPIRUN,
+    assert_same_results,
+    case_statuses,
+    case_store,
+    freeze_when,
+    hpcves,
+    kill_job,
+    running_cases,
+    start_job,
+)
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 

@@ -15,14 +15,13 @@ import h5py
 import numpy as np
 import pytest
 
-from jobs import SHORT, case_view, resume_in_process, run_in_process, same_case_files
-
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
 from hpcves.config import case_from_toml
 from hpcves.run.diagnostics import SERIES
 from hpcves.run.store import FINISHED, INTERRUPTED, SNAPSHOT_RECORDS, CaseStore, FileFormatError
 from hpcves.run.timestepping import State
+from jobs import SHORT, case_view, resume_in_process, run_in_process, same_case_files
 
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
 
@@ -66,7 +65,8 @@ DATA = [f"timeseries/{n}" for n in SERIES] + [f"snapshots/{n}" for n in SNAPSHOT
 SLOT = [*State.ARRAYS, "scalars", "meta"]
 
 
-@pytest.mark.parametrize("name", DATA + [f"checkpoint/newest/{n}" for n in SLOT] + [f"checkpoint/older/{n}" for n in SLOT])
+@pytest.mark.parametrize("name", DATA + [f"checkpoint/newest/{n}" for n in SLOT]
+                         + [f"checkpoint/older/{n}" for n in SLOT])
 def test_a_flipped_bit_in_any_dataset_of_a_finished_case_is_named(files, tmp_path, name):
     path = tmp_path / "copy.h5"
     shutil.copy(files / "whole.h5", path)
@@ -146,7 +146,8 @@ def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(t
     plain = subprocess.run(HPCVES + ["status", str(output)], capture_output=True, text=True, timeout=300)
     check = subprocess.run(HPCVES + ["status", "--check", str(output)], capture_output=True, text=True, timeout=300)
     assert check.returncode == 2, (check.stdout, check.stderr)
-    assert "0001" in check.stdout + check.stderr and "timeseries/theta fails its checksum" in check.stdout + check.stderr
+    said = check.stdout + check.stderr
+    assert "0001" in said and "timeseries/theta fails its checksum" in said
     assert "checksum" not in plain.stdout + plain.stderr             # plain status reads no data
     analyzed = subprocess.run(HPCVES + ["analyze", str(output), "--out", str(tmp_path / "a")], capture_output=True,
                               text=True, timeout=300)

@@ -8,11 +8,10 @@ import h5py
 import numpy as np
 import pytest
 
-from jobs import SHORT, resume_in_process, run_in_process, same_case_files, wait_until
-
+from hpcves.config import case_from_toml
 from hpcves.run import runner
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore
-from hpcves.config import case_from_toml
+from jobs import SHORT, resume_in_process, run_in_process, same_case_files, wait_until
 
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
 
@@ -192,7 +191,7 @@ def test_a_diverging_run_stops_with_a_message_and_keeps_its_checkpoint(tmp_path)
 
 
 def test_a_run_at_the_model_limit_exits_0_and_is_not_resumed(tmp_path):
-    from test_stepcontrol import DEFLATED                       # the linear law: psi 1.08 near t = 2.74-2.92
+    from test_stepcontrol import DEFLATED  # the linear law: psi 1.08 near t = 2.74-2.92
 
     out = tmp_path / "limit.h5"
     result = hpcves("run", write(tmp_path, DEFLATED), "--out", out, "--quiet")

@@ -17,7 +17,6 @@ from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import resample
 from hpcves.run.store import FINISHED, INTERRUPTED
 from hpcves.run.timestepping import Solver
-
 from jobs import GROWING, history, resume_in_process, run_in_process, same_case_files
 
 

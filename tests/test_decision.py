@@ -3,13 +3,12 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.run import decision
-from hpcves.reports.analyze import analyze
-from hpcves.run.store import FINISHED, INTERRUPTED, CaseStore, open_file
+from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.config import case_from_toml
 from hpcves.model.params import RunControl
-from hpcves.analysis.regimes import AnalysisSettings
-
+from hpcves.reports.analyze import analyze
+from hpcves.run import decision
+from hpcves.run.store import FINISHED, INTERRUPTED, CaseStore, open_file
 from jobs import MPIRUN, assert_same_results, hpcves, resume_in_process, run_in_process, same_case_files
 
 RULES = RunControl(until_decided=True, decided_shear_times=50.0, decided_periods=5.0)

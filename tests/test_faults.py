@@ -13,14 +13,26 @@ import time
 import h5py
 import numpy as np
 import pytest
-from jobs import (MPIRUN, assert_same_results, case_statuses, case_view, freeze_when, hpcves, kill_job, running_cases,
-                  start_job, thaw, wait_until, writing_format)
-from test_campaign import TINY_RUN
 
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.store import FINISHED, RUNNING, CaseStore
 from hpcves.campaign.study import study_from_toml
+from hpcves.run.store import FINISHED, RUNNING, CaseStore
+from jobs import (
+    MPIRUN,
+    assert_same_results,
+    case_statuses,
+    case_view,
+    freeze_when,
+    hpcves,
+    kill_job,
+    running_cases,
+    start_job,
+    thaw,
+    wait_until,
+    writing_format,
+)
+from test_campaign import TINY_RUN
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
@@ -706,9 +718,8 @@ def test_readers_of_a_live_file_always_find_it_whole(tmp_path):
     """Read every dataset of every case again and again while a search campaign runs its stages
     (each one replaces the file with a copy holding the new cases): never an error, and the reads
     span several stages."""
-    from test_search_campaign import write_search
-
     from hpcves.campaign.file import read_table
+    from test_search_campaign import write_search
 
     path, output = write_search(tmp_path, checkpoint=0.05)
     job = start_job(2, "campaign", path, "--quiet")

@@ -2,6 +2,7 @@
 bookkeeping between stages of hundreds of cases; each resumed to the file an uninterrupted run makes,
 bit for bit. Tiny cases (N = 16, 10 steps), so that the cases are many and the run short."""
 import pytest
+
 from jobs import MPIRUN, TEN_STEPS, assert_same_results, hpcves, mpi_env
 
 pytestmark = [pytest.mark.faults, pytest.mark.skipif(MPIRUN is None, reason="no mpirun")]
@@ -66,7 +67,8 @@ def test_a_kill_while_5000_cases_are_laid_out_resumes_bitwise(tmp_path, referenc
 
 @pytest.mark.parametrize("fault, io", [
     ("verdicts-stored:3@0", "mpio"),       # just after the third stage's verdicts were written in place
-    ("block-grown:50@0", "relay"),         # rank 0 growing the block by a later stage's cases in the copy (21 arrays a stage)
+    ("block-grown:50@0", "relay"),         # rank 0 growing the block by a later stage's cases in the copy
+                                           # (21 arrays a stage)
     ("publish:4@0", "mpio"),               # a stage's copy complete, killed before it replaces the file
 ])
 def test_a_kill_in_the_bookkeeping_between_stages_resumes_bitwise(tmp_path, references, fault, io):

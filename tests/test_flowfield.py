@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from conftest import advance, make_solver
-from hpcves.run import diagnostics
 from hpcves.model import flowfield
 from hpcves.model.forces import bending_force, tension_force
+from hpcves.run import diagnostics
 
 #: a force density on the circle |w| = R: sum of a_m e^{i m alpha} (complex = the vector)
 MODES = {-9: 0.05j, -2: 0.3 + 0.1j, -1: 0.5j, 0: 0.7 - 0.2j, 1: -0.4 + 0.2j, 3: 0.25, 7: 0.1}

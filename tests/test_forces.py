@@ -8,8 +8,7 @@ published sign does fail this check.
 import numpy as np
 import pytest
 
-from hpcves.model import geometry
-from hpcves.model import phasefield
+from hpcves.model import geometry, phasefield
 from hpcves.model.forces import bending_force, energy_terms, tension_force
 from hpcves.model.params import Physics
 from hpcves.numerics.spectral import Spectral

@@ -3,7 +3,6 @@ import pytest
 from scipy import integrate
 
 from conftest import make_solver
-
 from hpcves.model import geometry
 from hpcves.model.params import REFERENCE_EXCESS_LENGTH, REFERENCE_LENGTH, ConfigError, Physics
 from hpcves.numerics.spectral import Spectral

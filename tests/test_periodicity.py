@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from hpcves.config import ConfigError
 from hpcves.analysis.periodicity import analyse, estimate_period, upward_crossings
 from hpcves.analysis.regimes import PT, TT, TU, UNDECIDED, AnalysisSettings, classify
+from hpcves.config import ConfigError
 from hpcves.run.verdict import crept
 
 H = 0.005                     # the default sampling interval of a run

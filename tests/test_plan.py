@@ -5,13 +5,13 @@ import stat
 import subprocess
 
 import pytest
-from jobs import hpcves, mpi_env, start_job
 
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.plan import Plan, Stage, makespan, plan
-from hpcves.campaign.study import load_study, study_from_toml
 from hpcves.campaign.slurm import mem_per_cpu
+from hpcves.campaign.study import load_study, study_from_toml
 from hpcves.run.timing import StepCost, rank_bytes
+from jobs import hpcves, mpi_env, start_job
 
 TINY = """
 [campaign]
@@ -68,7 +68,8 @@ def test_laying_out_on_rank_0_keeps_many_short_cases_from_one_rank_each(tmp_path
     the creation alone outlasts (2001 ranks: on more than four, rank 0 only schedules); with 10 ms a case on rank
     0 first, ~100 ranks, ~20 cases each."""
     study = study_from_toml(TINY.format(name="g", output=tmp_path / "g.h5")
-                            + "[sweep]\nshear_rate = { linspace = [10, 20, 40] }\npsi_bar = { linspace = [0.1, 0.5, 50] }\n")
+                            + "[sweep]\nshear_rate = { linspace = [10, 20, 40] }\n"
+                            + "psi_bar = { linspace = [0.1, 0.5, 50] }\n")
     per_case = lambda case: 0.1 / case.estimated_steps                              # noqa: E731
     bare = plan(study, per_case)
     counted = plan(study, per_case, lambda case: 0.01, lambda case: 0.002)

@@ -8,8 +8,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from hpcves.reports import plots  # noqa: E402
 from hpcves.analysis.regimes import OUTCOMES  # noqa: E402
+from hpcves.reports import plots  # noqa: E402
 
 
 def _row(regime, S, psi_bar, period=math.nan):
@@ -139,7 +139,7 @@ def test_a_region_is_drawn_only_where_the_cases_around_it_agree():
 
 def test_a_refinement_fills_the_cells_its_corners_decide():
     """refine.regions: the coarse cells split as the refinement split them; mixed cells stay white."""
-    from hpcves.analysis.refine import RefineSettings, Axis, regions
+    from hpcves.analysis.refine import Axis, RefineSettings, regions
 
     settings = RefineSettings(x=Axis("shear_rate", (10.0, 40.0), 0.8, log=True), y=Axis("psi_bar", (0.3, 0.5), 0.25),
                               max_cases=20)

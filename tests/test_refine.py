@@ -4,8 +4,8 @@ import math
 import pytest
 
 from hpcves.analysis import refine
-from hpcves.model.params import ConfigError
 from hpcves.analysis.refine import Axis, RefineSettings
+from hpcves.model.params import ConfigError
 
 S_AXIS = Axis("shear_rate", (1.0, 5.0, 20.0, 80.0, 350.0), tolerance=math.log(1.1), log=True)
 PSI_AXIS = Axis("psi_bar", (0.25, 0.5, 0.75), tolerance=0.05)
@@ -242,5 +242,6 @@ def test_the_blurry_stretches_are_summed_up_by_outcome_and_cause():
         "Delta = 1.69 to 1.77")
     assert blurring_summary(ends[:2] + [("failed", under, 5.95, 1.6)], "S", "psi_bar") == (
         "blurred by 3 failed (under-resolved: 3) at S = 3.34 to 9.17, psi_bar = 1.6 to 1.77")
-    assert blurring_summary(ends[2:3], "S", "Delta") == "blurred by 1 undecided (not settled: 1) at S = 9.17, Delta = 0.459"
+    assert (blurring_summary(ends[2:3], "S", "Delta")
+            == "blurred by 1 undecided (not settled: 1) at S = 9.17, Delta = 0.459")
     assert blurring_summary([], "S", "Delta") == "every case at their ends was decided"

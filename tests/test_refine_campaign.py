@@ -14,15 +14,14 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.reports.analyze import analyze
-from hpcves.reports.datasets import open_campaign
+from hpcves.analysis.refine import CONVERGED, polylines
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.store import FINISHED
+from hpcves.campaign.study import study_from_toml
 from hpcves.errors import FileFormatError
 from hpcves.model.params import ConfigError
-from hpcves.analysis.refine import CONVERGED, polylines
-from hpcves.campaign.study import study_from_toml
-
+from hpcves.reports.analyze import analyze
+from hpcves.reports.datasets import open_campaign
+from hpcves.run.store import FINISHED
 from jobs import TEN_STEPS, assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
@@ -127,8 +126,8 @@ def test_every_verdict_is_kept_in_the_file_and_a_replay_classifies_nothing(refin
     import shutil
 
     import hpcves.run.verdict as verdict_module
-    from hpcves.campaign.progress import progress
     from hpcves.campaign.file import read_table
+    from hpcves.campaign.progress import progress
     from hpcves.run.verdict import Verdict
 
     study, output, summary, _ = refined

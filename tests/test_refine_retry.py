@@ -11,8 +11,6 @@ import csv
 import h5py
 import pytest
 
-from jobs import case_view
-
 from hpcves.analysis import refine
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.refine_stages import attempts, outcomes
@@ -21,6 +19,7 @@ from hpcves.model.params import ConfigError
 from hpcves.reports.analyze import analyze
 from hpcves.reports.refinement import superseded
 from hpcves.run.store import FAILED, FINISHED
+from jobs import case_view
 
 PLANE = """
 [campaign]
@@ -207,7 +206,8 @@ def test_bad_min_resize_tail_is_refused(plane, extra, message):
 
 def test_min_resize_tail_is_not_in_the_fingerprint():
     """Lowered on a finished study, its creeping points run again; the cases run so far stay valid."""
-    assert study_from_toml(AUTO_PLANE).fingerprint == study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n").fingerprint
+    assert (study_from_toml(AUTO_PLANE).fingerprint
+            == study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n").fingerprint)
 
 
 TINY = """
@@ -273,7 +273,8 @@ def test_a_campaign_runs_under_resolved_cases_again_at_twice_n(retried, tmp_path
     assert [(r["status"], int(r["cases"]), r["run_again"]) for r in report.refinements] == \
         [(outcome.state.status, n, again)]
     text = (tmp_path / "analysis" / "refinement.md").read_text()
-    assert "runs again at 2 N (where N adapts: N_max doubled) while that is at most N = 32" in text and "| run again |" in text
+    assert "runs again at 2 N (where N adapts: N_max doubled) while that is at most N = 32" in text
+    assert "| run again |" in text
     with open(tmp_path / "analysis" / "regimes.csv") as f:
         table = list(csv.DictReader(f))
     assert [int(float(r["N"])) for r in table] == [N for _, _, N, _ in rows]
@@ -325,14 +326,16 @@ def test_where_N_adapts_a_point_left_under_resolved_runs_again_with_N_max_double
     assert "failed" not in outcome.regimes.values()
 
 
-CREEPING_TINY = (TINY.replace("N = 16\ndt = 1e-3", 'N = "auto"\nN_min = 16\nN_max = 48\nresize_tail = 0.01\nrtol = 1e-2')
+CREEPING_TINY = (TINY.replace("N = 16\ndt = 1e-3",
+                              'N = "auto"\nN_min = 16\nN_max = 48\nresize_tail = 0.01\nrtol = 1e-2')
                  .replace("max_N = 32", "min_resize_tail = 1e-4"))
 
 
 def resolutions(path):
     """(S, psi_bar, N_max, resize_tail, status) of every case of a file, in case order."""
     with h5py.File(path, "r") as f:
-        return [(float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"]), int(g.attrs["numerics.N_max"]),
+        return [(float(g.attrs["physics.shear_rate"]), float(g.attrs["physics.psi_bar"]),
+                 int(g.attrs["numerics.N_max"]),
                  float(g.attrs["numerics.resize_tail"]), int(g["status"][()]))
                 for g in (case_view(f, f"{i:04d}") for i in range(int(f.attrs["n_cases"])))]
 

@@ -3,10 +3,9 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.run.store import FAILED, FINISHED
 from hpcves.config import case_from_toml
 from hpcves.numerics.spectral import resolution_needed, spectral_tail
-
+from hpcves.run.store import FAILED, FINISHED
 from jobs import run_in_process
 
 

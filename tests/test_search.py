@@ -3,8 +3,8 @@ import math
 
 import pytest
 
-from hpcves.model.params import ConfigError
 from hpcves.analysis.search import CONVERGED, RUNNING, STOPPED, UNBRACKETED, SearchSettings, step
+from hpcves.model.params import ConfigError
 
 
 def run_search(settings, regime_at):

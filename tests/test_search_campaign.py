@@ -13,19 +13,17 @@ import h5py
 import numpy as np
 import pytest
 
+from hpcves.analysis.search import CONVERGED, UNBRACKETED
 from hpcves.campaign import file as campaign_file
-from hpcves.reports.analyze import analyze
-from hpcves.reports.datasets import open_campaign
 from hpcves.campaign.driver import run_campaign
-from hpcves.run.store import FINISHED, superblock_version
+from hpcves.campaign.study import study_from_toml
 from hpcves.errors import FileFormatError
 from hpcves.model.params import ConfigError
-from hpcves.analysis.search import CONVERGED, UNBRACKETED
+from hpcves.reports.analyze import analyze
 from hpcves.reports.critical import CRITICAL_COLUMNS
-from hpcves.campaign.study import study_from_toml
-
-from jobs import (assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until,
-                  writing_format)
+from hpcves.reports.datasets import open_campaign
+from hpcves.run.store import FINISHED, superblock_version
+from jobs import assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until, writing_format
 from test_campaign import TINY_RUN, needs_mpi, statuses
 
 SEARCH = """

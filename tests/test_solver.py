@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from conftest import advance, make_solver
-from hpcves.model import geometry
 from hpcves.analysis.periodicity import crossing_period
+from hpcves.model import geometry
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import Spectral
 from hpcves.run.timestepping import Solver, State

@@ -69,7 +69,9 @@ def test_transforms_give_the_bits_of_the_fftw_call(n):
 
 def test_displacement_finds_a_subgrid_shift():
     sp = Spectral(128, 2.6442)
-    pattern = lambda a: 0.5 + 0.5 * np.tanh(8 * np.cos(2 * np.pi * a)) + 0.1 * np.sin(6 * np.pi * a)
+    def pattern(a):
+        return 0.5 + 0.5 * np.tanh(8 * np.cos(2 * np.pi * a)) + 0.1 * np.sin(6 * np.pi * a)
+
     for shift in (0.0, 1e-5, 0.0123, -0.031, 0.1):
         assert sp.displacement(pattern(sp.alpha - shift), pattern(sp.alpha)) == pytest.approx(shift, abs=1e-9)
     assert sp.displacement(np.ones(128), np.ones(128)) == 0.0

@@ -6,16 +6,13 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.run import diagnostics
-from hpcves.run import runner
-from hpcves.run import schedule
-from hpcves.numerics import stepcontrol
-from hpcves.run.store import FINISHED, INTERRUPTED, MODEL_LIMIT, CaseStore, open_file
+from conftest import make_solver
 from hpcves.config import case_from_toml
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
+from hpcves.numerics import stepcontrol
+from hpcves.run import diagnostics, runner, schedule
+from hpcves.run.store import FINISHED, INTERRUPTED, MODEL_LIMIT, CaseStore, open_file
 from hpcves.run.timestepping import Coefficients, Estimate, Solver, quadratic_weights
-
-from conftest import make_solver
 from jobs import resume_in_process, run_in_process, same_case_files
 from test_cli import SHORT
 
@@ -430,7 +427,8 @@ def test_events_in_one_call_are_the_three_cadence_tests(adaptive):
                            checkpoint_interval=2.0))
     state = Solver(case).initial_state()
     rng = np.random.default_rng(7)
-    grid = np.concatenate([np.arange(0, 10001) * 0.00357142857143, np.arange(0, 1786) * 0.02, [0.1, 9.0, 35.7142857143]])
+    grid = np.concatenate([np.arange(0, 10001) * 0.00357142857143, np.arange(0, 1786) * 0.02,
+                           [0.1, 9.0, 35.7142857143]])
     times = np.concatenate([grid, grid * (1 + 1e-14), grid * (1 - 3e-12), grid + 1e-10, grid + 2e-9,
                             rng.uniform(0, 36, 2000), [1e-12, 1e-10, 3e-9]])
     clocks = [schedule.clock(case), schedule.clock(case).legacy()]

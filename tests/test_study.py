@@ -3,8 +3,8 @@ import dataclasses
 
 import pytest
 
-from hpcves.model.params import ConfigError
 from hpcves.campaign.study import study_from_toml
+from hpcves.model.params import ConfigError
 
 BASE = """
 [campaign]
@@ -96,8 +96,8 @@ def test_base_case_errors_say_so():
 def test_every_study_in_jobs_is_valid():
     from pathlib import Path
 
-    from hpcves.config import load_case
     from hpcves.campaign.study import load_study
+    from hpcves.config import load_case
 
     jobs = Path(__file__).resolve().parent.parent / "jobs"
     studies = [p for p in jobs.glob("*.toml") if "[campaign]" in p.read_text()]
@@ -211,15 +211,16 @@ def test_search_fingerprint_of_older_files_is_kept():
     assert study_from_toml(SEARCH_TOML).fingerprint != study_from_toml(linear).fingerprint
     sampled = study_from_toml(linear.replace("t_end_min = 1.0", "t_end_min = 1.0\nsamples_per_shear_time = 10"))
     assert sampled.fingerprint != study_from_toml(linear).fingerprint
-    smoothed = study_from_toml(linear.replace("excess_length = 0.194", "excess_length = 0.194\ninitial_shape = \"smoothed\""))
+    smoothed = study_from_toml(linear.replace("excess_length = 0.194",
+                                              "excess_length = 0.194\ninitial_shape = \"smoothed\""))
     assert smoothed.fingerprint != study_from_toml(linear).fingerprint      # the ellipse, as before, keeps it
 
 
 def test_a_case_stored_before_the_bending_law_option_reads_back_as_the_linear_law(tmp_path):
     """Every stored case writes all its parameters; one written before physics.bending_law has
     none, and ran the linear law: it must resume with that, not with today's default."""
-    from hpcves.run.store import CaseStore, open_file
     from hpcves.config import case_from_toml, case_to_toml
+    from hpcves.run.store import CaseStore, open_file
 
     case = case_from_toml("[physics]\nbending_law = \"linear\"\n[run]\nt_end = 0.1\n")
     with open_file(tmp_path / "old.h5", "w-") as f:

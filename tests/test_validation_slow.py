@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from conftest import make_solver
-from hpcves.run import diagnostics
-from hpcves.model import geometry
 from hpcves.analysis.periodicity import crossing_period
+from hpcves.model import geometry
+from hpcves.run import diagnostics
 
 pytestmark = pytest.mark.slow
 

@@ -7,8 +7,8 @@ import pytest
 
 from conftest import advance, make_solver
 from hpcves.config import case_from_toml
-from hpcves.model.forces import bending_force, tension_force
 from hpcves.model.flow import MembraneFlow, TensionSolveError, rigid_motions
+from hpcves.model.forces import bending_force, tension_force
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics.double_layer import apply_double_layer, double_layer_matrix
 from hpcves.run.timestepping import Solver
@@ -220,8 +220,8 @@ def test_second_order_in_time(viscosity_ratio):
 
 
 def test_an_adaptive_run_with_a_contrast_resumed_from_its_checkpoints_is_bitwise_identical(tmp_path):
-    from jobs import SHORT, resume_in_process, run_in_process, same_case_files
     from hpcves.run.store import FINISHED, INTERRUPTED
+    from jobs import SHORT, resume_in_process, run_in_process, same_case_files
 
     text = SHORT.replace("dt = 1e-3", "rtol = 1e-2").replace("psi_bar = 0.3", "psi_bar = 0.3\nviscosity_ratio = 5.0")
     case = case_from_toml(text.format(t_end=0.2, checkpoint=0.04))
@@ -273,9 +273,10 @@ def test_a_campaign_sweeps_the_viscosity_ratio_and_its_table_has_the_column(tmp_
 def test_a_case_written_before_the_parameter_reads_as_equal_viscosities(tmp_path):
     """Files from before physics.viscosity_ratio hold no such attribute: their rows say 1."""
     import h5py
-    from jobs import SHORT, run_in_process
+
     from hpcves.run import verdict
     from hpcves.run.store import CaseStore
+    from jobs import SHORT, run_in_process
 
     run_in_process(case_from_toml(SHORT.format(t_end=0.01, checkpoint=0.01)), tmp_path / "old.h5")
     with h5py.File(tmp_path / "old.h5", "r+") as f:

@@ -3,7 +3,8 @@
 Where several stable states coexist, runs from different starts settle on different ones. Two runs
 reached the same attractor when they have the same regime and the same pattern topology
 (analysis/pattern.py) and their mean inclinations -- and periods, where they have one -- agree within
-the sum of their error bars (statistical plus time step; an infinite bar: not compared). Runs that are not decided (undecided, failed,
+the sum of their error bars (statistical plus time step; an infinite bar: not compared). Runs that
+are not decided (undecided, failed,
 at the model's limit) reached none that can be named and are left out. Grouping is greedy in the
 order given: a run joins the first attractor whose first run it matches.
 """

@@ -56,9 +56,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hpcves.analysis.regimes import PT, TT, TU
 from hpcves.config import check_type, clean_number, refuse_unknown
 from hpcves.model.params import ConfigError
-from hpcves.analysis.regimes import PT, TT, TU
 
 CONVERGED, RUNNING, BUDGET = "converged", "running", "budget spent"
 #: a creeping point runs again with its numerics.resize_tail divided by this: its creep falls as the

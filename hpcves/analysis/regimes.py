@@ -36,9 +36,9 @@ from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
+from hpcves.analysis.periodicity import PeriodEstimate, SignalAnalysis, analyse, estimate_period
 from hpcves.config import check_type, from_table
 from hpcves.model.params import ConfigError
-from hpcves.analysis.periodicity import PeriodEstimate, SignalAnalysis, analyse, estimate_period
 
 TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
 REGIMES = (TT, PT, TU, UNDECIDED)

@@ -27,9 +27,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
+from hpcves.analysis.regimes import PT, TT, TU
 from hpcves.config import clean_number, from_table
 from hpcves.model.params import ConfigError
-from hpcves.analysis.regimes import PT, TT, TU
 
 CONVERGED, RUNNING, UNBRACKETED, STOPPED = "converged", "running", "not bracketed", "stopped"
 

@@ -20,14 +20,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hpcves.campaign import IO_MODES   # the choices of --io: "auto" is mpio where h5py has MPI, else relay
+from hpcves.campaign import IO_MODES  # the choices of --io: "auto" is mpio where h5py has MPI, else relay
 from hpcves.campaign.file import CampaignFile
 from hpcves.campaign.polling import bcast, wait_until
 from hpcves.campaign.relay import Relay, RemoteCampaign
 from hpcves.errors import HpcvesError
 from hpcves.model.params import ConfigError
 from hpcves.run.store import FileFormatError, open_file, safe_flush
-
 
 
 class FileAccess:

@@ -7,7 +7,8 @@ rank 0 runs cases itself: its run loop polls the message queue once per time ste
 cores both cores compute. On more ranks it only schedules (and, under relay, writes
 for everyone): a time step between its answers holds up every other rank, and the
 answers of a whole job add up to more than a worker's computing (under relay at
--n 8, rank 0 running cases too used 7x a worker's CPU and set the pace). Nobody busy-waits: a rank with nothing to compute polls with a
+-n 8, rank 0 running cases too used 7x a worker's CPU and set the pace). Nobody busy-waits: a rank
+with nothing to compute polls with a
 sleep that backs off from 1 ms to 50 ms (as mpi4py.futures does), and the
 final synchronisation is a non-blocking barrier polled the same way.
 
@@ -52,26 +53,47 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
-from hpcves.run import runner
-from hpcves.run.verdict import case_data, verdict_of
-from hpcves.files import faults
-from hpcves.files.atomic import METADATA_BYTES_PER_FILE, StorageError, copy_for_change, new_partial, partial_path, publish, \
-    remove_partial, require_space, size_text
-from hpcves.campaign.file import CampaignFile
-from hpcves.campaign.growth import Growth, growth
-from hpcves.run.store import (ENDED, FAILED, FINISHED, HDF5_ERRORS, INTERRUPTED, MODEL_LIMIT, PENDING, STATUS_NAMES,
-                         FileFormatError,
-                         open_file, reading, refuse_unopenable, storage_bytes)
-from hpcves.files.lock import CampaignLock, LockError, real_path
-from hpcves.errors import HpcvesError
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.campaign.access import FileAccess, choose_io, file_access
+from hpcves.campaign.file import CampaignFile
+from hpcves.campaign.growth import Growth, growth
 from hpcves.campaign.polling import Backoff, bcast, wait
 from hpcves.campaign.queue import Task, WorkQueue, computing_ranks
-from hpcves.campaign.relay import Relay, RemoteCampaign, RemoteCaseStore
 from hpcves.campaign.refine_stages import RefineDriver, run_again
+from hpcves.campaign.relay import Relay, RemoteCampaign, RemoteCaseStore
 from hpcves.campaign.search_stages import SearchDriver
 from hpcves.campaign.study import Study
+from hpcves.errors import HpcvesError
+from hpcves.files import faults
+from hpcves.files.atomic import (
+    METADATA_BYTES_PER_FILE,
+    StorageError,
+    copy_for_change,
+    new_partial,
+    partial_path,
+    publish,
+    remove_partial,
+    require_space,
+    size_text,
+)
+from hpcves.files.lock import CampaignLock, LockError, real_path
+from hpcves.run import runner
+from hpcves.run.store import (
+    ENDED,
+    FAILED,
+    FINISHED,
+    HDF5_ERRORS,
+    INTERRUPTED,
+    MODEL_LIMIT,
+    PENDING,
+    STATUS_NAMES,
+    FileFormatError,
+    open_file,
+    reading,
+    refuse_unopenable,
+    storage_bytes,
+)
+from hpcves.run.verdict import case_data, verdict_of
 
 log = logging.getLogger(__name__)
 

@@ -32,23 +32,32 @@ blocks grow by them, one resize per array).
 from __future__ import annotations
 
 import tomllib
+from dataclasses import dataclass
 
 import h5py
 import numpy as np
 
-from dataclasses import dataclass
-
-from hpcves.version import __version__
-from hpcves.files import faults
+from hpcves.campaign.study import Study
 from hpcves.config import case_to_toml
+from hpcves.files import faults
 from hpcves.files.atomic import partial_path
-from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_integer, attr_shown,
-                              attr_text, open_file, reading)
+from hpcves.files.lock import writer
 from hpcves.run.blocks import BLOCKS, Blocks
 from hpcves.run.stamp import Stamper
+from hpcves.run.store import (
+    HDF5_ERRORS,
+    STATUS_NAMES,
+    CaseStore,
+    FileFormatError,
+    attr_integer,
+    attr_shown,
+    attr_text,
+    open_file,
+    reading,
+)
 from hpcves.run.verdict import DAMAGED, classifier
-from hpcves.files.lock import writer
-from hpcves.campaign.study import Study
+from hpcves.version import __version__
+
 
 class BeingCreated(FileFormatError):
     """The campaign file does not exist yet: a running campaign is laying it out."""

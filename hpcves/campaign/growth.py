@@ -206,7 +206,8 @@ def _refine(study: Study, campaign, where: str) -> Growth:
     old = _file_study(campaign, where)
     as_before = dataclasses.replace(study, sweep={**study.sweep, **{k: old.sweep[k] for k in keys}})
     if as_before.fingerprint != campaign.fingerprint:
-        found = [f"{k}: {old.sweep[k]} -> {study.sweep[k]}" for k in study.refine.axes if old.sweep[k] != study.sweep[k]]
+        found = [f"{k}: {old.sweep[k]} -> {study.sweep[k]}" for k in study.refine.axes
+                 if old.sweep[k] != study.sweep[k]]
         raise _changed(study.name, where, ("its axes' values, the coarse grid (" + "; ".join(found) + ")") if found
                        else "its base case, time rules, [refine] plane or [analysis] thresholds")
     added = [p for p in study.refinements if p not in points]

@@ -20,10 +20,10 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from hpcves.model.params import LABELS
 from hpcves.analysis.refine import BUDGET, RUNNING, RefineSettings, RefineState, boundary, joint, step
 from hpcves.campaign.search_stages import StageDriver
 from hpcves.campaign.study import Study
+from hpcves.model.params import LABELS
 from hpcves.run.verdict import resolution
 
 
@@ -50,7 +50,8 @@ class RefineOutcome:
         if self.state.status == RUNNING:
             reason = f"unfinished: {len(self.state.next_points)} points to run next ({reason})"
         return {**self.point, "status": self.state.status, "cases": self.spent,
-                "run_again": self.spent - (self.runs or len(self.regimes)), "full_grid_cases": self.settings.full_grid_cases() * self.starts,
+                "run_again": self.spent - (self.runs or len(self.regimes)),
+                "full_grid_cases": self.settings.full_grid_cases() * self.starts,
                 "crossings": len(crossings), "blurry": sum(c.blurry for c in crossings), "reason": reason}
 
     def brief(self) -> str:

@@ -21,10 +21,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.run.verdict import Verdict, case_data, verdict_of
-from hpcves.run.store import ENDED
 from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
 from hpcves.campaign.study import Study, search_keys
+from hpcves.run.store import ENDED
+from hpcves.run.verdict import Verdict, case_data, verdict_of
+
 
 @dataclass(frozen=True)
 class SearchOutcome:

@@ -108,7 +108,9 @@ def slurm_script(*, script: Path, study_name: str, study_file: Path, output: Pat
                  python: Path, workdir: Path, stop_timeout: float, summary: str, largest_N: int,
                  template: Path | None = None) -> str:
     """The batch script's text: ``template`` (None: the default) filled in (paths made absolute)."""
-    q = lambda p: shlex.quote(str(Path(p).absolute()))       # not resolve(): a venv's python is a link
+    def q(p) -> str:
+        return shlex.quote(str(Path(p).absolute()))       # not resolve(): a venv's python is a link
+
     text, _ = read_template(template)
     memory = mem_per_cpu(size.rank_bytes)
     values = {

@@ -91,12 +91,12 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_settings, refuse_unknown, with_prefix
-from hpcves.model.params import SWEEPABLE, Case, ConfigError, Numerics   # SWEEPABLE: what [sweep] varies
-from hpcves.analysis.regimes import AnalysisSettings
-from hpcves.run.resolution import expected_N
 from hpcves.analysis.refine import CREEP_TIGHTENING, RefinePlan, RefineSettings
+from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.analysis.search import SearchSettings
+from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_settings, refuse_unknown, with_prefix
+from hpcves.model.params import SWEEPABLE, Case, ConfigError, Numerics  # SWEEPABLE: what [sweep] varies
+from hpcves.run.resolution import expected_N
 
 SEARCHABLE = ("psi_bar", "excess_length", "B2")      # a search runs along the shear rate for each of these
 

@@ -38,9 +38,9 @@ import os
 import shutil
 from pathlib import Path
 
-from hpcves.files import faults
 from hpcves.config import not_a_regular_file
 from hpcves.errors import StorageError  # noqa: F401 -- raised here; callers import it from here too
+from hpcves.files import faults
 
 #: what a file needs beyond its datasets' raw bytes, per case (object headers, attributes, the config
 #: text: 25 kB measured at N = 32, 128 and 256; 39 kB at N = 64 since the series carry units and

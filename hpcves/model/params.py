@@ -146,7 +146,8 @@ class Physics:
 
     def __post_init__(self) -> None:
         _finite(self)
-        _require(self.viscosity_ratio > 0, f"physics.viscosity_ratio = {self.viscosity_ratio}: the inner over the outer "
+        _require(self.viscosity_ratio > 0, f"physics.viscosity_ratio = {self.viscosity_ratio}: the inner over "
+                                           "the outer "
                                            "viscosity must be > 0")
         _require(self.shear_rate >= 0, f"physics.shear_rate = {self.shear_rate}: must be >= 0")
         _require(self.shear_rate <= MAX_SHEAR_RATE,

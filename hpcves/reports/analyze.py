@@ -18,28 +18,25 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.version import __version__
-from hpcves.analysis import accuracy
-from hpcves.analysis import grids
+from hpcves.analysis import accuracy, grids
+from hpcves.analysis.pattern import Topology
+from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
+from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
+from hpcves.campaign.file import CampaignFile
+from hpcves.campaign.study import study_from_toml
+from hpcves.errors import HpcvesError
 from hpcves.files import faults
 from hpcves.files.atomic import StorageError, copy_for_change, publish, remove_partial, size_text
-from hpcves.campaign.file import CampaignFile
-from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
-from hpcves.campaign.study import study_from_toml
-from hpcves.run.store import (HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError,
-                         attr_text, open_file, reading)
-from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.files.lock import CampaignLock, real_path
-from hpcves.errors import HpcvesError
-from hpcves.model.params import ConfigError
-from hpcves.analysis.regimes import OUTCOMES, AnalysisSettings
-from hpcves.model.params import ADDED_LATER, LABELS
+from hpcves.model.params import ADDED_LATER, LABELS, ConfigError
 from hpcves.reports import case_pages
 from hpcves.reports import refinement as rc
 from hpcves.reports.critical import critical_markdown, critical_rows, write_critical_csv
-from hpcves.analysis.pattern import Topology
 from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
+from hpcves.run.store import FORMAT as CASE_FORMAT
+from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
 from hpcves.run.verdict import DAMAGED, PARAMETERS, TOPOLOGY_COLUMNS, CaseData, analyse_case, case_data, mark
+from hpcves.version import __version__
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
 #: (``*_err``: statistical uncertainty; ``*_dt_err``: discretisation error of the time step; ``*_N_err``:
@@ -296,7 +293,8 @@ def grid_use_of(source: Source) -> dict[int, tuple[float, float]]:
 ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error of the crossings' slope, or "
               "where they are too few the two estimators' fits and their disagreement; mean theta: its drift "
               "and the averaging over whole periods, docs/analysis.md). +- dt: the discretisation error of the "
-              "time step, by the rule measured against rtol (hpcves/analysis/accuracy.py, docs/error_rule.md); n/e: not "
+              "time step, by the rule measured against rtol (hpcves/analysis/accuracy.py, docs/error_rule.md); "
+              "n/e: not "
               "estimated -- a fixed-step run (rerun with numerics.rtol), or tumbling, for which the rule does "
               "not hold: the tolerance picks the orbit, and a tumbling period was 1 % longer at rtol = 1e-2 "
               "and 1e-3, 0.1 % at 1e-4, than at 1e-5. +- N: the spatial error of the grid, by the rule "

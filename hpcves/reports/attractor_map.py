@@ -242,7 +242,8 @@ def hysteresis_figure(runs_by_label: dict, key: str, title: str = "", joins: dic
     handles = [Line2D([], [], color=c, label=s or "runs") for s, c in colours.items()]
     handles += [Line2D([], [], color="0.3", linestyle="-", label="up"),
                 Line2D([], [], color="0.3", linestyle="--", label="down")]
-    handles += [Line2D([], [], marker=REGIME_STYLE[r][1], linestyle="none", markersize=8, markerfacecolor=REGIME_STYLE[r][0],
+    handles += [Line2D([], [], marker=REGIME_STYLE[r][1], linestyle="none", markersize=8,
+                       markerfacecolor=REGIME_STYLE[r][0],
                        markeredgecolor="0.3", label=REGIME_STYLE[r][2]) for r in ("TT", "PT", "TU")]
     top.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
     if title:

@@ -14,7 +14,6 @@ import os
 from xarray.backends import BackendEntrypoint
 
 
-
 def _kind(filename) -> str:
     """"case", "campaign" or "" (not an hpcves file, or not a file at all)."""
     import h5py

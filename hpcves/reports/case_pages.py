@@ -14,8 +14,8 @@ from collections.abc import Callable, Collection
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-from hpcves.model.params import ConfigError
 from hpcves.campaign.file import CampaignFile
+from hpcves.model.params import ConfigError
 from hpcves.run.store import CaseStore, open_file
 
 #: ``which`` of the named selections
@@ -56,7 +56,8 @@ def check(which: str | Collection[str], case_ids: list[str]) -> None:
     missing = set(which) - set(case_ids)
     if missing:
         raise ConfigError(f"case figures: no case {', '.join(sorted(missing))} in the file "
-                          f"(ask for {', '.join(SELECTIONS)} or case ids such as {case_ids[0] if case_ids else '0001'})")
+                          f"(ask for {', '.join(SELECTIONS)} or case ids such as "
+                          f"{case_ids[0] if case_ids else '0001'})")
 
 
 def draw_page(path: str, case_id: str | None, row: dict, streamlines: bool, target: str) -> str:

@@ -5,12 +5,13 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from hpcves.campaign.search_stages import outcomes, search_points
 from hpcves.analysis.search import AXES
+from hpcves.campaign.search_stages import outcomes, search_points
 from hpcves.campaign.study import search_keys
 from hpcves.model.params import LABELS
-from hpcves.run.store import ENDED_NAMES
 from hpcves.reports.tables import fmt, markdown_table, write_rows
+from hpcves.run.store import ENDED_NAMES
+
 
 def critical_columns(along: str = "shear_rate") -> tuple:
     """The columns of critical_shear.csv (critical_lambda.csv for ``along`` = "viscosity_ratio"): the search's

@@ -21,13 +21,19 @@ import numpy as np
 
 from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
 from hpcves.campaign.file import CampaignFile
+from hpcves.model.params import ADDED_LATER, parameter_of
+from hpcves.reports.conventions import (
+    CONVENTIONS,
+    netcdf_attrs,
+    parameter_attrs,
+    regime_flag,
+    result_attrs,
+    status_flag,
+)
 from hpcves.run.diagnostics import SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
 from hpcves.run.verdict import PARAMETERS
-from hpcves.model.params import ADDED_LATER, parameter_of
-from hpcves.reports.conventions import (CONVENTIONS, netcdf_attrs, parameter_attrs, regime_flag, result_attrs,
-                                        status_flag)
 
 #: analysis/ columns carried per case by open_campaign (the rest are in regimes.csv)
 RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
@@ -264,9 +270,7 @@ def _replayed(path: Path, mode: str) -> dict:
     critical_shear.csv give them; {} for a grid, or where the analysis is of other cases than the file's."""
     if mode not in ("refine", "search"):
         return {}
-    from hpcves.reports import analyze
-    from hpcves.reports import critical
-    from hpcves.reports import refinement
+    from hpcves.reports import analyze, critical, refinement
 
     source, rows = analyze.read_source(path), analyze.read_back(path)
     if [row["case"] for row in rows] != [case.case_id for case in source.cases]:

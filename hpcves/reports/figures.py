@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.reports.analyze import read_source
-from hpcves.run.verdict import DAMAGED, PARAMETERS, analyse_case
 from hpcves.campaign.file import CampaignFile
-from hpcves.run.store import CaseStore, open_file
 from hpcves.model.params import ConfigError, Physics
+from hpcves.reports.analyze import read_source
+from hpcves.run.store import CaseStore, open_file
+from hpcves.run.verdict import DAMAGED, PARAMETERS, analyse_case
 
 
 @dataclass(frozen=True)

@@ -655,7 +655,8 @@ def case_title(attrs) -> str:
     return (f"S = {get('physics.shear_rate'):g}, $\\bar\\psi$ = {get('physics.psi_bar'):g}, "
             f"$\\Delta$ = {get('physics.excess_length'):g}, $B_2/B_1$ = "
             f"{get('physics.B2') / get('physics.B1'):g}, "
-            + (f"$\\lambda$ = {get('physics.viscosity_ratio'):g}, " if get('physics.viscosity_ratio', 1.0) != 1.0 else "")
+            + (f"$\\lambda$ = {get('physics.viscosity_ratio'):g}, "
+               if get('physics.viscosity_ratio', 1.0) != 1.0 else "")
             + (f"N = auto ({get('numerics.N')}-{get('numerics.N_max')})" if get('numerics.N_max', 0) else
                f"N = {get('numerics.N')}")
             + dealias_label(get('numerics.dealias', 1.0))

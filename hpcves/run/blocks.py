@@ -32,15 +32,29 @@ import collections.abc
 import h5py
 import numpy as np
 
-from hpcves.version import __version__
 from hpcves.files import faults
 from hpcves.model.params import Case
-from hpcves.run.diagnostics import SERIES, SNAPSHOT_FIELDS
-from hpcves.run.diagnostics import SERIES_ATTRS, SNAPSHOT_ATTRS
-from hpcves.run.store import (FORMAT, FORMAT_VERSION, MESSAGE_BYTES, NOT_DECIDED, SNAPSHOT_RECORDS, TRACEBACK_BYTES,
-                              CaseStore, Column, FileFormatError, attr_integer, capacities, name_records, stored_case,
-                              stored_N, _early, _N_SCALARS)
+from hpcves.run.diagnostics import SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
+from hpcves.run.store import (
+    _N_SCALARS,
+    FORMAT,
+    FORMAT_VERSION,
+    MESSAGE_BYTES,
+    NOT_DECIDED,
+    SNAPSHOT_RECORDS,
+    TRACEBACK_BYTES,
+    CaseStore,
+    Column,
+    FileFormatError,
+    _early,
+    attr_integer,
+    capacities,
+    name_records,
+    stored_case,
+    stored_N,
+)
 from hpcves.run.timestepping import State
+from hpcves.version import __version__
 
 BLOCKS = "blocks"
 #: the campaign format whose blocks pack their records (:func:`packing`)
@@ -178,7 +192,8 @@ def _describe_packed(group, scales: dict) -> None:
               "array": group["checkpoint/array"]}
     group["timeseries/series"].attrs["long_name"] = "the time series, a column a quantity (quantity, long_name, units)"
     group["snapshots/fields"].attrs["long_name"] = "the snapshot fields (field, long_name, units)"
-    axes = {"timeseries/series": ("case", "sample", "quantity"), "snapshots/fields": ("case", "snapshot", "field", "alpha"),
+    axes = {"timeseries/series": ("case", "sample", "quantity"),
+            "snapshots/fields": ("case", "snapshot", "field", "alpha"),
             "snapshots/t": ("case", "snapshot"), "snapshots/shift": ("case", "snapshot"),
             **{name: ("case",) for name in ("status", "message", "traceback", "timeseries/length", "snapshots/length")},
             **{f"checkpoint/{slot}/arrays": ("case", "array", "alpha") for slot in SLOTS}}

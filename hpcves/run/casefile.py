@@ -9,8 +9,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hpcves.files.atomic import (METADATA_BYTES_PER_FILE, StorageError, check_output_path, new_partial, publish,
-                                 remove_partial)
+from hpcves.files.atomic import (
+    METADATA_BYTES_PER_FILE,
+    StorageError,
+    check_output_path,
+    new_partial,
+    publish,
+    remove_partial,
+)
 from hpcves.model.params import Case
 from hpcves.run import runner
 from hpcves.run.store import CaseStore, FileFormatError, open_file, safe_flush, storage_bytes

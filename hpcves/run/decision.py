@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hpcves.model.params import RunControl
 from hpcves.analysis.regimes import PT, TT, TU, AnalysisSettings, classify
+from hpcves.model.params import RunControl
 
 #: the series the classifier reads
 SERIES = ("t", "theta", "V_psi", "V_L", "tank_treading_velocity", "psi_min", "psi_max")

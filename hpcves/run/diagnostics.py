@@ -33,10 +33,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hpcves.model import geometry
-from hpcves.model import phasefield
-from hpcves.numerics.spectral import resolution_needed, spectral_tail
+from hpcves.model import geometry, phasefield
 from hpcves.model.forces import bending_energy, phase_energy
+from hpcves.numerics.spectral import resolution_needed, spectral_tail
 from hpcves.run.timestepping import EMPTY, EMPTY_SPECTRUM, Rates, Solver, State, compiled_kernels
 
 #: Names of the scalar time series, in file order; ``centroid`` has two columns.
@@ -305,7 +304,8 @@ def health(solver: Solver, state: State, row: dict | None, last_correction: floa
     names = _SOUND
     if solver.engine == "compiled":
         rate_theta, rate_psi = state.prev_rate_theta, state.prev_rate_psi
-        which, lo, hi = compiled_kernels().soundness(state.theta, state.psi, EMPTY if rate_theta is None else rate_theta,
+        which, lo, hi = compiled_kernels().soundness(state.theta, state.psi,
+                                                     EMPTY if rate_theta is None else rate_theta,
                                                      EMPTY if rate_psi is None else rate_psi)
         if which >= 0:
             return Health(False, f"non-finite values in {names[which]} at t = {solver.time(state):.6g}")

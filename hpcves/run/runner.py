@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import abc
 import dataclasses
-import math
 import logging
+import math
 import time
 from dataclasses import dataclass
 from typing import Callable, NamedTuple
@@ -29,16 +29,13 @@ from typing import Callable, NamedTuple
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from hpcves.run import decision
-from hpcves.run import diagnostics
-from hpcves.run import resolution
+from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.files import faults
-from hpcves.run import schedule
+from hpcves.model.flow import TensionSolveError
+from hpcves.run import decision, diagnostics, resolution, schedule
 from hpcves.run import store as checkpoint_module
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseRecord, Status
 from hpcves.run.stored import read_stored_start
-from hpcves.model.flow import TensionSolveError
-from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.run.timestepping import Solver, State
 
 log = logging.getLogger(__name__)

@@ -51,17 +51,17 @@ from typing import Protocol
 import h5py
 import numpy as np
 
-from hpcves.version import __version__
+from hpcves.config import case_from_toml, case_to_toml, not_a_regular_file
+from hpcves.errors import FileFormatError, HpcvesError
 from hpcves.files import faults
 from hpcves.files.atomic import METADATA_BYTES_PER_CASE, StorageError
-from hpcves.config import case_from_toml, case_to_toml, not_a_regular_file
+from hpcves.model.params import Case, ConfigError
+from hpcves.numerics.spectral import Spectral, resample
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
-from hpcves.errors import FileFormatError, HpcvesError
-from hpcves.model.params import Case, ConfigError
 from hpcves.run.schedule import clock
-from hpcves.numerics.spectral import Spectral, resample
 from hpcves.run.timestepping import State
+from hpcves.version import __version__
 
 FORMAT = "hpcves-case"
 FORMAT_VERSION = 5                  # 5: checksums of the checkpoints and of an ended case's data
@@ -141,7 +141,8 @@ class Column:
 
     def index(self) -> tuple:
         """Where the record lies in a numpy array shaped as the packed array's selected rows."""
-        return (slice(None),) * self.axis + (self.first if self.squeezed else slice(self.first, self.first + self.width),)
+        chosen = self.first if self.squeezed else slice(self.first, self.first + self.width)
+        return (slice(None),) * self.axis + (chosen,)
 
 
 #: what h5py raises when the file under it is damaged (unreadable metadata, objects of the wrong kind);

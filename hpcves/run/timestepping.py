@@ -84,14 +84,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hpcves.model import continuation, geometry
-from hpcves.model import phasefield
+from hpcves.model import continuation, geometry, phasefield
 from hpcves.model.flow import Flow, MembraneFlow, TensionSolveError
 from hpcves.model.forces import bending_energy, phase_energy
 from hpcves.model.geometry import Shape
 from hpcves.model.params import Case, ConfigError
 from hpcves.numerics.spectral import Spectral, resample, spectral_tail
-
 
 #: how a solver computes its rates and SBDF2 steps (Solver's ``engine``)
 ENGINES = ("compiled", "numpy")

@@ -15,13 +15,14 @@ import numpy as np
 
 from hpcves.analysis import accuracy
 from hpcves.analysis.pattern import common_topology
+from hpcves.analysis.regimes import CREEPING, UNDECIDED, AnalysisSettings, Classification, classify
 from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
 from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
-from hpcves.analysis.regimes import CREEPING, UNDECIDED, AnalysisSettings, Classification, classify
+from hpcves.model.params import SWEEPABLE as PARAMETERS  # the columns of a case's parameters in a row
+from hpcves.model.params import parameter_of
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.runner import MODEL_LIMIT_PREFIX, UNDER_RESOLVED
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
-from hpcves.model.params import SWEEPABLE as PARAMETERS, parameter_of      # the columns of a case's parameters in a row
 
 #: the status of a campaign case whose data cannot be read
 DAMAGED = "damaged"
