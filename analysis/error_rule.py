@@ -12,7 +12,7 @@ reference rtol = 1e-4 (its error is 1 % of that at 1e-2: the global error
 falls in proportion to rtol, tests/test_stepcontrol.py), each at the sampling
 the job files use and at a sparse one (a sample every 1/(2 S): fewer step cuts,
 so the controller alone sets the step), and reads period and mean of theta
-with the estimator of ``hpcves analyze`` (hpcves.analysis.periodicity.analyse) on the
+with the estimator of ``hpcves analyze`` (hpcves.analysis.periodicity.analyze) on the
 same sample times as the reference, so the estimator's own bias cancels.
 
     .venv/bin/python analysis/error_rule.py --out docs/error_rule.md   (~40 min on one core)
@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from hpcves.analysis import accuracy
-from hpcves.analysis.periodicity import analyse
+from hpcves.analysis.periodicity import analyze
 from hpcves.analysis.regimes import flip_period
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.run import diagnostics
@@ -66,7 +66,7 @@ def run(label: str, sampling: str, rtol: float) -> dict:
                            checkpoint_interval=t_end))
     start = time.perf_counter()
     record = diagnostics.inclination_record(case)
-    a = analyse(record.t, record.theta)
+    a = analyze(record.t, record.theta)
     period = a.period
     if a.minimum < 0:                       # tumbling: as hpcves analyze (regimes.classify)
         settled = record.t >= a.t_settle
@@ -88,7 +88,7 @@ def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str
              "numbers set. "
              f"Each run at rtol is compared with a run at rtol = {REFERENCE_RTOL:g} on the same sample times, "
              "period and mean theta read by the estimator of `hpcves analyze` "
-             "(hpcves.analysis.periodicity.analyse).", "",
+             "(hpcves.analysis.periodicity.analyze).", "",
              "Columns: |dT| / T, the relative difference of the periods; stat, what the two estimates' "
              "statistical errors allow together ((sigma_run + sigma_ref) / T); excess / rtol, the part of |dT| "
              "beyond that, per unit rtol: what the discretisation error bar has to cover. |d theta|: the "

@@ -149,7 +149,7 @@ def _add_walls(ledger: Path, walls: dict, restart=()) -> dict:
     return totals
 
 
-def analyse(jobs: dict, out: Path, np_: int) -> dict:
+def analyze_all(jobs: dict, out: Path, np_: int) -> dict:
     """Analyze every campaign into ``out/<name>``; draw the case pages (FULL_PAGES: every case's, the
     others: the flagged cases') in ``np_`` processes."""
     reports = {}
@@ -636,7 +636,7 @@ def write_study_section(grid: str, name: str, toml: str, out: Path, np_: int, to
                         ranks: int | None = None) -> None:
     """Analyze one campaign, copy its figures and write its section, with what it took."""
     start = time.monotonic()
-    report = analyse({name: toml}, out, np_)[name]
+    report = analyze_all({name: toml}, out, np_)[name]
     figures = copy_figures({name: report}, FIGURES[grid])[name]
     lines = SECTIONS[name](Context(name, report, figures, out, FIGURES[grid], toml, grid))
     rows = read_table(load_study(toml).output).rows

@@ -4,7 +4,7 @@ The time-step error has its rule (analysis/error_rule.py, docs/error_rule.md); t
 grid's. Each case runs at fixed N in {32, 48, 64, 96, 128} and at a reference N = 192, all
 at rtol = 1e-4 (a time-step error of 1.7e-5 of a period and 2.5e-7 rad: below what is
 measured here), on the same sample times; period and mean theta are read with the estimator
-of ``hpcves analyze`` (hpcves.analysis.periodicity.analyse), and each run's resolution by the
+of ``hpcves analyze`` (hpcves.analysis.periodicity.analyze), and each run's resolution by the
 largest spectral tail of theta_tilde and psi over its settled part (spectral.spectral_tail:
 what every sample records and what N = "auto" steers by). The ratios
 
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from hpcves.analysis import accuracy
-from hpcves.analysis.periodicity import analyse
+from hpcves.analysis.periodicity import analyze
 from hpcves.analysis.regimes import flip_period
 from hpcves.model import geometry
 from hpcves.model.params import Case, Numerics, Physics, RunControl
@@ -78,7 +78,7 @@ def run(label: str, N: int) -> dict:
     except Exception as exc:                       # an unresolved run may give out: recorded as such
         return {**out, "failed": f"{type(exc).__name__}: {exc}"[:200], "seconds": time.perf_counter() - start}
     t, theta, tails = np.array(t), np.array(theta), np.array(tails)
-    a = analyse(t, theta)
+    a = analyze(t, theta)
     period = a.period
     if a.minimum < 0:
         settled = t >= a.t_settle

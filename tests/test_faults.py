@@ -573,20 +573,20 @@ def test_analyze_does_not_store_results_of_a_file_that_changed_meanwhile(tmp_pat
     monkeypatch.setattr(campaign_module.runner, "run", stop_early)
     run_campaign(study, output)
     monkeypatch.setattr(campaign_module.runner, "run", real_run)
-    real_classify = analysis.analyse_source
+    real_classify = analysis.analyze_source
 
     def classify_while_a_resume_finishes_it(source, *args, **kwargs):
         rows = real_classify(source, *args, **kwargs)
         assert run_campaign(study, output, resume=True).exit_status == 0
         return rows
 
-    monkeypatch.setattr(analysis, "analyse_source", classify_while_a_resume_finishes_it)
+    monkeypatch.setattr(analysis, "analyze_source", classify_while_a_resume_finishes_it)
     report = analysis.analyze(output, tmp_path / "a", case_figures=False)
     assert not report.wrote_back
     assert "changed while it was analysed" in report.note and "now finished" in report.note
     with h5py.File(output, "r") as f:
         assert "analysis" not in f
-    monkeypatch.setattr(analysis, "analyse_source", real_classify)
+    monkeypatch.setattr(analysis, "analyze_source", real_classify)
     again = analysis.analyze(output, tmp_path / "a", case_figures=False)
     assert again.wrote_back and {r["status"] for r in again.rows} == {"finished"}
 

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from hpcves.analysis.periodicity import analyse, estimate_period, upward_crossings
+from hpcves.analysis.periodicity import analyze, estimate_period, upward_crossings
 from hpcves.analysis.regimes import PT, TT, TU, UNDECIDED, AnalysisSettings, classify
 from hpcves.config import ConfigError
 from hpcves.run.verdict import crept
@@ -38,7 +38,7 @@ SIGNALS = {
 
 @pytest.mark.parametrize("name", SIGNALS)
 def test_the_period_is_found_within_half_a_percent_and_its_error_bar_covers_the_truth(name):
-    a = analyse(t, SIGNALS[name])
+    a = analyze(t, SIGNALS[name])
     p = a.period
     assert abs(p.period - T) <= 0.005 * T, (name, p)
     assert abs(p.period - T) <= 3 * p.error, (name, p)            # the uncertainty is honest ...
@@ -48,10 +48,10 @@ def test_the_period_is_found_within_half_a_percent_and_its_error_bar_covers_the_
 
 def test_the_transient_ends_where_the_decay_drops_below_the_band():
     x = SIGNALS["decaying transient"]
-    a = analyse(t, x)
+    a = analyze(t, x)
     # the decaying parts fall below 5 % of the settled range (~0.36) at t ~ 6 - 7
     assert 4.0 < a.t_settle < 9.0, a.t_settle
-    assert analyse(t, SIGNALS["clean"]).t_settle <= T                # no transient: settled at once
+    assert analyze(t, SIGNALS["clean"]).t_settle <= T                # no transient: settled at once
 
 
 def test_a_waveform_that_crosses_its_mid_line_twice_per_period_is_still_one_period():
@@ -71,7 +71,7 @@ def test_hysteresis_keeps_noise_from_adding_crossings():
 
 def test_steady_signal_settles_and_has_no_period():
     x = 0.56 - 0.3 * np.exp(-t / 1.2)
-    a = analyse(t, x)
+    a = analyze(t, x)
     assert a.steady and np.isnan(a.period.period)
     assert a.t_settle == pytest.approx(1.2 * np.log(0.3 / 1e-4), abs=0.05)   # |x - x_end| <= abs_tol
 
@@ -182,13 +182,13 @@ def test_the_mean_over_whole_periods_is_within_its_error_bar(name):
     exact = {"peaked": np.mean(0.6 + 0.2 * np.exp(-8 * (1 - np.cos(2 * np.pi * one / T))))}.get(name, 0.6)
     for end in (20.0, 19.77, 19.5):                    # records ending at different phases
         keep = t < end
-        a = analyse(t[keep], SIGNALS[name][keep])
+        a = analyze(t[keep], SIGNALS[name][keep])
         assert 0 < a.mean_error < 0.1 * a.amplitude, (name, end, a.mean_error)
         assert abs(a.mean - exact) <= a.mean_error, (name, end, a.mean - exact, a.mean_error)
 
 
 def test_a_steady_mean_is_within_its_band():
-    a = analyse(t, 0.56 - 0.3 * np.exp(-t / 1.2))
+    a = analyze(t, 0.56 - 0.3 * np.exp(-t / 1.2))
     assert a.steady and a.mean_error == a.tolerance and abs(a.mean - 0.56) <= a.mean_error
 
 
@@ -242,7 +242,7 @@ def test_a_tumbling_vesicle_whose_flips_jitter_is_decided_by_its_flips():
     cycle = np.searchsorted(ends, time, side="right") - 1
     x = np.pi * (cycle + (time - ends[cycle]) / lengths[cycle])
     theta = fold(-np.arctan2(0.05 * np.sin(x), np.cos(x)))         # a fast flip, slow elsewhere
-    assert analyse(time, theta).cycles < 3                            # on theta: not settled
+    assert analyze(time, theta).cycles < 3                            # on theta: not settled
     tu = classify(series(theta, time=time))
     assert tu.regime == TU and "settled by its flips" in tu.reason, tu
     assert abs(tu.period - mean) <= tu.period_err < 0.01 * mean, (tu.period, tu.period_err)
@@ -282,9 +282,9 @@ def test_classifying_does_not_import_scipy_signal():
     import sys
 
     code = "\n".join(["import sys, numpy as np",
-                       "from hpcves.analysis.periodicity import analyse",
+                       "from hpcves.analysis.periodicity import analyze",
                        "t = np.arange(2000) * 0.01",
-                       "assert abs(analyse(t, np.sin(2 * np.pi * t / 1.3)).period.period - 1.3) < 1e-6",
+                       "assert abs(analyze(t, np.sin(2 * np.pi * t / 1.3)).period.period - 1.3) < 1e-6",
                        "print('scipy.signal' in sys.modules)"])
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr

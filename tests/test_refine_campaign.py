@@ -145,7 +145,7 @@ def test_every_verdict_is_kept_in_the_file_and_a_replay_classifies_nothing(refin
         classified.append(data.case_id)
         return {"regime": "TU", "reason": ""}
 
-    monkeypatch.setattr(verdict_module, "analyse_case", classify)
+    monkeypatch.setattr(verdict_module, "analyze_case", classify)
     rows = read_table(copy).rows
     assert progress(copy, rows, None).complete and classified == []
     again = run_campaign(study, copy, resume=True)

@@ -80,7 +80,7 @@ class PeriodEstimate:
 
 @dataclass(frozen=True)
 class SignalAnalysis:
-    """What :func:`analyse` finds in x(t); amplitudes and extremes are over the settled part."""
+    """What :func:`analyze` finds in x(t); amplitudes and extremes are over the settled part."""
 
     t_settle: float            # end of the transient (nan: never settles)
     settled_span: float        # t_end - t_settle
@@ -93,7 +93,7 @@ class SignalAnalysis:
     amplitude: float           # (max - min) / 2
     drift: float               # change of the linear trend over the settled part
     period: PeriodEstimate
-    mean_error: float = float("nan")   # statistical uncertainty of ``mean`` (see :func:`analyse`)
+    mean_error: float = float("nan")   # statistical uncertainty of ``mean`` (see :func:`analyze`)
 
     @property
     def cycles(self) -> float:
@@ -300,7 +300,7 @@ def settle_index(within: np.ndarray) -> int:
 
 
 # ---------------------------------------------------------------------- the whole signal
-def analyse(t: np.ndarray, x: np.ndarray, *, abs_tol: float = 1e-4, rel_tol: float = 0.05) -> SignalAnalysis:
+def analyze(t: np.ndarray, x: np.ndarray, *, abs_tol: float = 1e-4, rel_tol: float = 0.05) -> SignalAnalysis:
     """Transient, steadiness and period of x(t), sampled uniformly (module docstring)."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)

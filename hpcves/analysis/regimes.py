@@ -36,13 +36,13 @@ from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
-from hpcves.analysis.periodicity import PeriodEstimate, SignalAnalysis, analyse, estimate_period
+from hpcves.analysis.periodicity import PeriodEstimate, SignalAnalysis, analyze, estimate_period
 from hpcves.config import check_type, from_table
 from hpcves.model.params import ConfigError
 
 TT, PT, TU, UNDECIDED = "TT", "PT", "TU", "undecided"
 REGIMES = (TT, PT, TU, UNDECIDED)
-#: the regime column of a case whose run ended at the model's limit or failed (analysis.analyse_case)
+#: the regime column of a case whose run ended at the model's limit or failed (analysis.analyze_case)
 MODEL_LIMIT, FAILED = "model limit", "failed"
 OUTCOMES = (*REGIMES, MODEL_LIMIT, FAILED)
 
@@ -97,7 +97,7 @@ class Classification:
     period_err: float
     cycles: float
     theta_mean: float
-    theta_mean_err: float      # its statistical uncertainty (periodicity.analyse: mean_error)
+    theta_mean_err: float      # its statistical uncertainty (periodicity.analyze: mean_error)
     theta_min: float
     theta_amplitude: float
     theta_drift: float
@@ -150,7 +150,7 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     ``tank_treading_velocity`` where recorded)."""
     t = np.asarray(series["t"], dtype=float)
     theta = np.asarray(series["theta"], dtype=float)
-    a = analyse(t, theta, abs_tol=settings.abs_tol, rel_tol=settings.rel_tol)
+    a = analyze(t, theta, abs_tol=settings.abs_tol, rel_tol=settings.rel_tol)
     # a flipping theta that does not settle on its own: judged by its flips (settled_by_flips)
     flipping = None if a.steady or a.cycles >= settings.min_cycles else settled_by_flips(t, theta, settings)
     if flipping is not None:

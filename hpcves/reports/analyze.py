@@ -35,7 +35,7 @@ from hpcves.reports.critical import critical_markdown, critical_rows, write_crit
 from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
-from hpcves.run.verdict import DAMAGED, PARAMETERS, TOPOLOGY_COLUMNS, CaseData, analyse_case, case_data, mark
+from hpcves.run.verdict import DAMAGED, PARAMETERS, TOPOLOGY_COLUMNS, CaseData, analyze_case, case_data, mark
 from hpcves.version import __version__
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
@@ -134,11 +134,11 @@ def read_source(path) -> Source:
         return Source(path, "case", path.stem, (), AnalysisSettings(), (case_data(store, path.stem),))
 
 
-def analyse_source(source: Source, settings: AnalysisSettings | None = None, progress=None) -> list[dict]:
+def analyze_source(source: Source, settings: AnalysisSettings | None = None, progress=None) -> list[dict]:
     settings = settings or source.settings
     rows = []
     for i, case in enumerate(source.cases):
-        rows.append(analyse_case(case, settings))
+        rows.append(analyze_case(case, settings))
         if source.starts:
             rows[-1]["start"] = source.starts[i]
         if progress is not None:
@@ -166,7 +166,7 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, pro
     try:
         changed = _changes(source, None if isinstance(guard, CampaignLock) else guard)
         if changed:
-            return f"the file changed while it was analysed ({changed}); analyse it again"
+            return f"the file changed while it was analysed ({changed}); analyze it again"
         if progress is not None:
             progress(f"storing the results in a copy of the file ({size_text(path.stat().st_size)})")
         partial = copy_for_change(path, 200 * len(rows) * len(COLUMNS) + 65536, "storing the analysis")
@@ -463,7 +463,7 @@ def analyze(path, out_dir=None, *, overrides: dict | None = None, write_to_file:
     settings = source.settings
     if overrides:
         settings = AnalysisSettings.from_dict({**settings.__dict__, **overrides}, where="--set")
-    rows = analyse_source(source, settings, progress=None if progress is None else
+    rows = analyze_source(source, settings, progress=None if progress is None else
                           (lambda i, n: progress(f"classified {i}/{n} cases")))
     out = Path(out_dir) if out_dir else source.path.with_name(source.path.stem + "_analysis")
     try:

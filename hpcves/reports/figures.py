@@ -13,7 +13,7 @@ from hpcves.campaign.file import CampaignFile
 from hpcves.model.params import ConfigError, Physics
 from hpcves.reports.analyze import read_source
 from hpcves.run.store import CaseStore, open_file
-from hpcves.run.verdict import DAMAGED, PARAMETERS, analyse_case
+from hpcves.run.verdict import DAMAGED, PARAMETERS, analyze_case
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class Chosen:
     case_id: str
     parameters: dict
     physics: Physics
-    row: dict                  # analysis.analyse_case
+    row: dict                  # analysis.analyze_case
     series: dict
     snapshots: dict
 
@@ -76,7 +76,7 @@ def choose(path, case_ids=(), where: dict | None = None, one: bool = False) -> l
             if len(snapshots["t"]) == 0:
                 raise ConfigError(f"{path}: case {case.case_id} has no snapshots yet")
             out.append(Chosen(case.case_id, case.parameters, store.case.physics,
-                              analyse_case(case, source.settings), case.series, snapshots))
+                              analyze_case(case, source.settings), case.series, snapshots))
     return out
 
 

@@ -142,7 +142,7 @@ def verdict_of(data: CaseData, settings: AnalysisSettings) -> tuple[Verdict, flo
     """(the verdict on an ended case, the wall seconds its file holds): what a staged campaign keeps of
     it in index/verdict. Classified on the rank that ran the case, right after it ended, or on rank 0
     between stages."""
-    return Verdict.of(analyse_case(data, settings)), data.wall
+    return Verdict.of(analyze_case(data, settings)), data.wall
 
 
 def under_resolved(row: dict) -> bool:
@@ -156,7 +156,7 @@ def crept(row: dict) -> bool:
     return row["regime"] == UNDECIDED and CREEPING.search(row["reason"]) is not None
 
 
-def analyse_case(case: CaseData, settings: AnalysisSettings) -> dict:
+def analyze_case(case: CaseData, settings: AnalysisSettings) -> dict:
     """One row of regimes.csv (COLUMNS) for one case."""
     base = {"case": case.case_id, **case.parameters, "status": case.status, "t": case.t, "t_end": case.t_end,
             "rtol": case.rtol, "N": case.N}
