@@ -118,9 +118,9 @@ def fit_to(t: float, k: float, t_event: float) -> tuple[float, bool]:
     """(step, lands): k shortened so that steps meet t_event exactly without a tiny last one.
 
     If t + STRETCH k reaches t_event, the step is t_event - t and lands on it (a
-    step at most 10 % longer than proposed: inside the safety factor). Otherwise
-    the interval is split into ceil((t_event - t) / k) equal steps and the first
-    is taken; it lands only if that count is 1.
+    step at most 10 % longer than proposed: inside the safety factor). If two
+    steps of k reach it, the step is half the gap (two equal steps, no tiny last
+    one). Farther away the step is k; neither of these lands.
     """
     gap = t_event - t
     if STRETCH * k >= gap:

@@ -40,17 +40,15 @@ with k = t_{n+1} - t_n and the step ratio w = k / k_{n-1},
     ((1 + 2w)/(1 + w) y^{n+1} - (1 + w) y^n + w^2/(1 + w) y^{n-1}) / k
         = -lam y^{n+1} + (1 + w) G^n - w G^{n-1},      G = F(y) + lam y,
 
-which at w = 1 is (3 y^{n+1} - 4 y^n + y^{n-1}) / (2k) = -lam y^{n+1} + 2 G^n - G^{n-1}
-(the same floating-point operations: fixed-step runs are unchanged bit for
-bit). Variable-step BDF2 is zero-stable for w < 1 + sqrt 2; the step
-controller (stepcontrol.py) keeps w <= 2. The local error estimate is the
-difference between the step and the quadratic through the last three levels
-(:class:`Estimate`).
-
 with F the full right-hand side (for psi without the advection, which is
 wholly implicit; with numerics.dealias = r, F evaluated on r N nodes from the
 state's trigonometric interpolant and truncated to the N modes, so that its
-products do not alias) and
+products do not alias). At w = 1 it is (3 y^{n+1} - 4 y^n + y^{n-1}) / (2k) =
+-lam y^{n+1} + 2 G^n - G^{n-1} (the same floating-point operations: fixed-step
+runs are unchanged bit for bit). Variable-step BDF2 is zero-stable for
+w < 1 + sqrt 2; the step controller (stepcontrol.py) keeps w <= 2. The local
+error estimate is the difference between the step and the quadratic through
+the last three levels (:class:`Estimate`). The stiff operators lam:
 
     theta:  lam = c max(B1, B2) |k|^3 / 4 (diagonal; the small-scale bending
             response, 1/(4|k|) being the single-layer symbol of a flat membrane);
