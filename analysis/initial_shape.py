@@ -30,7 +30,7 @@ from hpcves.analysis.regimes import classify
 from hpcves.model import geometry
 from hpcves.model.params import REFERENCE_LENGTH, Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import Spectral
-from hpcves.reports.plots import shape_strip
+from hpcves.reports.case_figures import shape_strip
 from hpcves.reports.tables import markdown_table
 from hpcves.run.casefile import create_case_file, run_file
 from hpcves.run.runner import one_thread

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from hpcves.campaign.file import CampaignFile
 from hpcves.model.params import ConfigError
-from hpcves.reports.plots import campaign_figure, case_figure, case_title
+from hpcves.reports.case_figures import campaign_figure, case_figure, case_title
 from hpcves.run.store import STATUS_NAMES, open_file
 
 

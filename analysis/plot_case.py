@@ -4,7 +4,7 @@ import sys
 from pathlib import Path
 
 from hpcves.model.params import ConfigError
-from hpcves.reports.plots import case_figure, case_title
+from hpcves.reports.case_figures import case_figure, case_title
 from hpcves.run.store import CaseStore, open_file
 
 

@@ -230,16 +230,16 @@ def theta_table(report) -> str:
 
 def theta_figure(report, directory: Path, name: str, group: str | None, title: str) -> Path:
     """theta(t) against S t for every case of ``report``, one panel per value of ``group``."""
-    from hpcves.reports import plots
+    from hpcves.reports import diagrams
 
     cases = [c for c in report.source.cases if c.status != "damaged"]
     values = sorted({c.parameters[group] for c in cases}) if group else [None]
     panels = []
     for value in values:
         chosen = [c for c in cases if group is None or c.parameters[group] == value]
-        label = title if group is None else f"{title}, {plots.parameter_text({group: value})}"
+        label = title if group is None else f"{title}, {diagrams.parameter_text({group: value})}"
         panels.append((label, [(c.parameters["shear_rate"], c.series["t"], c.series["theta"]) for c in chosen]))
-    fig = plots.theta_curves(panels)
+    fig = diagrams.theta_curves(panels)
     path = directory / f"{name}_theta.png"
     fig.savefig(path, dpi=110)
     return path

@@ -22,7 +22,7 @@ from hpcves.analysis.periodicity import crossing_period  # noqa: E402
 from hpcves.analysis.regimes import classify  # noqa: E402
 from hpcves.model.params import REFERENCE_EXCESS_LENGTH, Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.numerics.spectral import Spectral  # noqa: E402
-from hpcves.reports.plots import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
+from hpcves.reports.case_figures import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
 from hpcves.run import runner  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402

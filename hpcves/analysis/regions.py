@@ -1,4 +1,4 @@
-"""The regions of a phase diagram that its cases decide, for the figures (reports/plots.py).
+"""The regions of a phase diagram that its cases decide, for the figures (reports/diagrams.py).
 
 A region is drawn only where the cases around it agree: between two neighbouring cases of one
 row with the same regime, and between two neighbouring rows where both have it over the same

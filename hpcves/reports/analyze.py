@@ -3,7 +3,8 @@
 The edge around :mod:`hpcves.analysis.regimes`: read every case's time series, classify
 it, write the results back into the file (group ``analysis/``, one row per
 case, docs/file-format.md) and into ``regimes.csv`` / ``regimes.md`` and
-``periods.md``; the figures are drawn by :mod:`hpcves.reports.plots`.
+``periods.md``; the figures are drawn by :mod:`hpcves.reports.diagrams` and
+:mod:`hpcves.reports.case_figures`.
 """
 from __future__ import annotations
 
@@ -548,7 +549,7 @@ def critical_shear_tables(f: Findings, out: Path) -> list[Path]:
 
 def critical_shear_figures(f: Findings, out: Path) -> list[Path]:
     """S_C (lambda_C) against the first parameter the searches vary, one figure per value of the others."""
-    from hpcves.reports import plots
+    from hpcves.reports import diagrams
 
     if f.source.mode != "search":
         return []
@@ -556,7 +557,7 @@ def critical_shear_figures(f: Findings, out: Path) -> list[Path]:
     varied = [k for k in f.source.sweep_keys if k != settings.along and len({r[k] for r in f.searches}) > 1]
     written = []
     for fixed, subset in (facets(f.searches, varied[1:]) if varied else ()):
-        fig = plots.critical_shear_figure(subset, varied[0], title=plots.parameter_text(
+        fig = diagrams.critical_shear_figure(subset, varied[0], title=diagrams.parameter_text(
             shared_parameters(subset, (varied[0], settings.along))), along=settings.along)
         written += _save(fig, out / f"{settings.stem}{facet_suffix(fixed)}")
     return written
@@ -584,12 +585,12 @@ def period_table(f: Findings, out: Path) -> list[Path]:
 def phase_diagrams(f: Findings, out: Path) -> list[Path]:
     """The regimes over the plane, one per facet (a point drawn by its last run). A grid: every case
     drawn over the regions its cases decide, and the periods against its rows. A search or a
-    refinement: the figure for a paper (plots.paper_diagram: the decided regions filled, the critical
+    refinement: the figure for a paper (diagrams.paper_diagram: the decided regions filled, the critical
     values or the traced boundaries through the white between them, a journal column wide; the cases
     as markers with ``f.markers``), and ``phase_diagram*_cases``, every case drawn with the critical
     rates or the boundaries over them."""
     from hpcves.analysis.refine import regions as refined_regions
-    from hpcves.reports import plots
+    from hpcves.reports import diagrams
 
     if not f.diagrams:
         return []
@@ -597,26 +598,27 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
     repeated = rc.superseded(f.source)          # a refinement's runs that a later run of their point repeats
     for fixed, subset in facets([r for r in f.rows if r["case"] not in repeated], f.others):
         suffix = facet_suffix(fixed)
-        title = plots.parameter_text(shared_parameters(subset, (f.x_key, f.y_key)))
+        title = diagrams.parameter_text(shared_parameters(subset, (f.x_key, f.y_key)))
         mine = lambda rows: [r for r in rows if all(r[k] == v for k, v in fixed.items() if k in r)]  # noqa: E731
         regions = None
         if f.refined and {f.x_key, f.y_key} == set(f.study.refine.axes):
             regions = [region for o in f.refined if all(o.point.get(k, v) == v for k, v in fixed.items())
                        for region in _oriented(refined_regions(o.settings, o.regimes), o.settings, f.x_key)]
-        fig = plots.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
+        fig = diagrams.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
                                   regions=regions,
                                   log_keys=f.study.refine_settings.log_keys() if f.refined else None)
         along = f.study.search.along if f.searches else None
         if f.searches and along in (f.x_key, f.y_key):
-            plots.mark_critical(fig.axes[0], mine(f.searches), f.y_key if f.x_key == along else f.x_key,
+            diagrams.mark_critical(fig.axes[0], mine(f.searches), f.y_key if f.x_key == along else f.x_key,
                                 s_on_x=f.x_key == along, along=along)
         if regions is not None:
-            plots.mark_boundaries(fig.axes[0], mine(f.lines), f.x_key, f.y_key)      # a start: every one's
+            diagrams.mark_boundaries(fig.axes[0], mine(f.lines), f.x_key, f.y_key)      # a start: every one's
         if f.source.mode == "grid":
             written += _save(fig, out / f"phase_diagram{suffix}")
             cells = len({r[f.x_key] for r in subset}) * len({r[f.y_key] for r in subset})
             if cells <= MAX_PERIOD_CELLS:
-                written += _save(plots.period_figure(subset, f.y_key, f.x_key, title=title), out / f"periods{suffix}")
+                written += _save(diagrams.period_figure(subset, f.y_key, f.x_key, title=title),
+                                 out / f"periods{suffix}")
             continue
         written += _save(fig, out / f"phase_diagram{suffix}_cases")
         paper = _paper_figure(f, subset, mine, regions, title)
@@ -633,16 +635,16 @@ def _oriented(regions, settings, x_key: str):
 
 
 def _paper_figure(f: Findings, subset: list[dict], mine, regions, title: str):
-    """plots.paper_diagram of a search's or a refinement's facet (None: its plane is not the one searched
+    """diagrams.paper_diagram of a search's or a refinement's facet (None: its plane is not the one searched
     or refined)."""
-    from hpcves.reports import plots
+    from hpcves.reports import diagrams
 
-    log_keys = set(plots.LOG_KEYS) | (set(f.study.refine_settings.log_keys()) if f.refined else set())
+    log_keys = set(diagrams.LOG_KEYS) | (set(f.study.refine_settings.log_keys()) if f.refined else set())
     if regions is not None:
         lines = {}
         for r in sorted(mine(f.lines), key=lambda r: (r["line"], r["order"])):
             lines.setdefault(r["line"], []).append((r[f.x_key], r[f.y_key]))
-        return plots.paper_diagram(subset, f.x_key, f.y_key, regions, lines=list(lines.values()), markers=f.markers,
+        return diagrams.paper_diagram(subset, f.x_key, f.y_key, regions, lines=list(lines.values()), markers=f.markers,
                                    log_keys=log_keys, title=title)
     along = f.study.search.along if f.searches else None
     if along not in (f.x_key, f.y_key):
@@ -653,7 +655,7 @@ def _paper_figure(f: Findings, subset: list[dict], mine, regions, title: str):
     converged = sorted((r for r in mine(f.searches) if np.isfinite(r[column])), key=lambda r: r[other])
     brackets = [(place(r["bracket_low"], r[other]), place(r["bracket_high"], r[other])) for r in converged]
     line = [place(r[column], r[other]) for r in converged]
-    return plots.paper_diagram(subset, f.x_key, f.y_key, plots.decided_regions(subset, f.x_key, f.y_key),
+    return diagrams.paper_diagram(subset, f.x_key, f.y_key, diagrams.decided_regions(subset, f.x_key, f.y_key),
                                lines=[line] if len(line) > 1 else [], brackets=brackets, markers=f.markers,
                                log_keys=log_keys, title=title)
 

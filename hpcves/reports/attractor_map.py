@@ -95,7 +95,7 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from hpcves.reports.plots import REGIME_STYLE
+    from hpcves.reports.diagrams import REGIME_STYLE
 
     first, second = starts
     colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
@@ -129,7 +129,7 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
 
 def _finish(ax, handles, x_key: str, y_key: str, title: str) -> None:
     """The legend (``handles``) beside a map of the plane x_key x y_key, S on a log axis, labels, grid, title."""
-    from hpcves.reports.plots import AXIS_LABELS, plain_log_ticks
+    from hpcves.reports.diagrams import AXIS_LABELS, plain_log_ticks
 
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
     for key, axis, setter in ((x_key, ax.xaxis, ax.set_xscale), (y_key, ax.yaxis, ax.set_yscale)):
@@ -150,7 +150,7 @@ def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str =
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from hpcves.reports.plots import REGIME_STYLE
+    from hpcves.reports.diagrams import REGIME_STYLE
 
     colour = {regime: style[0] for regime, style in REGIME_STYLE.items()}
     fig = Figure(figsize=(10, 6), constrained_layout=True)
@@ -185,7 +185,7 @@ def attractors_figure(compared: list[dict], x_key: str, y_key: str, title: str =
                        markeredgecolor="k", markeredgewidth=0.4,
                        label=f"a run there not decided ({undecided} point{'s' * (undecided != 1)})")]
     if lines:                      # the borders a refinement of attractors traced (boundaries.csv rows)
-        from hpcves.reports.plots import mark_boundaries
+        from hpcves.reports.diagrams import mark_boundaries
 
         mark_boundaries(ax, lines, x_key, y_key)
         drawn, _ = ax.get_legend_handles_labels()
@@ -203,7 +203,7 @@ def hysteresis_figure(runs_by_label: dict, key: str, title: str = "", joins: dic
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
-    from hpcves.reports.plots import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
+    from hpcves.reports.diagrams import AXIS_LABELS, REGIME_STYLE, plain_log_ticks
 
     joins = joins or {}
     periodic = any(math.isfinite(r["period"]) for rows in runs_by_label.values() for r in rows)

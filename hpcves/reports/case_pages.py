@@ -63,13 +63,13 @@ def check(which: str | Collection[str], case_ids: list[str]) -> None:
 def draw_page(path: str, case_id: str | None, row: dict, streamlines: bool, target: str) -> str:
     """Draw the page of case ``case_id`` of the campaign file ``path`` (None: the case of a single-run
     file) with its classification ``row`` into ``target``; returns ``target``."""
-    from hpcves.reports import plots
+    from hpcves.reports import case_figures
 
     with open_file(path, "r", locking=False) as h5:
         store = CaseStore(h5) if case_id is None else CampaignFile(h5).store(case_id)
         title = (f"case {case_id}: " if case_id is not None else "") \
-            + plots.case_title(dict(store.attrs)) + f" -- {row['regime']}"
-        fig = plots.case_figure(store.timeseries(), store.snapshots(), title=title, kymographs=True,
+            + case_figures.case_title(dict(store.attrs)) + f" -- {row['regime']}"
+        fig = case_figures.case_figure(store.timeseries(), store.snapshots(), title=title, kymographs=True,
                                 t_settle=row["t_settle"], period=row["period"],
                                 physics=store.case.physics if streamlines else None,
                                 subtitle=brief(row["reason"]))

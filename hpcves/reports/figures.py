@@ -1,6 +1,6 @@
 """Figures drawn on request from a case or campaign file: shape sequences and animations
 (``hpcves shapes`` and ``hpcves animate``). Reading and choosing cases lives here; the drawing
-is plots.py's."""
+is case_figures.py's."""
 from __future__ import annotations
 
 import math
@@ -86,7 +86,7 @@ def _range_text(ids: list[str]) -> str:
 
 def row_label(chosen: Chosen, varying: list[str]) -> str:
     """``S = 14: PT (T = 3.21)``: what tells one row of a sequence from the others."""
-    from hpcves.reports.plots import SHORT_NAMES
+    from hpcves.reports.diagrams import SHORT_NAMES
 
     keys = varying or ["shear_rate"]
     label = ", ".join(f"{SHORT_NAMES.get(k, k)} = {chosen.parameters[k]:g}" for k in keys)
@@ -99,19 +99,19 @@ def fixed_text(chosen: list[Chosen]) -> tuple[str, list[str]]:
     """(``psi_bar = 0.5, Delta = 0.94, B2 = 0.1``: the parameters all chosen cases share, the
     names of those that vary) -- a figure's title and its rows' labels."""
     from hpcves.reports.analyze import shared_parameters
-    from hpcves.reports.plots import parameter_text
+    from hpcves.reports.diagrams import parameter_text
 
     same = shared_parameters([c.parameters for c in chosen])
     return parameter_text(same), [k for k in PARAMETERS if len({c.parameters.get(k) for c in chosen}) > 1]
 
 
 def shape_sequence_figure(chosen: list[Chosen], n_shapes: int = 6, streamlines: bool = True):
-    """One row of shapes per chosen case (plots.shape_sequences), titled with what they share."""
-    from hpcves.reports import plots
+    """One row of shapes per chosen case (case_figures.shape_sequences), titled with what they share."""
+    from hpcves.reports import case_figures
 
     title, varying = fixed_text(chosen)
     rows = [(row_label(c, varying), c.snapshots, c.physics, c.row["t_settle"], c.row["period"]) for c in chosen]
-    return plots.shape_sequences(rows, title=title, n_shapes=n_shapes, streamlines_on=streamlines)
+    return case_figures.shape_sequences(rows, title=title, n_shapes=n_shapes, streamlines_on=streamlines)
 
 
 def animation_writer(out: Path, fps: int):
@@ -140,13 +140,13 @@ def default_movie(path: Path, case_id: str) -> Path:
 
 def write_animation(chosen: Chosen, out: Path, fps: int = 12, streamlines: bool = True, progress=None) -> int:
     """Animate one case into ``out`` (one frame per snapshot); returns the number of frames."""
-    from hpcves.reports import plots
+    from hpcves.reports import case_figures
 
     writer = animation_writer(out, fps)
     title, _ = fixed_text([chosen])
     regime = chosen.row["regime"]
     fig_title = f"case {chosen.case_id}: {title} -- {regime}"
-    fig, movie = plots.animation(chosen.series, chosen.snapshots, chosen.physics if streamlines else None,
+    fig, movie = case_figures.animation(chosen.series, chosen.snapshots, chosen.physics if streamlines else None,
                                  fig_title)
     frames = len(chosen.snapshots["t"])
     callback = None if progress is None else (lambda i, n: progress(i + 1, n))
