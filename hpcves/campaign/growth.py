@@ -22,7 +22,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 
-from hpcves.campaign.study import Study, StudyCase, study_from_toml
+from hpcves.campaign.study import Study, study_from_toml
 from hpcves.model.params import ConfigError
 from hpcves.run.store import FileFormatError, attr_text, stored_case
 
@@ -117,17 +117,18 @@ def _grid(study: Study, campaign, where: str) -> Growth:
     old = _file_study(campaign, where)
     if study.base.run.until_decided and old.analysis != study.analysis:
         raise _changed(study.name, where, "the [analysis] thresholds (they decide when a case stops)")
-    pool: dict[str, list[StudyCase]] = {}
-    for c in study.cases:
-        pool.setdefault(_key(c.case), []).append(c)
-    kept = []
+    pool: dict[str, list[int]] = {}             # the study's cases of each parameter set, by position
+    for i, c in enumerate(study.cases):
+        pool.setdefault(_key(c.case), []).append(i)
+    kept, taken = [], set()
     for case_id, case, swept in _file_cases(campaign, where):
         matches = pool.get(_key(case))
         if not matches:
             raise _unmatched(study, case_id, case, swept, where)
-        kept.append(dataclasses.replace(matches.pop(0), case_id=case_id))
-    rest = [c for group in pool.values() for c in group]
-    rest.sort(key=lambda c: study.cases.index(c))
+        i = matches.pop(0)
+        taken.add(i)
+        kept.append(dataclasses.replace(study.cases[i], case_id=case_id))
+    rest = [c for i, c in enumerate(study.cases) if i not in taken]      # in the study's order
     width = int(campaign.h5["index/case_id"].dtype.itemsize)
     if len(kept) + len(rest) > 10 ** width:
         raise FileFormatError(f"{where}: {len(kept) + len(rest)} cases do not fit its {width}-digit case ids; "
