@@ -164,17 +164,10 @@ def open_campaign(path, *, variables=None, tree: bool = False):
             for k in PARAMETERS:
                 parameters[k].append(float(parameter_of(store.attrs, k, "physics.")))
         searches = np.asarray(h5["index"]["search"][:]) if "search" in h5["index"] else np.full(len(ids), -1)
-        results = {}
-        if "analysis" in h5 and "case" in h5["analysis"]:
-            group = h5["analysis"]
-            analysed = [attr_text(c) for c in group["case"][:]]
-            if analysed == ids:
-                for column in RESULTS:
-                    if column in group:
-                        values = group[column][:]
-                        results[column] = ([attr_text(v) for v in values] if values.dtype.kind in "OS"
-                                           else np.asarray(values, dtype=float))
         analysis = _analysis_table(h5["analysis"]) if "analysis" in h5 and "case" in h5["analysis"] else None
+        results = {}
+        if analysis is not None and list(analysis["columns"]["case"]) == ids:    # an analysis of these cases
+            results = {c: analysis["columns"][c] for c in RESULTS if c in analysis["columns"]}
         attrs = {"title": f"hpcves campaign {campaign.name!r}", "Conventions": CONVENTIONS,
                  "name": campaign.name, "mode": campaign.mode, "sweep_keys": ",".join(campaign.sweep_keys),
                  "campaign_toml": attr_text(h5.attrs.get("campaign_toml", "")), "source": str(path)}
