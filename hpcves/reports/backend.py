@@ -18,13 +18,16 @@ def _kind(filename) -> str:
     """"case", "campaign" or "" (not an hpcves file, or not a file at all)."""
     import h5py
 
+    from hpcves.campaign.file import FORMAT as CAMPAIGN_FORMAT
+    from hpcves.run.store import FORMAT as CASE_FORMAT
+    from hpcves.run.store import attr_text
+
     try:
         with h5py.File(filename, "r", locking=False) as h5:
-            fmt = h5.attrs.get("format", "")
+            fmt = attr_text(h5.attrs.get("format", ""))
     except (OSError, TypeError, ValueError):
         return ""
-    fmt = fmt.decode() if isinstance(fmt, bytes) else str(fmt)
-    return {"hpcves-case": "case", "hpcves-campaign": "campaign"}.get(fmt, "")
+    return {CASE_FORMAT: "case", CAMPAIGN_FORMAT: "campaign"}.get(fmt, "")
 
 
 class HpcvesBackendEntrypoint(BackendEntrypoint):

@@ -11,13 +11,14 @@ import numpy as np
 
 from hpcves.analysis.regimes import PT, TT, TU, UNDECIDED
 from hpcves.model.params import PARAMETER_NAMES, SWEEPABLE
+from hpcves.run.decision import CODES
 from hpcves.run.store import STATUS_NAMES
 from hpcves.run.verdict import TOPOLOGY_COLUMNS
 
 CONVENTIONS = "CF-1.11"
 
-#: the integer codes of the regimes (0: undecided; the codes run/decision.py stores for a decided run)
-REGIME_FLAGS = {UNDECIDED: 0, TT: 1, PT: 2, TU: 3}
+#: the integer codes of the regimes: 0 undecided, and the codes run/decision.py stores for a decided run
+REGIME_FLAGS = {UNDECIDED: 0, **CODES}
 REGIME_MEANINGS = {UNDECIDED: "undecided", TT: "tank_treading", PT: "phase_treading", TU: "tumbling"}
 #: a case's status: its code in the file, and a name without blanks (CF flag meanings are words)
 STATUS_FLAGS = {name: code for code, name in STATUS_NAMES.items()}
