@@ -481,7 +481,7 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
     from pathlib import Path
 
     from hpcves.campaign.driver import file_bytes
-    from hpcves.campaign.plan import largest_N, memory_per_rank, plan
+    from hpcves.campaign.plan import memory_per_rank, plan
     from hpcves.campaign.slurm import JobSize, mem_per_cpu, read_template, slurm_script
     from hpcves.campaign.slurm import max_jobs as default_max_jobs
     from hpcves.campaign.study import load_study
@@ -537,13 +537,13 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
     hpcves = shutil.which("hpcves") or str(Path(sys.executable).with_name("hpcves"))
     likely = f"likely {basis.core_seconds / 3600:.3g}, " if estimate.likely else ""
     jobs = max_jobs or default_max_jobs(estimate.wall(ranks), ask)
-    memory = memory_per_rank(study)
+    memory, largest = memory_per_rank(study)
     text = slurm_script(script=Path(slurm_file), study_name=study.name, study_file=Path(study_file), output=path,
                         size=JobSize(ranks, ask, memory, jobs), hpcves=Path(hpcves),
                         python=Path(sys.executable), workdir=Path.cwd(), stop_timeout=study.stop_timeout,
                         summary=f"{estimate.cases} cases at most; core-hours {likely}at most "
                                 f"{estimate.core_seconds / 3600:.3g}; {_duration(wall)} on {ranks} ranks",
-                        largest_N=largest_N(study), template=slurm_template)
+                        largest_N=largest, template=slurm_template)
     try:
         Path(slurm_file).write_text(text)
         Path(slurm_file).chmod(0o755)

@@ -190,20 +190,14 @@ def first_cases(study: Study) -> list:
             for x, y in coarse_points(study.refine_settings) for start in study.point_starts]
 
 
-def largest_N(study: Study) -> int:
-    """The most nodes a case of the study may compute its rates on: N (N_max where N adapts) times
-    the de-aliasing factor, and in a refinement the N its retries of under-resolved points may reach."""
+def memory_per_rank(study: Study) -> tuple[int, int]:
+    """(bytes a rank of the study's campaign holds at most: run/timing.py rank_bytes, the N it is at): the
+    most nodes a case may compute its rates on -- N (N_max where N adapts; in a refinement also the N its
+    retries of under-resolved points may reach) times the de-aliasing factor."""
     cases = first_cases(study)
-    largest = max(round(c.numerics.dealias * max(c.numerics.N, c.numerics.N_max)) for c in cases)
-    if study.refine:
-        largest = max([largest] + [round(c.numerics.dealias * study.refine_settings.max_N) for c in cases])
-    return largest
-
-
-def memory_per_rank(study: Study) -> int:
-    """Bytes a rank of the study's campaign holds at most (run/timing.py rank_bytes at :func:`largest_N`)."""
-    contrast = any(c.physics.viscosity_ratio != 1.0 for c in first_cases(study))
-    return rank_bytes(largest_N(study), contrast)
+    retries = study.refine_settings.max_N if study.refine else 0
+    N = max(round(c.numerics.dealias * max(c.numerics.N, c.numerics.N_max, retries)) for c in cases)
+    return rank_bytes(N, any(c.physics.contrast for c in cases)), N
 
 
 def _stages(study: Study, first: list, seconds: Callable) -> tuple:
