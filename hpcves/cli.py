@@ -499,7 +499,7 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
         if not Path(slurm_file).absolute().parent.is_dir():        # say so before the timing, not after
             _fail(f"{slurm_file}: its directory {Path(slurm_file).absolute().parent} does not exist")
         try:
-            read_template(slurm_template)
+            template = read_template(slurm_template)         # refused now, not after the timing
         except HpcvesError as exc:
             _fail(str(exc))
         if max_jobs is not None and max_jobs < 1:
@@ -543,7 +543,7 @@ def _plan(study_file, out, slurm_file, max_time, slurm_template=None, max_jobs=N
                         python=Path(sys.executable), workdir=Path.cwd(), stop_timeout=study.stop_timeout,
                         summary=f"{estimate.cases} cases at most; core-hours {likely}at most "
                                 f"{estimate.core_seconds / 3600:.3g}; {_duration(wall)} on {ranks} ranks",
-                        largest_N=largest, template=slurm_template)
+                        largest_N=largest, template=template)
     try:
         Path(slurm_file).write_text(text)
         Path(slurm_file).chmod(0o755)

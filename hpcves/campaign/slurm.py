@@ -80,8 +80,8 @@ def mem_per_cpu(rank_bytes: int) -> int:
     return 64 * math.ceil(MEMORY_MARGIN * rank_bytes / 2**20 / 64)
 
 
-def read_template(path: Path | None) -> tuple[str, str]:
-    """(text, where) of the template at ``path`` (None: the default), its placeholders checked."""
+def read_template(path: Path | None) -> str:
+    """The text of the template at ``path`` (None: the default), its placeholders checked."""
     where = str(path) if path else "the default template"
     try:
         text = Path(path or TEMPLATE).read_text()
@@ -96,7 +96,7 @@ def read_template(path: Path | None) -> tuple[str, str]:
         raise ConfigError(f"{where}: unknown placeholder{'s' * (len(unknown) > 1)} "
                           + ", ".join(named(u) for u in unknown)
                           + f"; a template may use {', '.join(PLACEHOLDERS)} (docs/cluster.md)")
-    return text, where
+    return text
 
 
 def fill(text: str, values: dict[str, str]) -> str:
@@ -106,12 +106,13 @@ def fill(text: str, values: dict[str, str]) -> str:
 
 def slurm_script(*, script: Path, study_name: str, study_file: Path, output: Path, size: JobSize, hpcves: Path,
                  python: Path, workdir: Path, stop_timeout: float, summary: str, largest_N: int,
-                 template: Path | None = None) -> str:
-    """The batch script's text: ``template`` (None: the default) filled in (paths made absolute)."""
+                 template: str | None = None) -> str:
+    """The batch script's text: ``template`` (:func:`read_template`'s text; None: the default) filled in
+    (paths made absolute)."""
     def q(p) -> str:
         return shlex.quote(str(Path(p).absolute()))       # not resolve(): a venv's python is a link
 
-    text, _ = read_template(template)
+    text = read_template(None) if template is None else template
     memory = mem_per_cpu(size.rank_bytes)
     values = {
         "job_name": f"hpcves-{study_name}",
