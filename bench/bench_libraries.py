@@ -8,7 +8,7 @@ user sees (the error message, the log file's lines), which is what decided.
 
 * Config validation (config.py, model/params.py): a case from its TOML tables,
   with a type error and with two bad keys.
-* Progress display (cli._StatusLine): what each writes into a SLURM log (not a
+* Progress display (cli.terminal.StatusLine): what each writes into a SLURM log (not a
   terminal) over a run of 3000 steps, updated every step.
 * Detrending and peak finding (analysis/periodicity.py) against scipy.signal:
   the same numbers? (They were, and faster: periodicity.py now calls scipy.signal.)
@@ -96,7 +96,7 @@ class _File(io.StringIO):
 
 def progress_rows(steps: int = 3000) -> list:
     sys.path.insert(0, ".")
-    from hpcves.cli import ProgressLine
+    from hpcves.cli.terminal import ProgressLine
     from hpcves.run.runner import Tick
 
     rows = []
@@ -110,7 +110,7 @@ def progress_rows(steps: int = 3000) -> list:
     line.close()
     wall = time.perf_counter() - start
     text = out.getvalue()
-    rows.append(["hpcves (cli._StatusLine: a line every LOG_SECONDS off a terminal)", str(text.count("\n")),
+    rows.append(["hpcves (cli.terminal.StatusLine: a line every LOG_SECONDS off a terminal)", str(text.count("\n")),
                  str(text.count("\r")), str(len(text))])
     try:
         import tqdm

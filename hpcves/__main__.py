@@ -1,4 +1,4 @@
-"""``python -m hpcves``: the same command line as the ``hpcves`` script (cli.py)."""
+"""``python -m hpcves``: the same command line as the ``hpcves`` script (cli/)."""
 from hpcves.cli import main
 
 if __name__ == "__main__":

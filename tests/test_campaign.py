@@ -18,7 +18,7 @@ from hpcves.campaign import access
 from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
-from hpcves.cli import CampaignProgress
+from hpcves.cli.terminal import CampaignProgress
 from hpcves.errors import FileFormatError
 from hpcves.files.lock import CampaignLock
 from hpcves.model.params import ConfigError
@@ -439,7 +439,7 @@ def test_a_diverging_case_fails_alone_under_mpi(tmp_path, io):
     assert result.returncode == 1, result.stderr
     assert statuses(output) == {"0000": FINISHED, "0001": FINISHED, "0002": FAILED, "0003": FAILED}
     assert "case 0002 failed: diverged" in result.stderr
-    # rank 0's log record as it happened, with its rank (cli._TerminalLog)
+    # rank 0's log record as it happened, with its rank (cli.terminal.TerminalLog)
     assert re.search(r"^\[rank 0\] case 0002 \(shear_rate = 20000, psi_bar = 0.3\) failed on rank [01]: diverged",
                      result.stderr, re.M), result.stderr
     status = hpcves("status", output)

@@ -321,7 +321,7 @@ def test_status_counts_a_case_that_ended_early_as_done(capsys):
     """A case decided (or failed) before t_end used to leave 'simulated time 50 % done ... complete'."""
     from types import SimpleNamespace
 
-    from hpcves.cli import _status_table
+    from hpcves.cli.status import _status_table
 
     rows = [{"case": "0000", "shear_rate": 1.0, "status": "finished", "t": 2.0, "t_end": 4.0, "wall": 1.0,
              "steps_per_second": 10.0, "message": "decided TT"},
