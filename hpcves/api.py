@@ -126,7 +126,7 @@ class CampaignBars:
         self.bar = tqdm(total=100.0, desc=self.name, bar_format=_BAR)
 
     def show(self, stage, every: float = 0.2) -> None:
-        """Called with a driver.StageProgress at every scheduling turn; redraws at most every ``every`` s."""
+        """Called with a scheduler.StageProgress at every scheduling turn; redraws at most every ``every`` s."""
         self.stage = stage
         if self.bar is None or time.monotonic() - self.shown < every:
             return

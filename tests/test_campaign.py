@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 
 from hpcves.campaign import access
-from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
 from hpcves.cli.terminal import CampaignProgress
 from hpcves.errors import FileFormatError
 from hpcves.files.lock import CampaignLock
 from hpcves.model.params import ConfigError
+from hpcves.run import runner
 from hpcves.run.blocks import QUANTITIES
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, CaseStore, superblock_version
 from jobs import (
@@ -139,14 +139,14 @@ def test_layout_and_status_command(reference):
 def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, reference):
     path, output = write_study(tmp_path, t_end=0.3)
     study = study_from_toml(path.read_text())
-    real_run = campaign_module.runner.run
+    real_run = runner.run
 
     def broken(store, *args, **kwargs):
         if store.where.endswith("0001"):
             raise RuntimeError("injected failure")
         return real_run(store, *args, **kwargs)
 
-    monkeypatch.setattr(campaign_module.runner, "run", broken)
+    monkeypatch.setattr(runner, "run", broken)
     summary = run_campaign(study, output)
     assert summary.exit_status == 1
     assert summary.failed == (("0001", "RuntimeError: injected failure"),)
@@ -155,7 +155,7 @@ def test_a_case_that_raises_is_recorded_and_retried(tmp_path, monkeypatch, refer
         store = case_store(f, "0001")
         assert "injected failure" in store.traceback and "in broken" in store.traceback
 
-    monkeypatch.setattr(campaign_module.runner, "run", real_run)
+    monkeypatch.setattr(runner, "run", real_run)
     shown = io.StringIO()                                  # the progress line counts what ended before
     display = []
 
@@ -496,13 +496,13 @@ def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed
 
 def test_a_stage_with_more_ranks_than_cases_says_how_many_idle():
     """`mpirun -n 4` on 2 cases idled 2 ranks without a word."""
-    from hpcves.campaign.driver import _stage_line
+    from hpcves.campaign.stages import stage_line
     from hpcves.campaign.study import study_from_toml
 
     study = study_from_toml(STUDY.format(name="idle", output="idle.h5", t_end=0.1, checkpoint=0.05,
                                          shear="[5.0]"))          # x psi_bar = [0.3, 0.5]: 2 cases
     todo = [(c.case_id, False) for c in study.cases]
     assert len(todo) == 2
-    assert "2 of the 4 ranks idle: more ranks than cases" in _stage_line(study, {}, todo, 0, size=4)
-    assert "idle" not in _stage_line(study, {}, todo, 0, size=2)
-    assert "idle" not in _stage_line(study, {}, todo, 0)
+    assert "2 of the 4 ranks idle: more ranks than cases" in stage_line(study, {}, todo, 0, size=4)
+    assert "idle" not in stage_line(study, {}, todo, 0, size=2)
+    assert "idle" not in stage_line(study, {}, todo, 0)

@@ -8,13 +8,13 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.campaign import driver as campaign_module
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.queue import WorkQueue
 from hpcves.campaign.study import study_from_toml
 from hpcves.model import continuation, geometry
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import resample
+from hpcves.run import runner
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING
 from hpcves.run.timestepping import Solver
 from jobs import (
@@ -223,14 +223,14 @@ def test_every_case_of_a_chain_starts_where_the_one_before_ended(decided_chain):
 def test_a_failed_case_stops_its_chain_and_a_retry_runs_it_on(tmp_path, monkeypatch):
     path, output = write_chain(tmp_path)
     study = study_from_toml(path.read_text())
-    real_run = campaign_module.runner.run
+    real_run = runner.run
 
     def broken(store, *args, **kwargs):
         if store.where.endswith("0002"):
             raise RuntimeError("injected failure")
         return real_run(store, *args, **kwargs)
 
-    monkeypatch.setattr(campaign_module.runner, "run", broken)
+    monkeypatch.setattr(runner, "run", broken)
     summary = run_campaign(study, output)
     assert summary.exit_status == 1
     states = case_statuses(output)
@@ -240,7 +240,7 @@ def test_a_failed_case_stops_its_chain_and_a_retry_runs_it_on(tmp_path, monkeypa
     with h5py.File(output, "r") as f:
         message = case_store(f, "0003").message
     assert message.startswith("not run: it starts from the end of case 0002, which ended failed")
-    monkeypatch.setattr(campaign_module.runner, "run", real_run)
+    monkeypatch.setattr(runner, "run", real_run)
     retried = run_campaign(study, output, resume=True, retry_failed=True)
     assert [r.case_id for r in retried.ran] == ["0002", "0003", "0004"] and retried.exit_status == 0
     (tmp_path / "fresh").mkdir()

@@ -14,9 +14,10 @@ import h5py
 import numpy as np
 import pytest
 
-from hpcves.campaign import driver as campaign_module
+from hpcves.campaign import driver, structure
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
+from hpcves.files.atomic import StorageError
 from hpcves.run.store import FINISHED, RUNNING, CaseStore
 from jobs import (
     MPIRUN,
@@ -276,9 +277,9 @@ def test_a_disk_that_fills_up_during_creation_leaves_no_file(tmp_path, small_dis
     path, output = write_study(tmp_path / "job", t_end=10.0, output=disk / "out.h5")
     from hpcves.files import atomic
 
-    for module in (campaign_module, atomic):           # the checks pass; then the disk is full
+    for module in (driver, atomic):           # the checks pass; then the disk is full
         monkeypatch.setattr(module, "require_space", lambda *args: None)
-    with pytest.raises(campaign_module.StorageError, match="cannot create it .*nothing was written"):
+    with pytest.raises(StorageError, match="cannot create it .*nothing was written"):
         run_campaign(study_from_toml(path.read_text()), output)
     assert sorted(os.listdir(disk)) == ["out.h5.lock"]
 
@@ -570,9 +571,9 @@ def test_analyze_does_not_store_results_of_a_file_that_changed_meanwhile(tmp_pat
     def stop_early(store, flush, **kwargs):              # every case interrupted after 30 steps
         return real_run(store, flush, **{**kwargs, "max_steps": 30})
 
-    monkeypatch.setattr(campaign_module.runner, "run", stop_early)
+    monkeypatch.setattr(runner, "run", stop_early)
     run_campaign(study, output)
-    monkeypatch.setattr(campaign_module.runner, "run", real_run)
+    monkeypatch.setattr(runner, "run", real_run)
     real_classify = analysis.analyze_source
 
     def classify_while_a_resume_finishes_it(source, *args, **kwargs):
@@ -786,22 +787,22 @@ def test_a_search_stage_the_disk_has_no_room_for_stops_the_campaign_and_loses_no
 
     path, output = write_search(tmp_path)
     study = study_from_toml(path.read_text())
-    real_copy = campaign_module.copy_for_change
+    real_copy = structure.copy_for_change
     copies = []
 
     def refuse_the_second(path, extra, what):
         copies.append(what)
         if len(copies) == 2:
-            raise campaign_module.StorageError(f"{path}: {what} needs 1 MB, but only 8 kB is free there")
+            raise StorageError(f"{path}: {what} needs 1 MB, but only 8 kB is free there")
         return real_copy(path, extra, what)
 
-    monkeypatch.setattr(campaign_module, "copy_for_change", refuse_the_second)
+    monkeypatch.setattr(structure, "copy_for_change", refuse_the_second)
     summary = run_campaign(study, output)
     assert summary.exit_status == 2 and "adding stage 2's" in summary.not_written
     with h5py.File(output, "r") as f:
         assert f.attrs["n_cases"] == f["index/case_id"].shape[0] == 4 and not os.path.exists(f"{output}.partial")
     assert set(case_statuses(output).values()) == {FINISHED}
-    monkeypatch.setattr(campaign_module, "copy_for_change", real_copy)
+    monkeypatch.setattr(structure, "copy_for_change", real_copy)
     assert run_campaign(study, output, resume=True).exit_status == 0
     reference = tmp_path / "reference" / "search.h5"
     reference.parent.mkdir()

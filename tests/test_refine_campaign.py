@@ -177,9 +177,9 @@ def classified_again(output) -> list[int]:
 
 
 def test_the_rank_that_ran_a_case_classifies_it_and_rank_0_classifies_nothing(tmp_path, monkeypatch):
-    """A staged study's case is classified where it ran, right after it ended (driver._verdict); the
+    """A staged study's case is classified where it ran, right after it ended (scheduler._verdict); the
     stage driver takes that verdict and reads no case between stages. The verdicts are rank 0's."""
-    import hpcves.campaign.driver as driver
+    import hpcves.campaign.scheduler as scheduler
     import hpcves.campaign.search_stages as stages
 
     where = {"ran": 0, "between stages": 0}
@@ -190,7 +190,7 @@ def test_the_rank_that_ran_a_case_classifies_it_and_rank_0_classifies_nothing(tm
             return real(*args)
         return call
 
-    monkeypatch.setattr(driver, "verdict_of", counted("ran", driver.verdict_of))
+    monkeypatch.setattr(scheduler, "verdict_of", counted("ran", scheduler.verdict_of))
     monkeypatch.setattr(stages, "verdict_of", counted("between stages", stages.verdict_of))
     path, output = write_refine(tmp_path)
     text = path.read_text().replace("B2 = [0.1, 0.2]", "B2 = [0.1]")

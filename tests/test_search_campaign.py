@@ -49,16 +49,16 @@ def write_search(tmp_path, checkpoint=0.5):
 
 def stop_before_stage_2(monkeypatch):
     """Make a search stop (KeyboardInterrupt) as it would add its second stage's cases."""
-    from hpcves.campaign import driver as campaign_module
+    from hpcves.campaign import stages
 
-    real_add = campaign_module._add_stage
+    real_add = stages.add_stage
 
     def stop_at_stage_2(path, comm, cases, stage, source):
         if stage == 2:
             raise KeyboardInterrupt
         return real_add(path, comm, cases, stage, source)
 
-    monkeypatch.setattr(campaign_module, "_add_stage", stop_at_stage_2)
+    monkeypatch.setattr(stages, "add_stage", stop_at_stage_2)
 
 
 @pytest.fixture(scope="module")
@@ -184,13 +184,13 @@ def test_a_stage_cut_short_while_adding_its_cases_leaves_the_file_as_it_was(sear
 def test_a_half_added_stage_of_an_older_version_is_dropped_and_made_again(searched, tmp_path, monkeypatch):
     """Files of hpcves before stages were added by replacement can hold cases beyond n_cases: laid out
     and indexed, the header's count not yet raised."""
-    from hpcves.campaign import driver as campaign_module
+    from hpcves.campaign import stages
 
     _, reference, _, _ = searched
     path, output = write_search(tmp_path)
     study = study_from_toml(path.read_text())
 
-    real_add = campaign_module._add_stage
+    real_add = stages.add_stage
 
     def old_add(path, comm, cases, stage, source):             # what the old in-place adding could leave
         if stage == 1:
@@ -201,7 +201,7 @@ def test_a_half_added_stage_of_an_older_version_is_dropped_and_made_again(search
             h5.attrs["n_cases"] = n
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(campaign_module, "_add_stage", old_add)
+    monkeypatch.setattr(stages, "add_stage", old_add)
     with pytest.raises(KeyboardInterrupt):
         run_campaign(study, output)
     monkeypatch.undo()

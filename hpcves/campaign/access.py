@@ -12,7 +12,7 @@
   rank 0 alone opens the file; the other ranks get a RemoteCampaign whose
   writes rank 0 applies in order (relay.py).
 
-The driver (driver.py) asks every mode the same things: open the file, make a
+The campaign (driver.py, stages.py, scheduler.py) asks every mode the same things: open the file, make a
 flush, run a change of the structure, say whether this rank takes part in it,
 sync before rank 0 reads, and what rank 0 needs to relay the others' writes.
 """

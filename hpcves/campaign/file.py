@@ -22,7 +22,7 @@
                parameters as attributes
 
 The whole structure is created up front -- by rank 0 alone with serial HDF5,
-in every I/O mode (campaign/driver.py, ``_change``) -- under a temporary name
+in every I/O mode (campaign/structure.py, ``_change``) -- under a temporary name
 that becomes the file's only once it is complete (atomic.py).
 Afterwards only raw data are written in place, each case by the one rank
 running it (independent I/O; attributes are never written again); a search

@@ -12,7 +12,7 @@ the known ones (a search's at the shear rates it may visit). For ``until_decided
 the plan also gives the likely cost, each case ended when cases typically are
 decided (DECIDED_AFTER, measured).
 
-The wall time on P ranks replays the scheduler (driver.py): rank 0 lays out the
+The wall time on P ranks replays the scheduler (scheduler.py): rank 0 lays out the
 cases alone first (and a staged study's later ones before their stage), then the ranks compute
 (all of them on up to four; on more, rank 0 only schedules: queue.computing_ranks), cases go out
 most expensive first to whichever rank is free -- in a staged study each rank classifies the case it
@@ -128,7 +128,7 @@ class Plan:
 
 def makespan(seconds, ranks: int) -> float:
     """When the last of the cases ends on ``ranks`` ranks: longest first, each to the rank free
-    first (the scheduler's rule, driver.py), all ranks computing."""
+    first (the scheduler's rule, scheduler.py), all ranks computing."""
     ordered = sorted(seconds, reverse=True)
     if ranks >= len(ordered):
         return ordered[0] if ordered else 0.0
@@ -156,7 +156,7 @@ def plan(study: Study, step_seconds: Callable, layout_seconds: Callable | None =
     units = {"grid": 1, "search": len(study.searches), "refine": len(study.refinements)}[study.mode]
     typical = sorted(first, key=lambda case: case.run.t_end / case.run.sample_interval)[len(first) // 2]
     classify = classify_seconds(typical) if classify_seconds else 0.0
-    # a staged study's case is classified by the rank that ran it, as soon as it ends (driver._verdict)
+    # a staged study's case is classified by the rank that ran it, as soon as it ends (scheduler._verdict)
     verdict = classify if study.mode != "grid" else 0.0
     ceiling = Plan(study.name, study.mode, _stages(study, first, lambda case: case.estimated_steps
                                                    * step_seconds(case) + verdict), used, units)

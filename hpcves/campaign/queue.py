@@ -17,7 +17,7 @@ from typing import Callable
 
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES
 
-#: the most ranks on which rank 0 runs cases itself between scheduling turns (driver.Master); on more it
+#: the most ranks on which rank 0 runs cases itself between scheduling turns (scheduler.Master); on more it
 #: only schedules (and relays)
 RANK0_COMPUTES_UP_TO = 4
 

@@ -100,7 +100,7 @@ class StageDriver:
         self.states = states or {}
         self._verdicts: dict[str, Verdict] = {}      # ended cases only
         self._stored: dict | None = None
-        #: {case id: (code, wall)} classified here and not yet stored (driver.py stores them)
+        #: {case id: (code, wall)} classified here and not yet stored (stages.py stores them)
         self.fresh: dict[str, tuple[int, float]] = {}
 
     def verdict(self, campaign, case_id: str) -> Verdict | None:

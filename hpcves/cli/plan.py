@@ -11,11 +11,11 @@ from pathlib import Path
 
 import click
 
-from hpcves.campaign.driver import file_bytes
 from hpcves.campaign.plan import DECIDED_AFTER, memory_per_rank, plan
 from hpcves.campaign.queue import computing_ranks, ranks_for
 from hpcves.campaign.slurm import JobSize, mem_per_cpu, read_template, slurm_script
 from hpcves.campaign.slurm import max_jobs as default_max_jobs
+from hpcves.campaign.structure import file_bytes
 from hpcves.campaign.study import load_study
 from hpcves.cli.terminal import SigtermSeen, clean_errors, duration, fail, os_error_text
 from hpcves.errors import HpcvesError
