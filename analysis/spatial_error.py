@@ -33,7 +33,7 @@ from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import spectral_tail
 from hpcves.run import schedule
 from hpcves.run.runner import one_thread
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 
 one_thread()
 

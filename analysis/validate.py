@@ -26,7 +26,7 @@ from hpcves.reports.case_figures import case_figure, case_title, shape_sequences
 from hpcves.run import runner  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore, open_file  # noqa: E402
-from hpcves.run.timestepping import Solver, State  # noqa: E402
+from hpcves.solver.timestepping import Solver, State  # noqa: E402
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 

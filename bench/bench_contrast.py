@@ -22,7 +22,7 @@ import hpcves.model.flow as flow_module  # noqa: E402
 from bench_solver import machine  # noqa: E402
 from hpcves.model.params import Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
-from hpcves.run.timestepping import Solver  # noqa: E402
+from hpcves.solver.timestepping import Solver  # noqa: E402
 from report import replace_section  # noqa: E402
 
 #: label -> (Physics keywords, dt)

@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_solver import machine  # noqa: E402
 from hpcves.model.params import Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
-from hpcves.run.timestepping import Solver  # noqa: E402
+from hpcves.solver.timestepping import Solver  # noqa: E402
 from report import replace_section  # noqa: E402
 
 SIZES = (64, 128, 192, 256, 384)

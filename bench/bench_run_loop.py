@@ -39,7 +39,7 @@ from hpcves.api import run_case  # noqa: E402
 from hpcves.campaign.study import load_study  # noqa: E402
 from hpcves.run import schedule  # noqa: E402
 from hpcves.run.runner import one_thread  # noqa: E402
-from hpcves.run.timestepping import Solver  # noqa: E402
+from hpcves.solver.timestepping import Solver  # noqa: E402
 from report import replace_section  # noqa: E402
 
 STUDY = Path(__file__).resolve().parents[1] / "jobs" / "reproduce" / "psi048_delta_S.toml"

@@ -29,7 +29,7 @@ from hpcves.model.forces import bending_force
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import Spectral
 from hpcves.run.runner import one_thread
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 

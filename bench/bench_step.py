@@ -33,7 +33,10 @@ import json, statistics, sys, time
 from hpcves.run.runner import one_thread
 one_thread()
 from hpcves.model.params import Case, Numerics, Physics, RunControl
-from hpcves.run.timestepping import Solver
+try:
+    from hpcves.solver.timestepping import Solver
+except ImportError:                               # a tree from before the solver/ layer
+    from hpcves.run.timestepping import Solver
 N, physics, blocks, seconds = json.loads(sys.argv[1])
 solver = Solver(Case(Physics(**physics), Numerics(N=N, dt=1e-3), RunControl(t_end=1e3)))
 state = solver.initial_state()

@@ -25,7 +25,7 @@ import sys, time
 from hpcves.run.runner import one_thread
 one_thread()
 from hpcves.model.params import Case, Numerics, Physics, RunControl
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 N, engine, ready = int(sys.argv[1]), sys.argv[2], sys.argv[3]
 case = Case(Physics(psi_bar=0.3, shear_rate=80.0), Numerics(N=N, dt=1e-3), RunControl(t_end=1e6))
 solver = Solver(case) if engine == "default" else Solver(case, engine=engine)

@@ -1,6 +1,6 @@
 """hpcves: two-phase (multicomponent) vesicles in shear flow.
 
-A spectral boundary-integral solver (:mod:`hpcves.run.timestepping`) and the
+A spectral boundary-integral solver (:mod:`hpcves.solver.timestepping`) and the
 machinery around it: case files, HDF5 output with checkpoints, campaigns on MPI,
 the analysis, the command line. The Python API (:mod:`hpcves.api`) is reachable
 from here -- ``hpcves.load_case``, ``run_case``, ``load_study``, ``run_campaign``,

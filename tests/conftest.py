@@ -4,7 +4,7 @@ import pytest
 
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.run.runner import one_thread
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 
 one_thread()          # BLAS and OpenMP at one thread in this process and its workers (threadpoolctl)
 

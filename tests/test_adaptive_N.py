@@ -12,7 +12,7 @@ from hpcves.model.params import Case, ConfigError, Numerics, Physics
 from hpcves.numerics.spectral import fft_sizes, resample, spectral_tail, tail_on
 from hpcves.run import resolution, schedule
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 from jobs import GROWING, history, resume_in_process, run_in_process, same_case_files
 
 

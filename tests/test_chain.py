@@ -16,7 +16,7 @@ from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import resample
 from hpcves.run import runner
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, PENDING
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 from jobs import (
     MPIRUN,
     assert_same_results,

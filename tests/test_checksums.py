@@ -20,7 +20,7 @@ from hpcves.campaign.study import study_from_toml
 from hpcves.config import case_from_toml
 from hpcves.run.diagnostics import SERIES
 from hpcves.run.store import FINISHED, INTERRUPTED, SNAPSHOT_RECORDS, CaseStore, FileFormatError
-from hpcves.run.timestepping import State
+from hpcves.solver.timestepping import State
 from jobs import SHORT, case_view, resume_in_process, run_in_process, same_case_files
 
 HPCVES = [sys.executable, "-m", "hpcves.cli"]

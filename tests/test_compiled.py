@@ -1,4 +1,4 @@
-"""The compiled engine (run/compiled.py) against the numpy path it fuses: the same rates and the same
+"""The compiled engine (solver/compiled.py) against the numpy path it fuses: the same rates and the same
 steps to round-off, on every branch of a step, and the same errors."""
 import dataclasses
 
@@ -7,7 +7,7 @@ import pytest
 
 from hpcves.model.flow import TensionSolveError
 from hpcves.model.params import Case, Numerics, Physics, RunControl
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 
 
 def case(N=64, dt=1e-3, rtol=None, numerics=None, **physics):

@@ -16,7 +16,7 @@ from hpcves.config import case_from_toml
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import resample
 from hpcves.run.store import FINISHED, INTERRUPTED
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 from jobs import GROWING, history, resume_in_process, run_in_process, same_case_files
 
 

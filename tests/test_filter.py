@@ -10,7 +10,7 @@ import pytest
 
 from conftest import advance
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
-from hpcves.run.timestepping import FILTER_STRENGTH, Solver
+from hpcves.solver.timestepping import FILTER_STRENGTH, Solver
 
 
 def solver(N=64, filter_order=0, **physics):

@@ -1,10 +1,10 @@
 """The package's layers: each module imports only from its own layer or the ones below it.
 
-Order, bottom to top (README, "Code layout"): version, errors, numerics, model, config, analysis, files, run,
-campaign, reports, api, cli. The root package (hpcves/__init__.py: the version, and the API's
-names fetched from hpcves.api on first use) imports nothing at import time. Read from the source
-with ast, function-level imports included, so
-a cycle cannot hide inside a function.
+Order, bottom to top (README, "Code layout"): version, errors, numerics, model, solver, config,
+analysis, files, run, campaign, reports, api, cli. The root package (hpcves/__init__.py: the
+version, and the API's names fetched from hpcves.api on first use) imports nothing at import time.
+Read from the source with ast, function-level imports included, so a cycle cannot hide inside a
+function.
 """
 import ast
 import pathlib
@@ -13,8 +13,8 @@ import pytest
 
 import hpcves
 
-LAYERS = ("version", "errors", "numerics", "model", "config", "analysis", "files", "run", "campaign", "reports", "api",
-          "cli")
+LAYERS = ("version", "errors", "numerics", "model", "solver", "config", "analysis", "files", "run", "campaign",
+          "reports", "api", "cli")
 ROOT = pathlib.Path(hpcves.__file__).parent
 
 

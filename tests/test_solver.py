@@ -8,7 +8,7 @@ from hpcves.analysis.periodicity import crossing_period
 from hpcves.model import geometry
 from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.numerics.spectral import Spectral
-from hpcves.run.timestepping import Solver, State
+from hpcves.solver.timestepping import Solver, State
 
 
 def measures(solver, state):

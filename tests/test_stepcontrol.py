@@ -12,7 +12,7 @@ from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics import stepcontrol
 from hpcves.run import diagnostics, runner, schedule
 from hpcves.run.store import FINISHED, INTERRUPTED, MODEL_LIMIT, CaseStore, open_file
-from hpcves.run.timestepping import Coefficients, Estimate, Solver, quadratic_weights
+from hpcves.solver.timestepping import Coefficients, Estimate, Solver, quadratic_weights
 from jobs import resume_in_process, run_in_process, same_case_files
 from test_cli import SHORT
 

@@ -11,7 +11,7 @@ from hpcves.model.flow import MembraneFlow, TensionSolveError, rigid_motions
 from hpcves.model.forces import bending_force, tension_force
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics.double_layer import apply_double_layer, double_layer_matrix
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 
 
 def test_the_parameter_defaults_to_equal_viscosities_and_old_files_keep_their_fingerprint():
@@ -24,7 +24,7 @@ def test_the_parameter_defaults_to_equal_viscosities_and_old_files_keep_their_fi
 
 
 def test_a_contrast_runs_on_both_engines_and_they_agree():
-    """The compiled engine runs the numpy path's GMRES (run/compiled.py): the same iteration, so the
+    """The compiled engine runs the numpy path's GMRES (solver/compiled.py): the same iteration, so the
     same iterations, and the two differ by round-off, as at equal viscosities."""
     thetas = {}
     for engine in ("numpy", "compiled"):

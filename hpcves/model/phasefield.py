@@ -5,7 +5,7 @@
     psi_t = d/ds ( nu d mu / ds )        (material coordinates, nu constant;
                                           the solver adds -V psi_s in its node frame).
 
-Time stepping (see :mod:`hpcves.run.timestepping`) treats the linear stiff part
+Time stepping (see :mod:`hpcves.solver.timestepping`) treats the linear stiff part
 nu (a0 eps k^4 + (a0/eps) s k^2) implicitly, where s is the linear
 stabilisation constant of the double-well term, and the rest explicitly.
 """

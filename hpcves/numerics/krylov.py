@@ -9,7 +9,7 @@ arithmetic; right preconditioning leaves the residual unpreconditioned). The cal
 v -> (M^{-1} v, K M^{-1} v), which lets it share work between the two (flow.MembraneFlow).
 
 Hand-written rather than scipy.sparse.linalg.gmres because the compiled engine runs the same
-iteration inside numba (run/compiled.py), and the two engines agree to round-off only when the
+iteration inside numba (solver/compiled.py), and the two engines agree to round-off only when the
 arithmetic is the same (docs/design.md).
 """
 from __future__ import annotations

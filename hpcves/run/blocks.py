@@ -53,7 +53,7 @@ from hpcves.run.store import (
     stored_case,
     stored_N,
 )
-from hpcves.run.timestepping import State
+from hpcves.solver.timestepping import State
 from hpcves.version import __version__
 
 BLOCKS = "blocks"

@@ -36,7 +36,7 @@ import numpy as np
 from hpcves.model import geometry, phasefield
 from hpcves.model.forces import bending_energy, phase_energy
 from hpcves.numerics.spectral import resolution_needed, spectral_tail
-from hpcves.run.timestepping import EMPTY, EMPTY_SPECTRUM, Rates, Solver, State, compiled_kernels
+from hpcves.solver.timestepping import EMPTY, EMPTY_SPECTRUM, Rates, Solver, State, compiled_kernels
 
 #: Names of the scalar time series, in file order; ``centroid`` has two columns.
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",

@@ -32,7 +32,7 @@ import numpy as np
 
 from hpcves.model.params import Case
 from hpcves.numerics.spectral import fft_sizes, resolution_needed, spectral_tail, tail_on
-from hpcves.run.timestepping import Solver
+from hpcves.solver.timestepping import Solver
 
 #: after growing, the tails are to be within resize_tail / GROW_MARGIN
 GROW_MARGIN = 4.0

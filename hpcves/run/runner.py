@@ -36,7 +36,7 @@ from hpcves.run import decision, diagnostics, resolution, schedule
 from hpcves.run import store as checkpoint_module
 from hpcves.run.store import FAILED, FINISHED, INTERRUPTED, MODEL_LIMIT, RUNNING, CaseRecord, Status
 from hpcves.run.stored import read_stored_start
-from hpcves.run.timestepping import Solver, State
+from hpcves.solver.timestepping import Solver, State
 
 log = logging.getLogger(__name__)
 

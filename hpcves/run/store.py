@@ -60,7 +60,7 @@ from hpcves.numerics.spectral import Spectral, resample
 from hpcves.run.decision import REGIMES_BY_CODE
 from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.schedule import clock
-from hpcves.run.timestepping import State
+from hpcves.solver.timestepping import State
 from hpcves.version import __version__
 
 FORMAT = "hpcves-case"

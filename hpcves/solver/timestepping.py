@@ -21,11 +21,9 @@ through the nodes too; with domains carried by the membrane it moves with the
 material. Multistep schemes damp and disperse whatever travels through their
 frame, so each psi step is taken in the frame of the pattern itself: a frame
 moving at W relative to the nodes, W the pattern's velocity over the last
-step (cross-correlation of psi^n and psi^{n-1}). The S = 80, psi_bar = 0.3
-phase-treading period at dt = 1e-3 was 5.6 % off with psi in the material
-frame, 0.4 % in the node frame and 0.02 % in the pattern frame; with domains
-riding on the membrane (psi_bar = 0.5, S = 160) the node frame was 19 % off and
-the pattern frame 0.07 % (docs/numerics.md).
+step (cross-correlation of psi^n and psi^{n-1}); docs/numerics.md ("Unknowns
+and frame") compares the three frames.
+
 Equations (L constant):
 
     theta_t  = -n . d(u - V s)/ds            (= -n . du/ds - V H, H = theta_s)
@@ -95,11 +93,11 @@ _COMPILED = None
 
 
 def compiled_kernels():
-    """run/compiled.py, imported on first use (it imports numba: ~0.15 s, and loads the kernels);
+    """solver/compiled.py, imported on first use (it imports numba: ~0.15 s, and loads the kernels);
     a global afterwards, since an import statement costs ~1 us on every call of a step."""
     global _COMPILED
     if _COMPILED is None:
-        from hpcves.run import compiled
+        from hpcves.solver import compiled
         _COMPILED = compiled
     return _COMPILED
 
@@ -250,7 +248,7 @@ class Solver:
         adapting: run/resolution.py); ``reference``: the solver the run started with, whose initial area
         (the area projection's target) and initial tails this one keeps. ``dealias`` False: rates on
         the N nodes whatever numerics.dealias says (the padded grid's own solver). ``engine``: "compiled"
-        (run/compiled.py; the default with the FFTW backend) or "numpy" (this module's own arithmetic,
+        (solver/compiled.py; the default with the FFTW backend) or "numpy" (this module's own arithmetic,
         the reference; the default with the numpy backend)."""
         self.case = case
         if engine is None:
@@ -456,7 +454,7 @@ class Solver:
 
     # ------------------------------------------------------------------ the compiled engine
     def _operators(self) -> tuple:
-        """(ops, phys, step_ops, ch): what run/compiled.py's rates and sbdf2 take of this solver."""
+        """(ops, phys, step_ops, ch): what solver/compiled.py's rates and sbdf2 take of this solver."""
         if self._kernels is None:
             sp, phys, flow, N = self.sp, self.case.physics, self.flow, self.sp.N
             slp = flow.slp

@@ -1,4 +1,4 @@
-"""The right-hand side, the SBDF2 step, a sample and the health check of :mod:`hpcves.run.timestepping`
+"""The right-hand side, the SBDF2 step, a sample and the health check of :mod:`hpcves.solver.timestepping`
 and :mod:`hpcves.run.diagnostics`, compiled (numba).
 
 The same equations as the numpy path, in the same order, fused into three calls a step:
