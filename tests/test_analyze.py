@@ -8,6 +8,7 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import tiny_study
 from hpcves.analysis import accuracy
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
@@ -17,32 +18,13 @@ from hpcves.reports.analyze import COLUMNS, analyze, read_back
 from hpcves.run import runner
 from hpcves.run.store import CaseStore
 
-STUDY = """
-[campaign]
-name = "tiny"
-output = "{output}"
-t_end = 1.0
-[numerics]
-N = 32
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
-sample_interval = 0.005
-snapshot_interval = 0.05
-checkpoint_interval = 0.5
-[sweep]
-shear_rate = [40, 80]
-psi_bar = [0.0, 0.3]
-[analysis]
-min_cycles = 4
-"""
-
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("analysis")
     output = tmp / "tiny.h5"
-    study = study_from_toml(STUDY.format(output=output))
+    study = study_from_toml(tiny_study(output, t_end=1.0, checkpoint=0.5, psi="[0.0, 0.3]",
+                                       extra="[analysis]\nmin_cycles = 4\n"))
     assert study.analysis.min_cycles == 4
     assert run_campaign(study, output).exit_status == 0
     return output

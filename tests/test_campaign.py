@@ -14,6 +14,8 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import tiny_study
+from conftest import write_tiny_study as write_study
 from hpcves.campaign import access
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
@@ -48,35 +50,6 @@ needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 # what test_faults.py kills at exact moments in `make test`).
 more = pytest.mark.faults
 
-#: numerics and recording of the tiny test cases (N = 32); ``{checkpoint}`` is filled in by the study
-TINY_RUN = """[numerics]
-N = 32
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0          # N = 32 on purpose (fast): the resolution watch would stop it
-sample_interval = 0.005
-snapshot_interval = 0.05
-checkpoint_interval = {checkpoint}
-checkpoint_wall = 0
-"""
-
-STUDY = """
-[campaign]
-name = "{name}"
-output = "{output}"
-t_end = {t_end}
-""" + TINY_RUN + """[sweep]
-shear_rate = {shear}
-psi_bar = [0.3, 0.5]
-"""
-
-
-def write_study(tmp_path, name="tiny", t_end=0.1, checkpoint=0.05, shear="[40, 80]", output=None, sample=0.005):
-    output = output or tmp_path / f"{name}.h5"
-    path = tmp_path / f"{name}.toml"
-    text = STUDY.format(name=name, output=output, t_end=t_end, checkpoint=checkpoint, shear=shear)
-    path.write_text(text.replace("sample_interval = 0.005", f"sample_interval = {sample}"))
-    return path, output
 
 
 def statuses(path):
@@ -499,8 +472,7 @@ def test_a_stage_with_more_ranks_than_cases_says_how_many_idle():
     from hpcves.campaign.stages import stage_line
     from hpcves.campaign.study import study_from_toml
 
-    study = study_from_toml(STUDY.format(name="idle", output="idle.h5", t_end=0.1, checkpoint=0.05,
-                                         shear="[5.0]"))          # x psi_bar = [0.3, 0.5]: 2 cases
+    study = study_from_toml(tiny_study("idle.h5", "idle", shear="[5.0]"))          # x psi_bar = [0.3, 0.5]: 2 cases
     todo = [(c.case_id, False) for c in study.cases]
     assert len(todo) == 2
     assert "2 of the 4 ranks idle: more ranks than cases" in stage_line(study, {}, todo, 0, size=4)

@@ -15,6 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import tiny_study
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
 from hpcves.config import case_from_toml
@@ -116,28 +117,12 @@ def test_with_both_checkpoints_damaged_a_resume_is_refused_in_one_line(files, tm
     assert path.read_bytes() == before
 
 
-STUDY = """
-[campaign]
-name = "sums"
-output = "{output}"
-t_end = 0.1
-[numerics]
-N = 32
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0
-sample_interval = 0.005
-snapshot_interval = 0.05
-checkpoint_interval = 0.05
-checkpoint_wall = 0
-[sweep]
-shear_rate = [40, 80]
-"""
+SUMS = dict(name="sums", psi=None)      # the tiny test campaign over two shear rates
 
 
 def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(tmp_path):
     output = tmp_path / "sums.h5"
-    assert run_campaign(study_from_toml(STUDY.format(output=output)), output).exit_status == 0
+    assert run_campaign(study_from_toml(tiny_study(output, **SUMS)), output).exit_status == 0
     with h5py.File(output, "r+") as f:
         case = case_view(f, "0001")
         values = case["timeseries/theta"]
@@ -154,7 +139,7 @@ def test_status_check_and_analyze_name_the_damaged_case_and_dataset_and_exit_2(t
     assert analyzed.returncode == 2, (analyzed.stdout, analyzed.stderr)
     assert "timeseries/theta fails its checksum" in analyzed.stdout + analyzed.stderr
     with pytest.raises(FileFormatError, match="case 0001: timeseries/theta fails its checksum"):
-        run_campaign(study_from_toml(STUDY.format(output=output)), output, resume=True)
+        run_campaign(study_from_toml(tiny_study(output, **SUMS)), output, resume=True)
 
 
 @pytest.mark.parametrize("record", ["timeseries/centroid", "snapshots/psi", "snapshots/t", "checkpoint/newest/prev_psi",
@@ -167,7 +152,7 @@ def test_a_flipped_bit_in_each_kind_of_record_of_a_packed_block_is_named(tmp_pat
     from hpcves.run.store import open_file
 
     output = tmp_path / "sums.h5"
-    study = study_from_toml(STUDY.format(output=output))
+    study = study_from_toml(tiny_study(output, **SUMS))
     assert run_campaign(study, output).exit_status == 0
     with h5py.File(output, "r+") as f:
         case = case_view(f, "0000")

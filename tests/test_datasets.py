@@ -7,26 +7,9 @@ import numpy as np
 import pytest
 
 import hpcves
+from conftest import tiny_study
 from hpcves.campaign.study import study_from_toml
 from hpcves.run.store import FileFormatError
-
-STUDY = """
-[campaign]
-name = "xr"
-output = "{output}"
-t_end = 0.4
-[numerics]
-N = 32
-dt = 1e-3
-[run]
-max_spectral_tail = 1.0          # N = 32 on purpose (fast)
-sample_interval = 0.01
-snapshot_interval = 0.1
-checkpoint_interval = 0.2
-[sweep]
-shear_rate = [40, 80]
-psi_bar = [0.0, 0.3]
-"""
 
 CASE = """
 [physics]
@@ -54,7 +37,8 @@ def campaign(tmp_path_factory):
 
 
 def campaign_study(path):
-    return study_from_toml(STUDY.format(output=path))
+    return study_from_toml(tiny_study(path, "xr", t_end=0.4, checkpoint=0.2, psi="[0.0, 0.3]", sample=0.01,
+                                      snapshot=0.1))
 
 
 def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_reads_it(campaign):

@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import tiny_study, write_tiny_study
 from hpcves.campaign import driver, structure
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
@@ -33,28 +34,12 @@ from jobs import (
     wait_until,
     writing_format,
 )
-from test_campaign import TINY_RUN
 
 needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 
-STUDY = """
-[campaign]
-name = "faults"
-output = "{output}"
-t_end = {t_end}
-""" + TINY_RUN + """[sweep]
-shear_rate = {shear}
-psi_bar = {psi}
-"""
-
-
-def write_study(directory, t_end=0.1, checkpoint=0.02, shear="[40, 80]", psi="[0.3, 0.5]", output=None,
-                name="faults"):
-    directory.mkdir(parents=True, exist_ok=True)
-    output = output or directory / f"{name}.h5"
-    path = directory / f"{name}.toml"
-    path.write_text(STUDY.format(output=output, t_end=t_end, checkpoint=checkpoint, shear=shear, psi=psi))
-    return path, output
+def write_study(directory, **settings):
+    """The tiny test campaign (conftest.tiny_study) named "faults", checkpointing every 0.02 by default."""
+    return write_tiny_study(directory, **{"name": "faults", "checkpoint": 0.02, **settings})
 
 
 def reference_of(path, directory):
@@ -539,7 +524,7 @@ def test_run_resume_refuses_a_damaged_case_file(tmp_path):
 def test_sweeps_that_repeat_a_value_or_are_absurd_are_refused(sweep, words):
     from hpcves.model.params import ConfigError
 
-    text = STUDY.split("[sweep]")[0].format(output="x.h5", t_end=0.1, checkpoint=0.02) + "[sweep]\n" + sweep
+    text = tiny_study("x.h5", "faults", checkpoint=0.02).split("[sweep]")[0] + "[sweep]\n" + sweep
     with pytest.raises(ConfigError, match=words.replace("(", r"\(").replace(")", r"\)")):
         study_from_toml(text)
 
@@ -552,7 +537,7 @@ def test_the_case_limit_is_checked_before_any_case_is_built(monkeypatch):
         raise AssertionError("a case was built")
 
     monkeypatch.setattr(study_module.Study, "make_case", never)
-    text = (STUDY.split("[sweep]")[0].format(output="x.h5", t_end=0.1, checkpoint=0.02)
+    text = (tiny_study("x.h5", "faults", checkpoint=0.02).split("[sweep]")[0]
             + "[sweep]\nshear_rate = { linspace = [1, 400, 1000] }\npsi_bar = { linspace = [0.25, 0.75, 1000] }\n")
     with pytest.raises(ConfigError, match="has 1000000 cases; more than 100000"):
         study_from_toml(text)

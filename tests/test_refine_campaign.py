@@ -14,6 +14,7 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import TINY_RUN
 from hpcves.analysis.refine import CONVERGED, polylines
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
@@ -23,7 +24,7 @@ from hpcves.reports.analyze import analyze
 from hpcves.reports.datasets import open_campaign
 from hpcves.run.store import FINISHED
 from jobs import TEN_STEPS, assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until
-from test_campaign import TINY_RUN, needs_mpi, statuses
+from test_campaign import needs_mpi, statuses
 
 REFINE = """
 [campaign]

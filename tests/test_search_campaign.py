@@ -13,6 +13,7 @@ import h5py
 import numpy as np
 import pytest
 
+from conftest import TINY_RUN
 from hpcves.analysis.search import CONVERGED, UNBRACKETED
 from hpcves.campaign import file as campaign_file
 from hpcves.campaign.driver import run_campaign
@@ -24,7 +25,7 @@ from hpcves.reports.critical import CRITICAL_COLUMNS
 from hpcves.reports.datasets import open_campaign
 from hpcves.run.store import FINISHED, superblock_version
 from jobs import assert_same_results, case_view, case_views, hpcves, job_pids, start_job, wait_until, writing_format
-from test_campaign import TINY_RUN, needs_mpi, statuses
+from test_campaign import needs_mpi, statuses
 
 SEARCH = """
 [campaign]
