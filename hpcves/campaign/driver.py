@@ -8,7 +8,7 @@ whole or not at all (structure.py).
 File access. With one process the file is opened with the default driver.
 With several ranks and an h5py built with MPI every rank opens it with the
 ``mpio`` driver; the structure is laid out up front by rank 0 alone with serial
-HDF5 (collective creation of every object made it ~20x slower on 8 ranks), under a
+HDF5 (collectively, every object created waits on all ranks: BENCHMARKS.md), under a
 temporary name that is renamed to the file's once complete (atomic.py), after
 which each case is written only by the rank running it (independent raw-data
 writes to preallocated datasets, which reach the file in program order -- the

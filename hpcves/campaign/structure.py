@@ -70,9 +70,8 @@ def _change(path: Path, comm, reserve, change, cannot: str, after: str) -> str:
     it to ``path``. "" or why not ("<path>: <cannot> (<reason>); <after>"), the same on every rank.
 
     Rank 0 does it alone, with serial HDF5, in every I/O mode: nobody else has the partial file open,
-    and under mpio every object created is a collective operation that all ranks wait on (laying out
-    500 tiny cases took 159 s on 8 ranks against 8 s in one process); the ranks open the finished
-    file together afterwards."""
+    and under mpio every object created is a collective operation that all ranks wait on (BENCHMARKS.md,
+    "Creating a campaign file"); the ranks open the finished file together afterwards."""
     rank = 0 if comm is None else comm.Get_rank()
     size = 1 if comm is None else comm.Get_size()
     refused = ""

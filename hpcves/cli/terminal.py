@@ -102,9 +102,8 @@ def duration(seconds: float) -> str:
 
 class SigtermSeen:
     """A SIGTERM handler that only notes the signal; the work polls it and ends at a point of its own
-    choosing. (Raising SystemExit in the handler, where the signal landed, was lost when that was a
-    finalizer -- a weakref callback during garbage collection: Python printed it and went on, and
-    `--plan` finished with status 0.)"""
+    choosing: an exception raised in the handler lands wherever the signal did, and inside a finalizer
+    (a weakref callback during garbage collection) Python prints it and goes on."""
 
     def __init__(self):
         self.signum = None

@@ -33,10 +33,8 @@ safety * err^(-1/q)), and after a second rejection in a row with
 k * min_factor: err ~ k^q holds for a smooth solution and a history of
 similar steps, but right after a sharp change the estimate of a multistep
 step falls only about in proportion to k (its predictor's slope at t_n comes
-from the last steps), and the k^q retry then took 20 steps of 0.85 each
-(psi_bar = 0.5, Delta = 0.94, S = 5, rtol = 1e-4: stalled at t = 0.12, where
-a step 60 times shorter would have passed). The step after a rejection does
-not grow. The first step
+from the last steps), and a k^q retry shrinks it too little (docs/numerics.md,
+"Adaptive time step"). The step after a rejection does not grow. The first step
 (Richardson-extrapolated IMEX Euler) starts from ``initial_dt`` and the same
 controller grows it: the spinodal start-up, where psi separates on time
 scales ~ eps / (nu a0 g''^2) ~ 1e-4, is taken in small steps because the
