@@ -1,56 +1,30 @@
-"""Several attractors at one parameter point (SPEC section 7): the publication's Fig. 9 case, Delta = 2.3,
-psi_bar = 0.48, S = 28, reaches two stable states from different starts -- from the ellipse with the
-published perturbation the soft phase gathers on both tips and the vesicle tank-treads; from the authors'
-smoothed start, or from the ellipse with one soft domain laid down beyond the spinodal range (psi_bar +-
-0.3), one domain travels from tip to tip (phase-treading)."""
-import pytest
+import math
 
-from hpcves.analysis.pattern import soft_domains
-from hpcves.config import case_from_toml
-from hpcves.run.store import FINISHED, CaseStore, open_file
-from jobs import run_in_process
+from hpcves.analysis.attractors import Run, group, same_attractor
+from hpcves.analysis.pattern import Topology
 
-FIG9 = """
-[physics]
-excess_length = 2.3
-psi_bar = 0.48
-shear_rate = 28.0
-initial_shape = "{shape}"
-{phase}
-[numerics]
-N = 128
-rtol = 1e-3
-[run]
-t_end = 6.0
-until_decided = true
-decided_shear_times = 30
-decided_periods = 5
-sample_interval = 0.0035
-snapshot_interval = 0.05
-checkpoint_interval = 6.0
-"""
+TWO = Topology(2, 2, True)
+ONE = Topology(1, 0, False)
 
 
-def _settle(tmp_path, name: str, shape: str, phase: str = "") -> tuple[str, set]:
-    """Run a start until decided: (the decision, the soft-domain counts over the second half)."""
-    path = tmp_path / f"{name}.h5"
-    outcome = run_in_process(case_from_toml(FIG9.format(shape=shape, phase=phase)), path)
-    assert outcome.status == FINISHED, outcome.message
-    with open_file(path, "r") as f:
-        snapshots = CaseStore.open(f).snapshots()
-    settled = snapshots["psi"][snapshots["t"] >= 0.5 * outcome.t]
-    return outcome.message.split(":")[0], {len(soft_domains(psi)) for psi in settled}
+def test_runs_group_into_the_attractors_they_reached():
+    runs = [Run("ellipse", "TT", TWO, 0.2979, 1e-4),
+            Run("smoothed", "PT", ONE, 0.2618, 2e-4, 0.63792, 2e-4),
+            Run("one domain", "PT", ONE, 0.2615, 2e-4, 0.63772, 2e-4),
+            Run("random 1", "TT", TWO, 0.29795, 1e-4),
+            Run("random 2", "undecided", None, math.nan, math.nan),
+            Run("random 3", "PT", ONE, 0.2618, 2e-4, 0.70, 2e-4)]          # another period: another orbit
+    found = group(runs)
+    assert [a.starts for a in found] == [("ellipse", "random 1"), ("smoothed", "one domain"), ("random 3",)]
+    assert found[0].text() == ("TT, 2 soft domains, both on tips, two-fold symmetric, theta 0.2979: "
+                               "from ellipse, random 1")
+    assert found[1].text().startswith("PT, 1 soft domain, period 0.63792")
 
 
-def test_the_fig9_point_reaches_two_attractors_from_two_starts(tmp_path):
-    regime, domains = _settle(tmp_path, "ellipse", "ellipse")
-    assert regime.startswith("decided TT") and domains == {2}
-    regime, domains = _settle(tmp_path, "smoothed", "smoothed")
-    assert regime.startswith("decided PT") and domains == {1}
-
-
-@pytest.mark.slow
-def test_one_domain_on_the_ellipse_reaches_the_phase_treading_attractor_too(tmp_path):
-    regime, domains = _settle(tmp_path, "one domain", "ellipse", 'initial_phase = "domains"\nphase_domains = 1\n'
-                              'delta = 0.3')
-    assert regime.startswith("decided PT") and domains == {1}
+def test_same_regime_is_not_enough():
+    a = Run("a", "TT", TWO, 0.30, 1e-3)
+    assert not same_attractor(a, Run("b", "TT", ONE, 0.30, 1e-3))          # another topology
+    assert not same_attractor(a, Run("b", "TT", TWO, 0.31, 1e-3))          # theta apart by more than the bars
+    assert same_attractor(a, Run("b", "TT", TWO, 0.3015, 1e-3))
+    assert not same_attractor(a, Run("b", "PT", TWO, 0.30, 1e-3, 0.5, 1e-3))
+    assert same_attractor(Run("a", "TT", None, 0.3, math.nan), Run("b", "TT", None, 0.3, math.nan))
