@@ -78,7 +78,7 @@ def test_overrides_change_the_verdict(campaign, tmp_path):
     assert pt["regime"] == "undecided" and "run longer" in pt["reason"]
 
 
-def test_a_running_campaign_is_analysed_but_not_written_to(campaign, tmp_path):
+def test_a_running_campaign_is_analyzed_but_not_written_to(campaign, tmp_path):
     lock = CampaignLock(campaign).acquire()
     try:
         report = analyze(campaign, tmp_path, case_figures=False)
@@ -88,7 +88,7 @@ def test_a_running_campaign_is_analysed_but_not_written_to(campaign, tmp_path):
     assert (tmp_path / "regimes.csv").exists()
 
 
-def test_a_single_adaptive_run_is_analysed_with_discretisation_error_bars(tmp_path):
+def test_a_single_adaptive_run_is_analyzed_with_discretisation_error_bars(tmp_path):
     case = case_from_toml("[numerics]\nN = 32\nrtol = 3e-2\n[physics]\nshear_rate = 80.0\npsi_bar = 0.3\n"
                           "[run]\nmax_spectral_tail = 1.0\nt_end = 1.0\nsample_interval = 0.005\n")
     path = tmp_path / "single.h5"

@@ -447,8 +447,8 @@ def test_a_bit_flipped_campaign_file_gets_one_line_everywhere(finished, finished
     flip_header(copy, "cases/0001/progress" if version == 1 else "blocks/0/progress")
     status = hpcves("status", copy)
     assert status.returncode == 2 and "0001" in one_line(status), status.stderr
-    analysed = hpcves("analyze", copy, "--out", tmp_path / "a", "--no-case-figures")
-    assert analysed.returncode == 2 and "0002" in error_line(analysed), analysed.stderr
+    analyzed = hpcves("analyze", copy, "--out", tmp_path / "a", "--no-case-figures")
+    assert analyzed.returncode == 2 and "0002" in error_line(analyzed), analyzed.stderr
     if version == 1:
         assert (tmp_path / "a" / "regimes.csv").exists()   # the others are analysed
     resumed = hpcves("campaign", path, "--resume", "--out", copy)

@@ -116,7 +116,7 @@ def test_attractors_need_starts_and_a_budget_for_them():
 
 
 @pytest.mark.slow          # ~40-55 s on a loaded machine; test_starts runs [starts] through a campaign in make test
-def test_a_real_refinement_of_attractors_runs_and_is_analysed(tmp_path):
+def test_a_real_refinement_of_attractors_runs_and_is_analyzed(tmp_path):
     from hpcves.reports.analyze import analyze
 
     study = study_from_toml(plane(output=tmp_path / "coexist.h5", **{"t_end = 3.0": "t_end = 1.0"}))   # cheap
