@@ -68,10 +68,11 @@ class Loopback:
 
 
 def run(cases: int, directory: Path) -> dict:
-    from hpcves.campaign.driver import file_bytes, run_one
     from hpcves.campaign.file import CampaignFile
     from hpcves.campaign.queue import Task
     from hpcves.campaign.relay import Relay, RemoteCampaign
+    from hpcves.campaign.scheduler import run_one
+    from hpcves.campaign.structure import file_bytes
     from hpcves.campaign.study import study_from_toml
     from hpcves.files.atomic import new_partial
     from hpcves.run.store import FINISHED, open_file, safe_flush
