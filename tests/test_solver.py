@@ -82,10 +82,12 @@ def separated_state():
 
 
 def resample(state, N):
+    """``state`` interpolated onto N nodes, its arrays contiguous as a run's are (interpolate's real parts
+    are strided views, for which numba would compile the step once more)."""
     sp = Spectral(state.theta.size, 2.6442)
     alpha = np.arange(N) / N
-    return State(step=0, theta=sp.interpolate(state.theta, alpha), psi=sp.interpolate(state.psi, alpha),
-                 center=state.center, shift=state.shift)
+    theta, psi = (np.ascontiguousarray(sp.interpolate(f, alpha)) for f in (state.theta, state.psi))
+    return State(step=0, theta=theta, psi=psi, center=state.center, shift=state.shift)
 
 
 def evolve(state, N, dt, T=0.05):
