@@ -20,12 +20,8 @@ def _case_selection(which: str):
 @click.argument("file", type=click.Path())
 @click.option("--out", "out", type=click.Path(),
               help="Directory for the tables and figures (default: <file>_analysis next to the file).")
-
-
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a threshold of the classification, e.g. --set min_cycles=5 (see [analysis]).")
-
-
 @click.option("--axes", help="The two parameters of the phase diagrams, e.g. shear_rate,psi_bar.")
 @click.option("--no-write-back", is_flag=True, help="Do not store the results in the file's analysis/ group.")
 @click.option("--case-figures", "which", default="auto", show_default=True,
@@ -33,22 +29,14 @@ def _case_selection(which: str):
               help="Whose one-page figures to draw: auto (every case's up to 100 cases, else the first 100 "
                    "flagged ones'), every case's, the flagged ones' (undecided, failed, unfinished), none, or "
                    "these case ids' (about 3 s a page, 1 s without streamlines).")
-
-
 @click.option("--no-case-figures", is_flag=True, help="Same as --case-figures none.")
 @click.option("--no-streamlines", is_flag=True,
               help="Case figures without the streamlines around the shapes (about 2 s a case less).")
-
-
 @click.option("--jobs", "-j", type=click.IntRange(min=1), default=1, show_default=True,
               help="Processes that draw the case figures.")
-
-
 @click.option("--markers", is_flag=True,
               help="Draw the cases as markers on the figures for a paper too (a search's or refinement's "
                    "phase diagrams; phase_diagram*_cases always shows every case).")
-
-
 @clean_errors
 def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_figures, no_streamlines, jobs,
                     markers):

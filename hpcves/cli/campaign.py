@@ -37,8 +37,6 @@ def mpi_world():
 @click.option("--resume", is_flag=True,
               help="Continue the campaign file (finished cases are kept, running ones continue from "
                    "their checkpoints); starts it if it does not exist yet.")
-
-
 @click.option("--retry-failed", is_flag=True, help="With --resume: run the failed cases again, from the start.")
 @click.option("--overwrite", is_flag=True, help="Delete an existing campaign file and start over.")
 @click.option("--out", "out", type=click.Path(), help="Campaign file (default: [campaign] output).")
@@ -47,27 +45,17 @@ def mpi_world():
               help="How several ranks write the file: mpio (parallel HDF5, every rank writes its cases), "
                    "relay (rank 0 writes for everyone: for an h5py without MPI, or a file system where "
                    "MPI-IO misbehaves), auto (mpio if h5py has MPI).")
-
-
 @click.option("--plan", "show_plan", is_flag=True,
               help="Run nothing: time a step at each N here, then print the cases, the core-hours, and "
                    "the wall time on a suggested number of ranks (without mpirun).")
-
-
 @click.option("--slurm", "slurm_file", type=click.Path(),
               help="With --plan: also write a SLURM batch script sized from the plan to this file.")
-
-
 @click.option("--max-time", type=float, default=24.0, show_default=True,
               help="With --plan: the longest job to ask for, in hours (the script resubmits itself "
                    "while work is left).")
-
-
 @click.option("--slurm-template", "slurm_template", type=click.Path(),
               help="With --slurm: your site's batch-script template instead of the default "
                    "(hpcves/campaign/templates/slurm.sh; its {{ placeholders }}: docs/cluster.md).")
-
-
 @click.option("--max-jobs", type=int,
               help="With --slurm: the most jobs the script's chain may run, resubmissions included "
                    "(default: twice the jobs the plan needs, plus one).")

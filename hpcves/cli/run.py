@@ -21,8 +21,6 @@ RUN_EXIT = ("Exit status: 0 finished, or stopped cleanly with a checkpoint (SIGI
 @click.option("--out", "out", type=click.Path(), help="HDF5 file to write (new).")
 @click.option("--resume", "resume", type=click.Path(),
               help="Continue the run in this HDF5 file from its last checkpoint.")
-
-
 @click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
 @click.option("--quiet", is_flag=True, help="No progress line.")
 @clean_errors

@@ -22,12 +22,8 @@ from hpcves.run.verdict import DAMAGED
 @click.option("--check", is_flag=True,
               help="Also check every dataset of every case (shapes, counters, checkpoints), as --resume does: "
                    "about 3 ms a case instead of 0.2.")
-
-
 @click.option("--json", "as_json", is_flag=True,
               help="One JSON object on stdout instead of the table: the cases, the totals and what is left.")
-
-
 @clean_errors
 def status_command(campaign_file, check, as_json):
     """One line per case of a campaign file (it may be running), the totals and what is left.
