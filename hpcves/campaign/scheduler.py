@@ -6,11 +6,11 @@ rank 0 runs cases itself: its run loop polls the message queue once per time ste
 (``MPI.Iprobe``, ~1 us) and answers requests there, so with ``mpirun -n 2`` on two
 cores both cores compute. On more ranks it only schedules (and, under relay, writes
 for everyone): a time step between its answers holds up every other rank, and the
-answers of a whole job add up to more than a worker's computing (under relay at
--n 8, rank 0 running cases too used 7x a worker's CPU and set the pace). Nobody busy-waits: a rank
-with nothing to compute polls with a
-sleep that backs off from 1 ms to 50 ms (as mpi4py.futures does), and the
-final synchronisation is a non-blocking barrier polled the same way.
+answers of a whole job add up to more than a worker's computing (under relay at -n 8,
+rank 0 running cases too used 7x a worker's CPU and set the pace). Nobody busy-waits:
+a rank with nothing to compute polls with a sleep that backs off from 1 ms to 50 ms (as
+mpi4py.futures does), and the final synchronisation is a non-blocking barrier polled the
+same way.
 
 Workers (:func:`worker_loop`) ask for a case, run it, report, ask again.
 A case that raises is recorded as failed (message and traceback in the file)
