@@ -51,7 +51,6 @@ needs_mpi = pytest.mark.skipif(MPIRUN is None, reason="no mpirun")
 more = pytest.mark.faults
 
 
-
 def statuses(path):
     return case_statuses(path)
 

@@ -16,7 +16,6 @@ from jobs import SHORT, resume_in_process, run_in_process, same_case_files, wait
 HPCVES = [sys.executable, "-m", "hpcves.cli"]
 
 
-
 def hpcves(*args, **kwargs):
     return subprocess.run(HPCVES + [str(a) for a in args], capture_output=True, text=True, timeout=300,
                           **kwargs)

@@ -425,8 +425,6 @@ def finished_v1(tmp_path_factory):
     return path, output
 
 
-
-
 def damaged_copy(finished, tmp_path, name="damaged.h5"):
     path, output = finished
     copy = tmp_path / name
@@ -762,7 +760,6 @@ def test_running_cases_change_no_byte_of_the_metadata(tmp_path):
     assert RUNNING in case_statuses(output).values()                  # rank 1's case, killed mid-checkpoint
     assert outside_raw_data(output) == outside_raw_data(created)
     assert output.read_bytes() != created.read_bytes()                            # the cases did write
-
 
 
 def test_a_search_stage_the_disk_has_no_room_for_stops_the_campaign_and_loses_nothing(tmp_path, monkeypatch):

@@ -78,7 +78,7 @@ def test_a_case_page_shows_the_settled_window_streamlines_and_short_titles():
               "V_L": t * 0 - 0.9, "tank_treading_velocity": t * 0 - 1.0}
     physics = Physics(shear_rate=2.0, B1=1.0, B2=1.0)     # f = 0 in these snapshots: u = S y, a uniform shear
     fig = case_figures.case_figure(series, _ellipse_snapshots(), title="case 0000: S = 2 -- PT", kymographs=True,
-                            t_settle=1.0, period=0.7, physics=physics, subtitle="stopped when decided")
+                                   t_settle=1.0, period=0.7, physics=physics, subtitle="stopped when decided")
     try:
         theta_ax = fig.axes[0]
         line = theta_ax.get_lines()[0]
@@ -156,7 +156,7 @@ def test_the_paper_diagram_is_a_column_wide_vector_figure(tmp_path):
     rows = [_row(regime, S, psi) for S, psi, regime in ((10, 0.3, "TT"), (40, 0.3, "TT"), (10, 0.5, "TT"),
                                                          (40, 0.5, "PT"))]
     fig = diagrams.paper_diagram(rows, "shear_rate", "psi_bar", [((10, 40, 0.3, 0.4), "TT")],
-                              lines=[[(30, 0.5), (40, 0.45)]], log_keys={"shear_rate"})
+                                 lines=[[(30, 0.5), (40, 0.45)]], log_keys={"shear_rate"})
     assert tuple(fig.get_size_inches()) == (diagrams.PAPER_WIDTH, 0.8 * diagrams.PAPER_WIDTH)
     ax = fig.axes[0]
     assert ax.get_xscale() == "log" and ax.get_xlim()[0] < 10 and ax.get_xlim()[1] > 40

@@ -17,9 +17,8 @@ cases alone first (and a staged study's later ones before their stage), then the
 (all of them on up to four; on more, rank 0 only schedules: queue.computing_ranks), cases go out
 most expensive first to whichever rank is free -- in a staged study each rank classifies the case it
 ran as it ends --, and a stage starts when the one before has ended. Laying out and classifying are
-measured here on the first
-stage's median case (timing.py), so a study of many short cases is not planned
-as one rank per case whose job the creation alone outlasts. The suggested P is the fewest ranks that finish
+measured here on the first stage's median case (timing.py), so a study of many short cases is not
+planned as one rank per case whose job the creation alone outlasts. The suggested P is the fewest ranks that finish
 within 10 % of the wall time with a rank for every case of the widest stage whose
 width is known (a refinement's later stages are as wide as the boundaries it
 finds make them: only its coarse grid counts).

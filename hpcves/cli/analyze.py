@@ -94,5 +94,5 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
     damaged = report.damaged
     if damaged:
         fail(f"{report.source.path}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)}, analysed as "
-              f"undecided (" + "; ".join(f"{c.case_id}: {c.message}" for c in damaged[:3])
-              + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")
+             f"undecided (" + "; ".join(f"{c.case_id}: {c.message}" for c in damaged[:3])
+             + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")

@@ -85,7 +85,7 @@ def campaign_command(study_file, resume, retry_failed, overwrite, out, quiet, io
                 click.echo("Error: --plan runs nothing in parallel: leave out mpirun", err=True)
             sys.exit(2)
         print_plan(study_file, out and Path(out), slurm_file and Path(slurm_file), max_time,
-              slurm_template and Path(slurm_template), max_jobs)
+                   slurm_template and Path(slurm_template), max_jobs)
         return
     try:
         _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out and Path(out), quiet, io)

@@ -64,7 +64,7 @@ def print_plan(study_file, out, slurm_file, max_time, slurm_template=None, max_j
     click.echo(_plan_text(estimate, study, ranks))
     click.echo(f"suggested: {ranks} rank{'s' * (ranks != 1)} (srun -n {ranks} / mpirun -n {ranks}), "
                f"a job of {duration(ask)}" + (" (capped by --max-time; the job resubmits itself)"
-                                                if ask < _job_seconds(wall) else ""))
+                                              if ask < _job_seconds(wall) else ""))
     click.echo(_overhead_text(basis, ranks))
     click.echo(_load_text())
     size = file_bytes(study)

@@ -29,7 +29,7 @@ def refuse_a_study_as_case(path) -> None:
     data = _toml_of(path)
     if data is not None and isinstance(data.get("campaign"), dict):
         fail(f"{path}: a study file (it has a [campaign] table), not a case: `hpcves campaign {path}` runs it "
-              f"(`mpirun -n P hpcves campaign {path}` on P ranks)")
+             f"(`mpirun -n P hpcves campaign {path}` on P ranks)")
 
 
 def refuse_a_campaign_file(path) -> None:
@@ -42,7 +42,7 @@ def refuse_a_campaign_file(path) -> None:
         return                                        # open_for_resume says what is wrong with it
     if kind == CAMPAIGN_FORMAT:
         fail(f"{path}: a campaign file, not a case's: `hpcves campaign STUDY.toml --resume` continues it"
-              + (" (the study it was made from is stored in the file: campaign_toml)" if source else ""))
+             + (" (the study it was made from is stored in the file: campaign_toml)" if source else ""))
 
 
 def refuse_a_study_file(path, command: str) -> None:
@@ -54,7 +54,7 @@ def refuse_a_study_file(path, command: str) -> None:
     if isinstance(data.get("campaign"), dict):
         output = data["campaign"].get("output")
         fail(f"{path}: a study file, not a campaign file: `hpcves {command} "
-              + (f"{output}`" if output else "<its output file>`") + f" for its campaign, `hpcves campaign {path}` "
-              "to run it")
+             + (f"{output}`" if output else "<its output file>`") + f" for its campaign, `hpcves campaign {path}` "
+             "to run it")
     fail(f"{path}: a case file (TOML), not a campaign file: `hpcves run {path} --out FILE.h5` runs it, and "
-          f"`hpcves {command}` takes the campaign file of `hpcves campaign`")
+         f"`hpcves {command}` takes the campaign file of `hpcves campaign`")

@@ -59,8 +59,8 @@ def status_command(campaign_file, check, as_json):
         _status_table(name, rows, totals, writing, left)
     if damaged:
         fail(f"{campaign_file}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)} ("
-              + "; ".join(f"{r['case']}: {r['message']}" for r in damaged[:3])
-              + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")
+             + "; ".join(f"{r['case']}: {r['message']}" for r in damaged[:3])
+             + (f"; {len(damaged) - 3} more" if len(damaged) > 3 else "") + ")")
     sys.exit(left.exit_status)
 
 

@@ -147,8 +147,7 @@ class Physics:
     def __post_init__(self) -> None:
         _finite(self)
         _require(self.viscosity_ratio > 0, f"physics.viscosity_ratio = {self.viscosity_ratio}: the inner over "
-                                           "the outer "
-                                           "viscosity must be > 0")
+                                           "the outer viscosity must be > 0")
         _require(self.shear_rate >= 0, f"physics.shear_rate = {self.shear_rate}: must be >= 0")
         _require(self.shear_rate <= MAX_SHEAR_RATE,
                  f"physics.shear_rate = {self.shear_rate:g}: at most {MAX_SHEAR_RATE:g} (bending, the unit of the "

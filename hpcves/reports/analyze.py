@@ -295,8 +295,7 @@ ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error 
               "where they are too few the two estimators' fits and their disagreement; mean theta: its drift "
               "and the averaging over whole periods, docs/analysis.md). +- dt: the discretisation error of the "
               "time step, by the rule measured against rtol (hpcves/analysis/accuracy.py, docs/error_rule.md); "
-              "n/e: not "
-              "estimated -- a fixed-step run (rerun with numerics.rtol), or tumbling, for which the rule does "
+              "n/e: not estimated -- a fixed-step run (rerun with numerics.rtol), or tumbling, for which the rule does "
               "not hold: the tolerance picks the orbit, and a tumbling period was 1 % longer at rtol = 1e-2 "
               "and 1e-3, 0.1 % at 1e-4, than at 1e-5. +- N: the spatial error of the grid, by the rule "
               "measured against the spectral tail of the settled run (docs/spatial_error.md); n/e for tumbling "
@@ -409,7 +408,6 @@ def regime_counts(rows: list[dict]) -> dict:
     with none left out."""
     counts = {r: sum(1 for row in rows if row["regime"] == r) for r in OUTCOMES}
     return {r: n for r, n in counts.items() if n}
-
 
 
 # ---------------------------------------------------------------------- the whole command
@@ -605,12 +603,12 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
             regions = [region for o in f.refined if all(o.point.get(k, v) == v for k, v in fixed.items())
                        for region in _oriented(refined_regions(o.settings, o.regimes), o.settings, f.x_key)]
         fig = diagrams.phase_diagram(subset, f.x_key, f.y_key, title=title, annotate_periods=f.source.mode == "grid",
-                                  regions=regions,
-                                  log_keys=f.study.refine_settings.log_keys() if f.refined else None)
+                                     regions=regions,
+                                     log_keys=f.study.refine_settings.log_keys() if f.refined else None)
         along = f.study.search.along if f.searches else None
         if f.searches and along in (f.x_key, f.y_key):
             diagrams.mark_critical(fig.axes[0], mine(f.searches), f.y_key if f.x_key == along else f.x_key,
-                                s_on_x=f.x_key == along, along=along)
+                                   s_on_x=f.x_key == along, along=along)
         if regions is not None:
             diagrams.mark_boundaries(fig.axes[0], mine(f.lines), f.x_key, f.y_key)      # a start: every one's
         if f.source.mode == "grid":
@@ -644,8 +642,8 @@ def _paper_figure(f: Findings, subset: list[dict], mine, regions, title: str):
         lines = {}
         for r in sorted(mine(f.lines), key=lambda r: (r["line"], r["order"])):
             lines.setdefault(r["line"], []).append((r[f.x_key], r[f.y_key]))
-        return diagrams.paper_diagram(subset, f.x_key, f.y_key, regions, lines=list(lines.values()), markers=f.markers,
-                                   log_keys=log_keys, title=title)
+        return diagrams.paper_diagram(subset, f.x_key, f.y_key, regions, lines=list(lines.values()),
+                                      markers=f.markers, log_keys=log_keys, title=title)
     along = f.study.search.along if f.searches else None
     if along not in (f.x_key, f.y_key):
         return None
@@ -656,8 +654,8 @@ def _paper_figure(f: Findings, subset: list[dict], mine, regions, title: str):
     brackets = [(place(r["bracket_low"], r[other]), place(r["bracket_high"], r[other])) for r in converged]
     line = [place(r[column], r[other]) for r in converged]
     return diagrams.paper_diagram(subset, f.x_key, f.y_key, diagrams.decided_regions(subset, f.x_key, f.y_key),
-                               lines=[line] if len(line) > 1 else [], brackets=brackets, markers=f.markers,
-                               log_keys=log_keys, title=title)
+                                  lines=[line] if len(line) > 1 else [], brackets=brackets, markers=f.markers,
+                                  log_keys=log_keys, title=title)
 
 
 #: the period figure (a table drawn cell by cell, 1.6 x 0.8 inches a cell) is drawn up to this many cells;
@@ -790,6 +788,5 @@ def _save(fig, stem: Path, dpi: int = 150) -> list[Path]:
     for path in paths:
         fig.savefig(path, dpi=dpi)
     return paths
-
 
 

@@ -70,9 +70,9 @@ def draw_page(path: str, case_id: str | None, row: dict, streamlines: bool, targ
         title = (f"case {case_id}: " if case_id is not None else "") \
             + case_figures.case_title(dict(store.attrs)) + f" -- {row['regime']}"
         fig = case_figures.case_figure(store.timeseries(), store.snapshots(), title=title, kymographs=True,
-                                t_settle=row["t_settle"], period=row["period"],
-                                physics=store.case.physics if streamlines else None,
-                                subtitle=brief(row["reason"]))
+                                       t_settle=row["t_settle"], period=row["period"],
+                                       physics=store.case.physics if streamlines else None,
+                                       subtitle=brief(row["reason"]))
     fig.savefig(target, dpi=90)
     return target
 

@@ -147,7 +147,7 @@ def write_animation(chosen: Chosen, out: Path, fps: int = 12, streamlines: bool 
     regime = chosen.row["regime"]
     fig_title = f"case {chosen.case_id}: {title} -- {regime}"
     fig, movie = case_figures.animation(chosen.series, chosen.snapshots, chosen.physics if streamlines else None,
-                                 fig_title)
+                                        fig_title)
     frames = len(chosen.snapshots["t"])
     callback = None if progress is None else (lambda i, n: progress(i + 1, n))
     partial = out.with_name(out.name + ".partial" + out.suffix)
