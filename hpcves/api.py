@@ -46,12 +46,12 @@ def run_case(case: Case | str | Path, path: str | Path, *, resume: bool = False,
     from hpcves.run.casefile import create_case_file, open_for_resume, run_file
 
     if resume:
-        h5 = open_for_resume(path)
+        opened = open_for_resume(path)
     else:
-        h5 = create_case_file(path, load_case(case) if isinstance(case, (str, Path)) else case, overwrite)
+        opened = create_case_file(path, load_case(case) if isinstance(case, (str, Path)) else case, overwrite)
     bar = CaseBar(Path(path).name) if progress is True else None
     try:
-        return run_file(h5, resume=resume, max_steps=max_steps, progress=bar or progress or None)
+        return run_file(opened, resume=resume, max_steps=max_steps, progress=bar or progress or None)
     finally:
         if bar is not None:
             bar.close()

@@ -457,7 +457,7 @@ def test_a_case_past_the_linear_laws_range_ends_at_the_model_limit_not_as_failed
     assert again.ran == () and again.exit_status == 0
     status = hpcves("status", output)
     assert status.returncode == 0 and "1 finished, 1 model limit" in status.stdout.splitlines()[-1]
-    stopped = re.search(r"model limit  (\d\.\d\d) / 3\.5", status.stdout)
+    stopped = re.search(r"model limit  (\d(?:\.\d+)?) / 3\.5", status.stdout)      # 2.74, 2.9, ...: the machine's
     assert stopped and 2.6 < float(stopped[1]) < 3.5, status.stdout
     report = analyze(output, tmp_path / "out", case_figures=False)
     limit = next(r for r in report.rows if r["case"] == "0001")

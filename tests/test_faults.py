@@ -168,7 +168,8 @@ def test_run_overwrite_refuses_a_file_another_run_is_writing(tmp_path):
     try:
         wait_until(lambda: out.exists(), "the first run's file exists")
         result = hpcves("run", case, "--out", out, "--overwrite")
-        assert result.returncode == 2 and "in use by another process" in one_line(result)
+        line = one_line(result)
+        assert result.returncode == 2 and "is writing this file" in line and "(hpcves run)" in line, line
         assert job.poll() is None
     finally:
         job.kill()

@@ -41,7 +41,15 @@ from hpcves.campaign.state import CampaignRun
 from hpcves.campaign.structure import file_bytes, grow_file
 from hpcves.campaign.study import Study
 from hpcves.errors import HpcvesError
-from hpcves.files.atomic import StorageError, copy_for_change, partial_path, publish, remove_partial, require_space
+from hpcves.files.atomic import (
+    StorageError,
+    check_output_path,
+    copy_for_change,
+    partial_path,
+    publish,
+    remove_partial,
+    require_space,
+)
 from hpcves.files.lock import CampaignLock, LockError, real_path
 from hpcves.run.store import HDF5_ERRORS, FileFormatError, open_file, reading, refuse_unopenable
 
@@ -137,11 +145,12 @@ def run_campaign(study: Study, path: Path, comm=None, *, resume: bool = False, r
     start = time.perf_counter()
     access = file_access(choose_io(io, size), comm, TAG_REQUEST, TAG_REPLY)
     given, path = Path(path), real_path(path)         # every change goes to the file itself, not a symlink
-    lock = CampaignLock(given)
+    lock = CampaignLock(given, "hpcves campaign")
     verdict = None
     if rank == 0:
         try:
-            refuse_unopenable(given, "r+" if resume else "a")      # before a lock file is made beside it
+            check_output_path(given)                               # before a lock file is made beside it
+            refuse_unopenable(given, "r+" if resume else "a")
             lock.acquire()
             verdict = ("ok", prepare_file(study, path, resume=resume, overwrite=overwrite))
         except HpcvesError as exc:           # every rank raises the same class, with rank 0's message

@@ -8,7 +8,15 @@ import click
 from hpcves.cli.terminal import StatusLine, clean_errors
 from hpcves.files.atomic import check_output_path
 from hpcves.model.params import ConfigError
-from hpcves.reports.figures import choose, default_movie, parse_where, shape_sequence_figure, write_animation
+from hpcves.reports.figures import (
+    animation_writer,
+    check_figure_path,
+    choose,
+    default_movie,
+    parse_where,
+    shape_sequence_figure,
+    write_animation,
+)
 
 
 @click.command("shapes")
@@ -25,13 +33,15 @@ def shapes_command(file, case_ids, where, out, n_shapes, no_streamlines):
     """Shape sequences: one row per case, shapes coloured by psi over its last period, with the
     streamlines around them. Choose the rows by --case or --where (sorted by shear rate)."""
 
-    check_output_path(file)
+    check_output_path(file, new=False)
     if case_ids and where:
         raise ConfigError("--case and --where: choose the cases one way")
     if not case_ids and not where:
         raise ConfigError("choose the cases: --case ID (repeatable) or --where KEY=VALUE, e.g. --where psi_bar=0.5")
-    chosen = choose(file, case_ids, parse_where(where))
     target = Path(out) if out else Path(file).with_name(f"{Path(file).stem}_shapes.png")
+    check_output_path(target)
+    check_figure_path(target)
+    chosen = choose(file, case_ids, parse_where(where))
     fig = shape_sequence_figure(chosen, n_shapes, streamlines=not no_streamlines)
     fig.savefig(target, dpi=130)
     click.echo(f"{target}: {len(chosen)} row{'s' * (len(chosen) != 1)} ("
@@ -50,7 +60,10 @@ def animate_command(file, case_id, out, fps, no_streamlines):
     """An animation of one case, one frame per snapshot: the shape coloured by psi with the
     streamlines around it, beside theta(t)."""
 
-    check_output_path(file)
+    check_output_path(file, new=False)
+    if out:
+        check_output_path(out)
+        animation_writer(Path(out), fps)          # an extension it cannot write: refused before the reading
     chosen = choose(file, (case_id,) if case_id else (), one=True)[0]
     target = Path(out) if out else default_movie(Path(file), chosen.case_id)
     line = StatusLine()

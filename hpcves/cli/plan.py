@@ -19,7 +19,8 @@ from hpcves.campaign.structure import file_bytes
 from hpcves.campaign.study import load_study
 from hpcves.cli.terminal import SigtermSeen, clean_errors, duration, fail, os_error_text
 from hpcves.errors import HpcvesError
-from hpcves.files.atomic import check_output_path, free_bytes, size_text
+from hpcves.files import atomic
+from hpcves.files.atomic import check_output_path, size_text
 from hpcves.reports.tables import markdown_table
 from hpcves.run.timing import StepCost, classify_seconds, layout_seconds
 
@@ -68,7 +69,7 @@ def print_plan(study_file, out, slurm_file, max_time, slurm_template=None, max_j
     click.echo(_overhead_text(basis, ranks))
     click.echo(_load_text())
     size = file_bytes(study)
-    free = free_bytes(path)
+    free = atomic.free_bytes(path)                 # (through the module: one place a test stands the disk in)
     click.echo(f"output: {path} ({size_text(size)} for the {len(study.cases)} cases it starts with, every sample and "
                f"snapshot preallocated; {size_text(free)} free there"
                + (": not enough, the campaign would refuse to start)" if size > free else ")"))

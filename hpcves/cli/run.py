@@ -34,18 +34,18 @@ def run_command(case_file, out, resume, overwrite, quiet):
     if resume:
         path = resume
         refuse_a_campaign_file(path)
-        h5 = open_for_resume(path)
-        store = CaseStore(h5)
+        opened = open_for_resume(path)
+        store = CaseStore(opened.h5)
         if store.status in (FINISHED, MODEL_LIMIT):
             t_done, ended = store.progress[0], STATUS_NAMES[store.status]
-            h5.close()
+            opened.close()
             click.echo(f"{path}: {ended} already (t = {t_done:.6g}); nothing to do.")
             return
     else:
         path = out
         refuse_a_study_as_case(case_file)
-        h5 = create_case_file(path, load_case(case_file), overwrite)
-        store = CaseStore(h5)
+        opened = create_case_file(path, load_case(case_file), overwrite)
+        store = CaseStore(opened.h5)
     case = store.case
     step = f"rtol = {case.numerics.rtol:g}" if case.numerics.adaptive else f"dt = {case.numerics.dt:g}"
     click.echo(f"{path}: {case.numerics.grid()}, {step}, t_end = {case.run.t_end:g}, "
@@ -59,7 +59,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
     progress = None if quiet else ProgressLine()
     try:
         with StopFlag() as stop:
-            outcome = run_file(h5, resume=bool(resume), progress=progress, stop_requested=stop)
+            outcome = run_file(opened, resume=bool(resume), progress=progress, stop_requested=stop)
     finally:
         if progress is not None:
             progress.close()

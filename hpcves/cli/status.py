@@ -33,7 +33,7 @@ def status_command(campaign_file, check, as_json):
     a search or refinement, a campaign writing the file, or a creation that was cut short:
     resubmit); 2 the file cannot be read or a case is damaged.
     """
-    check_output_path(campaign_file)
+    check_output_path(campaign_file, new=False)
     refuse_a_study_file(campaign_file, "status")
     try:
         table = read_table(campaign_file, check=check)

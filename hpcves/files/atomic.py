@@ -188,10 +188,34 @@ def copy_for_change(path, extra_bytes: float, what: str) -> Path:
     return partial
 
 
-def check_output_path(path) -> None:
+#: what hpcves keeps beside a file ``<name>``: ``<name>.lock`` (who writes it: lock.py), ``<name>.partial``
+#: (its next version while that is built: here), ``<name>.jobs`` (a batch chain's count of its jobs:
+#: campaign/templates/slurm.sh); a figure or movie ``<stem>.<ext>`` is built as ``<stem>.partial.<ext>``
+SIDE_SUFFIXES = (".lock", ".partial", ".jobs")
+
+
+def side_file_name(path) -> str:
+    """Why ``path``'s name (or the name a symlink there leads to) is one hpcves gives a side file of
+    another file, which a command on that file would truncate or delete ('' where it is none)."""
+    for name in dict.fromkeys((Path(path).name, Path(os.path.realpath(path)).name)):
+        for suffix in SIDE_SUFFIXES:
+            if name.endswith(suffix) and len(name) > len(suffix):
+                return f"'{suffix}' ends the names hpcves gives the files it keeps beside {name[:-len(suffix)]}"
+        if Path(name).stem.endswith(".partial"):
+            return f"'.partial{Path(name).suffix}' ends the names hpcves gives a figure or movie while it draws it"
+    return ""
+
+
+def check_output_path(path, new: bool = True) -> None:
     """Refuse an output path that cannot be a file before any work: a directory, a device or other
-    special file (renaming the new file over it would replace it), or a path under a file."""
+    special file (renaming the new file over it would replace it), a path under a file, or (``new``:
+    a file this command makes) a name hpcves gives its side files (:data:`SIDE_SUFFIXES`: another
+    command would take it for its own and truncate or delete it)."""
     path = Path(path)
+    side = side_file_name(path) if new else ""
+    if side:
+        raise StorageError(f"{path}: {side} (a command on that file would take this one for its own and "
+                           "overwrite or delete it); choose another name")
     if path.is_dir():
         raise StorageError(f"{path}: is a directory, not a file")
     if path.exists() and not_a_regular_file(path):

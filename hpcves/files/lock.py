@@ -96,11 +96,18 @@ def _held_byte(fd: int) -> int | None:
     return None if kind == fcntl.F_UNLCK else start
 
 
-class CampaignLock:
-    """The write lock of one hpcves file: ``acquire`` (the writer), ``join`` (its other ranks), ``release``."""
+#: how a lock file begins while its writer holds it (it is empty otherwise): anything else there is some
+#: other file under a lock file's name, which a writer must not truncate
+NOTE_START = b"pid "
 
-    def __init__(self, path):
+
+class CampaignLock:
+    """The write lock of one hpcves file -- a campaign's or a run's: ``acquire`` (the writer), ``join``
+    (a campaign's other ranks), ``release``. ``what`` names the writer in its note ("hpcves run")."""
+
+    def __init__(self, path, what: str = ""):
         self.given = Path(path)                  # as the user spelled it (for messages)
+        self.what = what
         self.target = real_path(path)
         self.path = self.target.with_name(self.target.name + ".lock")
         self._fd = None
@@ -116,11 +123,23 @@ class CampaignLock:
         except OSError as exc:
             raise LockError(f"{self.given}: cannot create the directory {exc.filename or directory} "
                             f"({exc.strerror})") from None
+        if os.path.lexists(self.path) and not os.path.isfile(self.path):
+            raise LockError(f"{self.given}: {self.path}, where its lock belongs, is not a regular file; "
+                            "move it away")
         try:
-            return os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         except OSError as exc:
             raise LockError(f"{self.given}: cannot create the lock file {self.path} ({exc.strerror}); "
                             "is the directory writable?") from None
+        try:
+            size, head = os.fstat(fd).st_size, os.pread(fd, len(NOTE_START), 0)
+        except OSError:
+            size, head = 0, b""
+        if size and head != NOTE_START:
+            os.close(fd)
+            raise LockError(f"{self.given}: {self.path}, where its lock belongs, holds {size} bytes of another "
+                            "file (not a lock note), which locking would truncate; move it away")
+        return fd
 
     def acquire(self) -> "CampaignLock":
         """Become the one writer of the file; refused while any process of another writer lives."""
@@ -146,7 +165,7 @@ class CampaignLock:
                 _unlock(fd, 1, 0)                # keep byte 0; the other ranks lock theirs
                 os.ftruncate(fd, 0)
                 os.pwrite(fd, f"pid {os.getpid()} on {socket.gethostname()}, since "
-                          f"{time.strftime('%Y-%m-%d %H:%M:%S')}".encode(), 0)
+                          f"{time.strftime('%Y-%m-%d %H:%M:%S')}{f' ({self.what})' if self.what else ''}".encode(), 0)
             except OSError:                      # a full disk: the lock holds without the note
                 pass
         self._fd, self.owner = fd, True
@@ -203,8 +222,8 @@ class CampaignLock:
                    f"rank {byte} of an earlier campaign is still running")
             return (f"{self.given}: {who} (its rank 0 has ended: the job is winding down or was killed); "
                     "wait until all its ranks have exited")
-        return (f"{self.given}: a campaign (or hpcves analyze) is writing this file ({holder or 'another process'}); "
-                "wait for it or stop it first")
+        return (f"{self.given}: another hpcves process (a run, a campaign or analyze) is writing this file "
+                f"({holder or 'another process'}); wait for it or stop it first")
 
 
 def writer(path) -> str | None:

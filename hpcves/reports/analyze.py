@@ -153,19 +153,18 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, pro
 
     Safe by construction (atomic.py): the group is written into a copy of the file, which then
     replaces it; a kill or a full disk at any moment leaves the file as it was. Only while no
-    campaign writes the file (its lock) -- for a single-run file, while no ``hpcves run`` has it open
-    (HDF5's own lock) -- and only if no case changed since ``source`` was read: results of a file
-    that a campaign advanced in the meantime would be stale.
+    campaign or run writes the file (its lock, lock.py) and only if no case changed since ``source``
+    was read: results of a file that a campaign advanced in the meantime would be stale.
     """
     if any(case.status == DAMAGED for case in source.cases):
         return "it holds damaged cases"
     path = real_path(source.path)
     try:
-        guard = CampaignLock(source.path).acquire() if source.kind == "campaign" else open_file(path, "r+")
-    except HpcvesError as exc:                  # the lock (another campaign writes it) or the file itself
+        guard = CampaignLock(source.path, "hpcves analyze").acquire()
+    except HpcvesError as exc:                  # another campaign or run writes it
         return str(exc)
     try:
-        changed = _changes(source, None if isinstance(guard, CampaignLock) else guard)
+        changed = _changes(source)
         if changed:
             return f"the file changed while it was analysed ({changed}); analyze it again"
         if progress is not None:
@@ -187,10 +186,7 @@ def write_back(source: Source, rows: list[dict], settings: AnalysisSettings, pro
     except StorageError as exc:
         return str(exc)
     finally:
-        if isinstance(guard, CampaignLock):
-            guard.release()
-        else:
-            guard.close()
+        guard.release()
 
 
 def read_marks(h5, where: str) -> list[tuple]:
@@ -202,13 +198,10 @@ def read_marks(h5, where: str) -> list[tuple]:
         return [mark(CaseStore.open(h5, where=where))]
 
 
-def _changes(source: Source, h5=None) -> str:
-    """How the cases of the file (``h5`` if open) differ now from when ``source`` was read ("" if not)."""
-    if h5 is None:
-        with open_file(source.path, "r", locking=False) as opened:
-            now = read_marks(opened, str(source.path))
-    else:
-        now = read_marks(h5, str(source.path))
+def _changes(source: Source) -> str:
+    """How the cases of the file differ now from when ``source`` was read ("" if not)."""
+    with open_file(source.path, "r", locking=False) as opened:
+        now = read_marks(opened, str(source.path))
     if len(now) != len(source.cases):
         return f"{len(source.cases)} cases then, {len(now)} now"
     changed = [(case, new) for case, new in zip(source.cases, now) if case.mark != new]

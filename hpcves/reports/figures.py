@@ -130,6 +130,16 @@ def animation_writer(out: Path, fps: int):
     raise ConfigError(f"{out}: write an .mp4 (ffmpeg) or a .gif (pillow)")
 
 
+def check_figure_path(out: Path) -> None:
+    """Refuse, before any drawing, a figure file whose extension matplotlib writes no format for."""
+    from matplotlib.figure import Figure
+
+    known = Figure().canvas.get_supported_filetypes()
+    if out.suffix.lower().lstrip(".") not in known:
+        raise ConfigError(f"{out}: matplotlib writes no figure format '{out.suffix or '(none)'}'; use one of "
+                          + ", ".join(f".{k}" for k in sorted(known)))
+
+
 def default_movie(path: Path, case_id: str) -> Path:
     """``<file>_<case>.mp4`` where ffmpeg is installed, else ``.gif``."""
     from matplotlib import animation
