@@ -272,14 +272,14 @@ def results(path):
 
     Left out: the wall-clock part of ``progress``, which checkpoint slot holds what (a stop writes an
     extra checkpoint; the newest valid checkpoint is compared instead), the campaign file's text
-    (it names the output path), the file's format version and where the data lie in the file
+    (it names the output path) and its checksum, the file's format version and where the data lie in the file
     (index/addresses: the root's attributes come first, and that text's length shifts everything
     after them; format 2's index/block and index/row) -- so files of either layout compare.
     """
     out = {}
     with h5py.File(path, "r", locking=False) as f:
         out["/attrs"] = {k: v for k, v in f.attrs.items()
-                         if k not in ("hpcves_version", "campaign_toml", "format_version")}
+                         if k not in ("hpcves_version", "campaign_toml", "campaign_toml_sha256", "format_version")}
         for name, d in f["index"].items():
             if name == "verdict":                 # the codes; the wall seconds they were stored with vary
                 out[f"/index/{name}"] = d[:, 0]

@@ -104,6 +104,7 @@ def check_file(study: Study, path: Path) -> Growth:
     a damaged case (each one named)."""
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
+        campaign.stored_text(str(path))            # what later replays, labels and analyses it: whole
         grown = growth(study, campaign, str(path))
         damaged = campaign.damaged(grown.study)
     if damaged:

@@ -2,7 +2,8 @@
 
     attrs      format = "hpcves-campaign", format_version, hpcves_version, name,
                fingerprint (Study.fingerprint), campaign_toml (the campaign
-               file's text), sweep_keys, n_cases
+               file's text), campaign_toml_sha256 (its checksum; absent in files
+               made before it existed), sweep_keys, n_cases
                mode ("grid", "search" or "refine")
     index/     case_id (n,) strings; one (n,) float64 dataset per swept key; cost (n,);
                formats 2, 3: block (n,) and row (n,), where each case lies, and config (n,), its
@@ -31,13 +32,14 @@ blocks grow by them, one resize per array).
 """
 from __future__ import annotations
 
+import hashlib
 import tomllib
 from dataclasses import dataclass
 
 import h5py
 import numpy as np
 
-from hpcves.campaign.study import Study
+from hpcves.campaign.study import Study, study_from_toml
 from hpcves.config import case_to_toml
 from hpcves.files import faults
 from hpcves.files.atomic import partial_path
@@ -57,6 +59,11 @@ from hpcves.run.store import (
 )
 from hpcves.run.verdict import DAMAGED, classifier
 from hpcves.version import __version__
+
+
+def text_digest(text: str) -> str:
+    """SHA-256 of a text's UTF-8 bytes, in hex (the stored study's checksum)."""
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 class BeingCreated(FileFormatError):
@@ -104,6 +111,7 @@ class CampaignFile:
         a["name"] = study.name
         a["fingerprint"] = study.fingerprint
         a["campaign_toml"] = study.source
+        a["campaign_toml_sha256"] = text_digest(study.source)
         a["mode"] = study.mode
         a["sweep_keys"] = ",".join(study.sweep_keys)
         a["n_cases"] = 0
@@ -155,6 +163,7 @@ class CampaignFile:
                     group.create_dataset(key, data=np.array([p[key] for p in points], dtype="f8"))
         self.add_cases(new)
         self.h5.attrs["campaign_toml"] = study.source
+        self.h5.attrs["campaign_toml_sha256"] = text_digest(study.source)
         self.h5.attrs["fingerprint"] = study.fingerprint
 
     def add_cases(self, cases, source: str | None = None) -> None:
@@ -204,6 +213,7 @@ class CampaignFile:
         self._rows = None
         if source is not None and attr_text(self.h5.attrs.get("campaign_toml", "")) != source:
             self.h5.attrs["campaign_toml"] = source
+            self.h5.attrs["campaign_toml_sha256"] = text_digest(source)
         self.h5.attrs["n_cases"] = stop
 
     @staticmethod
@@ -315,6 +325,45 @@ class CampaignFile:
         n = int(self.h5.attrs["n_cases"])
         return {case_id: attr_text(after) for case_id, after in zip(self.case_ids, index["after"][:n])
                 if attr_text(after)}
+
+    def stored_text(self, where: str) -> str:
+        """The text of the study the file was made from (``campaign_toml``: what replays its searches,
+        names its starts and holds its [analysis] thresholds), checked against its checksum -- in a file
+        made before the checksum existed, against the file's fingerprint (:meth:`stored_study`)."""
+        text = attr_text(self.h5.attrs.get("campaign_toml", ""))
+        checksum = self.h5.attrs.get("campaign_toml_sha256")
+        if checksum is None:
+            self.stored_study(where)
+        elif attr_text(checksum) != text_digest(text):
+            raise FileFormatError(f"{where}: its stored study (campaign_toml) fails its checksum: edited or "
+                                  "damaged; what the file's searches, starts and thresholds are is unknown")
+        return text
+
+    def stored_study(self, where: str) -> Study:
+        """The study the file was made from, parsed from its stored text (:meth:`stored_text`); where the
+        file keeps no checksum of the text, the study's fingerprint must be the file's."""
+        text = attr_text(self.h5.attrs.get("campaign_toml", ""))
+        checksum = self.h5.attrs.get("campaign_toml_sha256")
+        if checksum is not None:
+            self.stored_text(where)
+        study = study_from_toml(text, source=f"{where}: campaign_toml", default_name=self.name)
+        if checksum is None and study.fingerprint != self.fingerprint:
+            raise FileFormatError(f"{where}: its stored study (campaign_toml) is not the study of its fingerprint: "
+                                  "edited or damaged; what the file's searches, starts and thresholds are is unknown")
+        return study
+
+    def swept_disagree(self, i: int, case) -> list[str]:
+        """Where the index's swept values of case ``i`` (what tables, diagrams and growth read) are not
+        its parameters (what it ran: ``case``, from its config): one was edited or damaged."""
+        index = self.h5["index"]
+        found = []
+        for key in self.sweep_keys:
+            if key == "start" or not hasattr(case.physics, key):
+                continue
+            listed, ran = float(index[key][i]), float(getattr(case.physics, key))
+            if listed != ran and not (listed != listed and ran != ran):
+                found.append(f"index/{key} lists {listed:g}, its config ran {key} = {ran:g} (edited or damaged)")
+        return found
 
     def start_names(self) -> list[str]:
         """The names of the study's [starts], in the order swept (from the stored campaign file)."""
@@ -453,13 +502,15 @@ class CampaignFile:
         if short:
             return [("index", [f"index/{k} holds {index[k].shape[0]} rows for {n} cases" for k in short])]
         expected = {c.case_id: c.case for c in study.cases}
-        for case_id in self.case_ids:
+        for i, case_id in enumerate(self.case_ids):
             try:
                 store = self.store(case_id)
             except (FileFormatError, *HDF5_ERRORS) as exc:
                 found.append((case_id, [str(exc).split(": ", 1)[-1]]))
                 continue
             problems = store.problems(expected.get(case_id), resuming=True)
+            if not problems:
+                problems = self.swept_disagree(i, store.case)
             if problems:
                 found.append((case_id, problems))
         return found
@@ -508,7 +559,8 @@ class CampaignFile:
                 if name == DAMAGED:
                     message = f"status {status} is not a status"
                 elif check:
-                    problems = self.store(case_id).problems()
+                    store = self.store(case_id)
+                    problems = store.problems() or self.swept_disagree(i, store.case)
                     if problems:
                         name, message = DAMAGED, "; ".join(problems[:2])
             except (FileFormatError, *HDF5_ERRORS) as exc:
@@ -633,4 +685,6 @@ def read_table(path, check: bool = False) -> Table:
                               "hpcves campaign --resume starts it again")
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
         campaign = CampaignFile.check(h5, str(path))
+        if check:
+            campaign.stored_text(str(path))
         return Table(campaign.name, campaign.table(check, addresses=True), writer(path))

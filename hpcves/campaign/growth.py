@@ -22,7 +22,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 
-from hpcves.campaign.study import Study, study_from_toml
+from hpcves.campaign.study import Study
 from hpcves.model.params import ConfigError
 from hpcves.run.store import FileFormatError, attr_text, stored_case
 
@@ -69,9 +69,8 @@ def _key(case) -> str:
 
 def _file_study(campaign, where: str) -> Study:
     """The study the file was made from (its stored campaign file text)."""
-    text = attr_text(campaign.h5.attrs.get("campaign_toml", ""))
     try:
-        return study_from_toml(text, source=f"{where}: campaign_toml")
+        return campaign.stored_study(where)
     except ConfigError as exc:
         raise FileFormatError(f"{where}: its stored study does not read with this hpcves ({exc}); "
                               "use another output file, or --overwrite to start over") from None
@@ -117,6 +116,12 @@ def _grid(study: Study, campaign, where: str) -> Growth:
     old = _file_study(campaign, where)
     if study.base.run.until_decided and old.analysis != study.analysis:
         raise _changed(study.name, where, "the [analysis] thresholds (they decide when a case stops)")
+    if tuple(study.starts[:len(old.starts)]) != tuple(old.starts):
+        names = [name for name, _ in old.starts]
+        raise _changed(study.name, where, f"[starts] ({', '.join(names)} -> "
+                                          f"{', '.join(name for name, _ in study.starts)}): the file numbers its "
+                                          "cases' starts in its order; keep its starts as they are, in their order, "
+                                          "and add new ones after them")
     pool: dict[str, list[int]] = {}             # the study's cases of each parameter set, by position
     for i, c in enumerate(study.cases):
         pool.setdefault(_key(c.case), []).append(i)

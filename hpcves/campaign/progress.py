@@ -14,8 +14,7 @@ from dataclasses import dataclass
 from hpcves.campaign.file import CampaignFile
 from hpcves.campaign.refine_stages import RefineDriver, run_again
 from hpcves.campaign.search_stages import SearchDriver
-from hpcves.campaign.study import study_from_toml
-from hpcves.run.store import ENDED_NAMES, FAILED, STATUS_NAMES, attr_text, open_file, reading
+from hpcves.run.store import ENDED_NAMES, FAILED, STATUS_NAMES, open_file, reading
 
 #: exit statuses of ``hpcves status`` (2: the file cannot be read, or a case is damaged)
 COMPLETE, COMPLETE_WITH_FAILURES, WORK_LEFT = 0, 1, 3
@@ -61,7 +60,7 @@ def _next_stage(path, rows: list[dict]) -> tuple[int, frozenset]:
         campaign = CampaignFile.check(h5, str(path))
         if campaign.mode not in ("search", "refine"):
             return 0, frozenset()
-        study = study_from_toml(attr_text(h5.attrs["campaign_toml"]), source=f"{path}: campaign_toml")
+        study = campaign.stored_study(str(path))
         codes = {name: code for code, name in STATUS_NAMES.items()}
         states = {r["case"]: (codes[r["status"]], r["wall"]) for r in rows if r["status"] in codes}
         driver = (SearchDriver if study.search else RefineDriver)(study, states)

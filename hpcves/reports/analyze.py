@@ -68,11 +68,12 @@ class Source:
     starts: tuple = ()         # campaigns with [starts]: the name of each case's start, in case order
 
 
-def _read_case(campaign: CampaignFile, case_id: str, search: int, swept: dict) -> CaseData:
-    """One case's data; a case that cannot be read or fails CaseStore.problems comes back "damaged"."""
+def _read_case(campaign: CampaignFile, i: int, case_id: str, search: int, swept: dict) -> CaseData:
+    """One case's data (the ``i``-th of the index); a case that cannot be read, fails CaseStore.problems
+    or whose swept values in the index are not what it ran comes back "damaged"."""
     try:
         store = campaign.store(case_id)
-        problems = store.problems()
+        problems = store.problems() or campaign.swept_disagree(i, store.case)
         if not problems:
             return case_data(store, case_id, search)
         why = "; ".join(problems[:3]) + (f"; {len(problems) - 3} more" if len(problems) > 3 else "")
@@ -117,8 +118,8 @@ def read_source(path) -> Source:
             cases = []
             for i, (c, search) in enumerate(zip(campaign.case_ids, campaign.searches_of_cases())):
                 swept = {k: index[k][i] for k in campaign.sweep_keys}
-                cases.append(_read_case(campaign, c, search, swept))
-            toml = attr_text(h5.attrs.get("campaign_toml", ""))
+                cases.append(_read_case(campaign, i, c, search, swept))
+            toml = campaign.stored_text(str(path))
             links = tuple(campaign.chain_links().items())
             starts = ()
             if "start" in campaign.sweep_keys:

@@ -100,6 +100,11 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
             store = CaseStore.open(h5, where=f"{path}:/")
         else:
             raise FileFormatError(f"{path}: not an hpcves campaign or run file (no format attribute)")
+        problems = store.problems()
+        if problems:                          # as analyze: values that fail their checks are not handed out
+            raise FileFormatError(f"{path}{f' case {case}' if case else ''}: damaged, not read ("
+                                  + "; ".join(problems[:3]) + (f"; {len(problems) - 3} more" if len(problems) > 3
+                                                               else "") + ")")
         names = _check_names(variables, store)
         data = _case_variables(store, names, snapshots, "time")
         attrs = {k: (attr_text(v) if isinstance(v, bytes) else v) for k, v in store.attrs.items()
@@ -150,7 +155,7 @@ def open_campaign(path, *, variables=None, tree: bool = False):
         for i, case_id in enumerate(ids):
             try:
                 store = campaign.store(case_id)
-                if store.problems():
+                if store.problems() or campaign.swept_disagree(i, store.case):
                     raise FileFormatError(case_id)
             except (FileFormatError, *HDF5_ERRORS):
                 cases.append(None)
@@ -170,7 +175,7 @@ def open_campaign(path, *, variables=None, tree: bool = False):
             results = {c: analysis["columns"][c] for c in RESULTS if c in analysis["columns"]}
         attrs = {"title": f"hpcves campaign {campaign.name!r}", "Conventions": CONVENTIONS,
                  "name": campaign.name, "mode": campaign.mode, "sweep_keys": ",".join(campaign.sweep_keys),
-                 "campaign_toml": attr_text(h5.attrs.get("campaign_toml", "")), "source": str(path)}
+                 "campaign_toml": campaign.stored_text(str(path)), "source": str(path)}
     names = names or ()
     longest = max((len(c["t"][1]) for c in cases if c is not None), default=0)
     data = {}

@@ -603,6 +603,9 @@ class CaseStore:
             return [f"its config attribute cannot be read ({_first_line(exc)})"]
         if expected is not None and case.to_dict() != expected.to_dict():
             return ["its config differs from its study's case"]
+        disagree = self.parameters_disagree(case)
+        if disagree:
+            return disagree
         found = []
         prefix = len(self._place.prefix)
         for name, (shape, kind) in self._arrays_of(self.layout(case)).items():
@@ -672,6 +675,20 @@ class CaseStore:
                 found += [f"{name} fails its checksum" for name in self.data_damage()]
         except HDF5_ERRORS as exc:
             found.append(f"unreadable ({_first_line(exc)})")
+        return found
+
+    def parameters_disagree(self, case: Case) -> list[str]:
+        """Where the parameter attributes of a case laid out as a group ("physics.shear_rate", ...:
+        what analyze and the xarray engine read) differ from its config (what a resume runs): one of
+        them was edited or damaged, and which physics the data hold is unknown. Keys an older file
+        lacks are passed over; a row of a block derives its attributes from its config."""
+        if self.group is None:
+            return []
+        found = []
+        for key, value in case.flat().items():
+            if key in self.attrs and not _same_value(self.attrs[key], value):
+                found.append(f"its config says {key} = {value!r} but its attribute {key} = "
+                             f"{attr_shown(self.attrs[key])} (edited or damaged: which physics it holds is unknown)")
         return found
 
     # ------------------------------------------------------------------ metadata
@@ -1083,6 +1100,22 @@ class CaseStore:
             if not np.all(np.isfinite(getattr(state, name))):
                 raise FileFormatError(f"{self.where}: checkpoint {slot} holds non-finite {name}")
         return state, int(meta[2]), int(meta[3])
+
+
+def _same_value(stored, value) -> bool:
+    """Whether an attribute as h5py reads it back holds ``value`` (a parameter of Case.flat)."""
+    if isinstance(value, str):
+        return isinstance(stored, (str, bytes)) and attr_text(stored) == value
+    if isinstance(stored, (str, bytes)):
+        return False
+    stored, value = np.asarray(stored), np.asarray(value)
+    if stored.shape != value.shape:
+        return False
+    try:
+        both_nan = np.isnan(stored.astype(float)) & np.isnan(value.astype(float))
+    except (TypeError, ValueError):
+        both_nan = False
+    return bool(np.all((stored == value) | both_nan))
 
 
 def digest(values) -> int:
