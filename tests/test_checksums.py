@@ -231,3 +231,109 @@ def test_the_checksums_written_at_the_end_are_those_of_the_bytes_stored(tmp_path
         assert store.data_damage() == [] and store.n_samples == {"one run": 3, "appended in batches": 7,
                                                                   "truncated then appended": 7,
                                                                   "resumed mid-series": 9}[history]
+
+
+# ---------------------------------------------------------------------- what a resume builds on (format 6)
+def slot_counts(path, slot):
+    with h5py.File(path, "r") as f:
+        return tuple(int(v) for v in f[f"checkpoint/{slot}/meta"][2:])
+
+
+def damage_row(path, name, row):
+    """Flip one bit of row ``row`` (its first element) of record ``name`` of a case file."""
+    with h5py.File(path, "r+") as f:
+        values = f[name][()]
+        values.reshape(len(values), -1).view(np.uint64)[row, 0] ^= np.uint64(1 << 7)
+        f[name][()] = values
+
+
+@pytest.mark.parametrize("name", ["timeseries/theta", "timeseries/centroid", "snapshots/psi", "snapshots/t"])
+def test_a_resume_refuses_rows_damaged_before_both_checkpoints_instead_of_giving_them_fresh_checksums(
+        files, tmp_path, name):
+    """A resume of a case whose written series were damaged took them as they were, and the checksums
+    written when it ended were of the damaged values (status --check then clean, the result other than
+    the uninterrupted run's). Every checkpoint now carries the checksums of the rows it builds on."""
+    path = tmp_path / "cut.h5"
+    shutil.copy(files / "cut.h5", path)
+    assert min(slot_counts(path, "slot0")[name.startswith("snap")],
+               slot_counts(path, "slot1")[name.startswith("snap")]) >= 1
+    damage_row(path, name, 0)                      # a row both checkpoints keep
+    found = problems(path, resuming=True)
+    assert any(p.startswith(f"{name} (the ") and "builds on) fails its checksum" in p for p in found), found
+    before = path.read_bytes()
+    result = subprocess.run(HPCVES + ["run", "--resume", str(path)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2 and "damaged, not resumed" in result.stderr and name in result.stderr, \
+        result.stderr
+    assert path.read_bytes() == before
+
+
+def test_rows_damaged_after_the_older_checkpoint_are_recomputed_from_it_and_the_end_is_bitwise(files, tmp_path,
+                                                                                              caplog):
+    path = tmp_path / "cut.h5"
+    shutil.copy(files / "cut.h5", path)
+    newest = newest_slot(path)
+    older = "slot0" if newest == "slot1" else "slot1"
+    kept, newer = slot_counts(path, older)[0], slot_counts(path, newest)[0]
+    assert kept < newer
+    damage_row(path, "timeseries/theta", kept)     # kept by the newer checkpoint only
+    assert problems(path, resuming=True) == []     # the older one is sound: resumable
+    with caplog.at_level(logging.WARNING, logger="hpcves"):
+        assert resume_in_process(path).status == FINISHED
+    assert any(f"checkpoint {newest}" in r.message and "timeseries/theta" in r.message for r in caplog.records)
+    same_case_files(files / "whole.h5", path, checkpoints=True)
+    assert problems(path) == []
+
+
+def test_the_next_checkpoint_overwrites_the_slot_passed_over_not_the_one_resumed_from(files, tmp_path):
+    """Resumed from the older slot because the newer failed its checksums, the run wrote its next
+    checkpoint over the older one -- its only sound checkpoint, invalid while it was rewritten."""
+    path = tmp_path / "cut.h5"
+    shutil.copy(files / "cut.h5", path)
+    newest = newest_slot(path)
+    older = "slot0" if newest == "slot1" else "slot1"
+    with h5py.File(path, "r") as f:
+        kept = f[f"checkpoint/{older}"]["meta"][()].copy(), f[f"checkpoint/{older}"]["theta"][()].copy()
+    flip(path, f"checkpoint/{newest}/theta")
+    assert resume_in_process(path, stops=(20,)).status == INTERRUPTED     # before the next interval: one checkpoint
+    with h5py.File(path, "r") as f:
+        assert np.array_equal(f[f"checkpoint/{older}/meta"][()], kept[0])
+        assert np.array_equal(f[f"checkpoint/{older}/theta"][()], kept[1], equal_nan=True)
+    assert problems(path) == []
+
+
+def downgrade_to_format_5(path, group="/"):
+    """A case (or a block: ``group``) as hpcves wrote it before format 6: no ``records`` in its slots."""
+    with h5py.File(path, "r+") as f:
+        g = f[group]
+        g.attrs["format_version"] = 5
+        for slot in ("slot0", "slot1"):
+            del g[f"checkpoint/{slot}/records"]
+
+
+def test_a_case_of_format_5_resumes_as_before_and_ends_bitwise(files, tmp_path):
+    path = tmp_path / "cut.h5"
+    shutil.copy(files / "cut.h5", path)
+    downgrade_to_format_5(path)
+    assert problems(path, resuming=True) == []
+    assert resume_in_process(path).status == FINISHED
+    same_case_files(files / "whole.h5", path)
+    assert problems(path) == []
+
+
+def test_a_campaign_with_blocks_of_format_5_resumes_and_grows(tmp_path):
+    """Blocks keep the case format they were made in: a format-5 block resumes its cases and takes a
+    grown study's new rows in its own layout; a new block is of format 6."""
+    from hpcves.run.blocks import Blocks
+
+    output = tmp_path / "sums.h5"
+    text = tiny_study(output, name="sums", psi=None, t_end=0.1)
+    assert run_campaign(study_from_toml(text), output, resume=False,
+                        stop_flag=lambda: False).exit_status == 0
+    downgrade_to_format_5(output, "blocks/0")
+    grown = text.replace("shear_rate = [40, 80]", "shear_rate = [40, 80, 60]")
+    assert run_campaign(study_from_toml(grown), output, resume=True).exit_status == 0
+    with h5py.File(output, "r") as f:
+        assert Blocks(f).version_of("0") == 5 and f["blocks/0/status"].shape[0] == 3
+        assert "records" not in f["blocks/0/checkpoint/slot0"]
+    assert subprocess.run(HPCVES + ["status", "--check", str(output)], capture_output=True,
+                          timeout=300).returncode == 0

@@ -37,10 +37,12 @@ from hpcves.model.params import Case
 from hpcves.run.diagnostics import SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.store import (
     _N_SCALARS,
+    DIGESTS_SINCE,
     FORMAT,
     FORMAT_VERSION,
     MESSAGE_BYTES,
     NOT_DECIDED,
+    RECORDS_SINCE,
     SNAPSHOT_RECORDS,
     TRACEBACK_BYTES,
     CaseStore,
@@ -93,9 +95,13 @@ def block_shape(case: Case) -> tuple[int, int, int]:
     return (stored_N(case), *capacities(case))
 
 
-def row_layout(shape: tuple[int, int, int], packed: bool = False) -> dict:
+#: the case formats of a block's rows this hpcves reads and extends (a block keeps the one it was made in)
+BLOCK_VERSIONS = (DIGESTS_SINCE, FORMAT_VERSION)
+
+
+def row_layout(shape: tuple[int, int, int], packed: bool = False, version: int = FORMAT_VERSION) -> dict:
     """Every dataset of a row: name -> (shape of one case's array, dtype, fill value); ``packed``: of
-    campaign format 3 (:func:`packing`)."""
+    campaign format 3 (:func:`packing`); ``version``: the case format of the block's rows."""
     N, n_samples, n_snapshots = shape
     nan = np.nan
     out = {"status": ((), "i1", 0), "message": ((), f"S{MESSAGE_BYTES}", b""),
@@ -115,6 +121,8 @@ def row_layout(shape: tuple[int, int, int], packed: bool = False) -> dict:
     for slot in SLOTS:
         out[f"checkpoint/{slot}/meta"] = ((4,), "i8", 0)
         out[f"checkpoint/{slot}/digest"] = ((len(State.ARRAYS) + 2,), "u8", 0)
+        if version >= RECORDS_SINCE:
+            out[f"checkpoint/{slot}/records"] = ((len(SERIES) + len(SNAPSHOT_RECORDS),), "u8", 0)
         out[f"checkpoint/{slot}/scalars"] = ((_N_SCALARS,), "f8", nan)
         if packed:
             out[f"checkpoint/{slot}/arrays"] = ((len(State.ARRAYS), N), "f8", nan)
@@ -284,6 +292,10 @@ class Blocks:
     def names(self) -> list[str]:
         return sorted(self.group, key=int)
 
+    def version_of(self, block: str) -> int:
+        """The case format of a block's rows."""
+        return attr_integer(self.group[block].attrs.get("format_version", -1)) or -1
+
     def shape_of(self, block: str) -> tuple[int, ...]:
         return tuple(int(v) for v in self.group[block].attrs["shape"])
 
@@ -307,7 +319,7 @@ class Blocks:
             group = self.group[block]
             start = self.rows(block)
             stop = start + len(members)
-            for name in row_layout(shape, self.packed):
+            for name in row_layout(shape, self.packed, self.version_of(block)):
                 dataset = group[name]
                 dataset.resize((stop, *dataset.shape[1:]))
                 faults.point("block-grown")
@@ -347,7 +359,7 @@ class Blocks:
             keep = used.get(int(block), 0)
             group = self.group[block]
             if self.rows(block) > keep:
-                for name in (*row_layout(self.shape_of(block), self.packed), "case"):
+                for name in (*row_layout(self.shape_of(block), self.packed, self.version_of(block)), "case"):
                     if name in group:
                         dataset = group[name]
                         dataset.resize((keep, *dataset.shape[1:]))
@@ -361,7 +373,7 @@ class Blocks:
             a = self.group[name].attrs
             version = attr_integer(a.get("format_version", -1))
             shape = tuple(int(v) for v in a.get("shape", ()))
-            if version != FORMAT_VERSION or len(shape) != 3:
+            if version not in BLOCK_VERSIONS or len(shape) != 3:
                 raise FileFormatError(f"{where}: block {name} has format version {version}, shape {shape}")
             self._attrs[name] = {"format": FORMAT, "format_version": version,
                                  "hpcves_version": a.get("hpcves_version", ""),

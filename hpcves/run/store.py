@@ -23,7 +23,10 @@ docs/file-format.md):
     snapshots/     t, shift and one (n, N) dataset per field; ``length`` counts
     checkpoint/    slot0/, slot1/: the solver State; each has ``meta`` =
                    [valid, step, n_samples, n_snapshots] and ``digest``, the checksum of
-                   each array, the scalars and meta[1:] (format 5)
+                   each array, the scalars and meta[1:] (format 5), and ``records``, the
+                   checksums of the series and snapshot rows it builds on -- the first
+                   n_samples of each series, the first n_snapshots of each snapshot
+                   record, in the order of timeseries/digest then snapshots/digest (format 6)
     timeseries/digest, snapshots/digest
                    the checksums of the valid part of every series and snapshot
                    field, written when the case ends (format 5)
@@ -35,8 +38,9 @@ doing when a process dies. A checkpoint goes to the slot *not* holding the
 newest valid one: its ``meta`` is marked invalid first, the state written,
 flushed, then marked valid -- so a crash in the middle leaves the previous
 checkpoint intact and recognisably the newest valid one. Its checksums are
-written before it is marked valid; a slot that fails them is passed over for
-the other one when a run resumes (:meth:`CaseStore.read_checkpoint`).
+written before it is marked valid; a slot that fails them -- or whose series and
+snapshots, the rows a resume keeps, fail theirs -- is passed over for the other
+one when a run resumes (:meth:`CaseStore.read_checkpoint`), and written first.
 """
 from __future__ import annotations
 
@@ -64,12 +68,15 @@ from hpcves.solver.timestepping import State
 from hpcves.version import __version__
 
 FORMAT = "hpcves-case"
-FORMAT_VERSION = 5                  # 5: checksums of the checkpoints and of an ended case's data
-READS_VERSIONS = (2, 3, 4, 5)       # 4: checkpoints hold their N (N adapting) and the resize memory; 3: t,
+FORMAT_VERSION = 6                  # 6: a checkpoint's checksums of the rows it builds on; 5: checksums of
+                                    # the checkpoints and of an ended case's data
+READS_VERSIONS = (2, 3, 4, 5, 6)    # 4: checkpoints hold their N (N adapting) and the resize memory; 3: t,
                                     # the step controller and level n-2; 2: fixed-step checkpoints
                                     # (t = step dt); 1 held psi at material labels
 #: the first format whose cases carry checksums
 DIGESTS_SINCE = 5
+#: the first format whose checkpoints carry the checksums of the series and snapshots they build on
+RECORDS_SINCE = 6
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
@@ -104,8 +111,8 @@ _SCALAR_LAYOUTS = {
 }
 _SCALAR_LAYOUTS[3] = _SCALAR_LAYOUTS[2] + (("t", 1), ("dt_prev", 1), ("dt_prev2", 1), ("error", 1), ("dt_next", 1))
 _SCALAR_LAYOUTS[4] = _SCALAR_LAYOUTS[3] + (("quiet_since", 1), ("N", 1))
-_SCALAR_LAYOUTS[5] = _SCALAR_LAYOUTS[4]
-_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS, 5: State.ARRAYS}
+_SCALAR_LAYOUTS[5] = _SCALAR_LAYOUTS[6] = _SCALAR_LAYOUTS[4]
+_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS, 5: State.ARRAYS, 6: State.ARRAYS}
 assert _ARRAYS[2] == ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
 _SCALAR_LAYOUT = _SCALAR_LAYOUTS[FORMAT_VERSION]
 #: the per-snapshot records, in the order of snapshots/digest
@@ -314,7 +321,7 @@ def raw_bytes(case: Case) -> int:
     N = stored_N(case)
     series = (len(SERIES) + 1) * n_samples + 2               # centroid has two columns (+ xy)
     snapshots = (2 + len(SNAPSHOT_FIELDS) * N) * n_snapshots + N      # + alpha
-    checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4)
+    checkpoints = 2 * (len(State.ARRAYS) * N + _N_SCALARS + 4 + len(SERIES) + len(SNAPSHOT_RECORDS))
     fixed = 1 + MESSAGE_BYTES + TRACEBACK_BYTES + 4 * 8 + 2 * 8 + 3 * 8
     return 8 * (series + snapshots + checkpoints) + fixed
 
@@ -478,6 +485,11 @@ class CaseStore:
         #: {record path: (BLAKE2b of its rows 0..k, k)} for the records this writer appended from row 0
         #: on: an ended case's checksums come from the bytes it wrote instead of ~30 reads (:meth:`_append`)
         self._running = {}
+        #: a checkpoint slot a resume passed over (it fails its checksums): the next checkpoint goes there
+        #: (:meth:`write_checkpoint`), not over the one it resumed from
+        self._overwrite_first = None
+        #: {record: (BLAKE2b of its rows, their count)} that the slot a resume chose builds on (format 6)
+        self._resumed_rows = {}
         #: the series this case records (files written before OPTIONAL_SERIES existed lack those)
         self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or self._place.has(f"timeseries/{n}"))
 
@@ -522,6 +534,7 @@ class CaseStore:
             g = ckpt.create_group(slot)
             g.create_dataset("meta", data=np.zeros(4, dtype=np.int64))
             g.create_dataset("digest", data=np.zeros(len(State.ARRAYS) + 2, dtype=np.uint64))
+            g.create_dataset("records", data=np.zeros(len(SERIES) + len(SNAPSHOT_RECORDS), dtype=np.uint64))
             for name in State.ARRAYS:
                 g.create_dataset(name, shape=(N,), dtype="f8", fillvalue=np.nan, dcpl=_early())
             g.create_dataset("scalars", shape=(_N_SCALARS,), dtype="f8", fillvalue=np.nan, dcpl=_early())
@@ -566,6 +579,8 @@ class CaseStore:
             out[f"checkpoint/{slot}/meta"] = ((4,), "i")
             if self.version >= DIGESTS_SINCE:
                 out[f"checkpoint/{slot}/digest"] = ((len(self._arrays) + 2,), "u")
+            if self.version >= RECORDS_SINCE:
+                out[f"checkpoint/{slot}/records"] = ((len(self.series_names) + len(SNAPSHOT_RECORDS),), "u")
             out[f"checkpoint/{slot}/scalars"] = ((sum(n for _, n in self._scalars),), "f")
             for name in self._arrays:
                 out[f"checkpoint/{slot}/{name}"] = ((N,), "f")
@@ -637,7 +652,7 @@ class CaseStore:
             for slot, meta in self._slot_meta().items():
                 valid, step = int(meta[0]), int(meta[1])
                 t = self._checkpoint_time(slot, step, case) if valid == 1 else math.nan
-                damage = self.slot_damage(slot) if valid == 1 else []
+                damage = self.slot_damage(slot, records=status not in ENDED) if valid == 1 else []
                 if valid == 1 and not np.array_equal(self._read(f"checkpoint/{slot}/meta"), meta):
                     continue          # a live run is rewriting this slot (it is the older one): not damage
                 if valid == 1:
@@ -971,14 +986,44 @@ class CaseStore:
                  if (meta := self._get(f"checkpoint/{slot}/meta"))[0] == 1]
         return max(valid)[1] if valid else None
 
-    def slot_damage(self, slot: str) -> list[str]:
-        """The datasets of a checkpoint slot that fail their checksums (none in a format without them)."""
+    def slot_damage(self, slot: str, records: bool = True) -> list[str]:
+        """The datasets of a checkpoint slot that fail their checksums (none in a format without them);
+        with ``records`` (format 6), also the series and snapshot records whose rows the slot builds on
+        fail the checksums it took of them."""
+        return self._check_slot(slot, records)[0]
+
+    def _check_slot(self, slot: str, records: bool = True) -> tuple[list[str], dict]:
+        """(:meth:`slot_damage`, {record: (BLAKE2b of the rows the slot builds on, their count)} where
+        ``records`` and the format keeps their checksums, else {})."""
         g = f"checkpoint/{slot}"
         if not self._place.has(f"{g}/digest"):
-            return []
-        values = [*self._read_group(g, self._arrays).values(), self._read(f"{g}/scalars"), self._read(f"{g}/meta")[1:]]
+            return [], {}
+        meta = self._read(f"{g}/meta")
+        values = [*self._read_group(g, self._arrays).values(), self._read(f"{g}/scalars"), meta[1:]]
         names = [*self._arrays, "scalars", "meta"]
-        return [f"{g}/{name}" for name, v, d in zip(names, values, self._read(f"{g}/digest")) if digest(v) != int(d)]
+        damage = [f"{g}/{name}" for name, v, d in zip(names, values, self._read(f"{g}/digest")) if digest(v) != int(d)]
+        if not records or damage or self.version < RECORDS_SINCE:
+            return damage, {}
+        hashes = self._row_hashes(int(meta[2]), int(meta[3]))
+        if len(hashes) != len(self._read(f"{g}/records")):
+            return damage + [f"{g}/records"], {}
+        damage += [f"{path} (the {rows} rows {g} builds on)"
+                   for (path, (hashed, rows)), stored in zip(hashes.items(), self._read(f"{g}/records"))
+                   if int.from_bytes(hashed.digest(), "little") != int(stored)]
+        return damage, hashes
+
+    def _row_hashes(self, n_samples: int, n_snapshots: int) -> dict:
+        """{record: (BLAKE2b of its first rows, their count)}: the first ``n_samples`` of every series,
+        the first ``n_snapshots`` of every snapshot record, in the order of their digests; counts beyond
+        the valid rows are read as they lie (a slot that claims them fails its checksums)."""
+        counts = {"timeseries": max(0, n_samples), "snapshots": max(0, n_snapshots)}
+        out = {}
+        for group, names in self._record_names():
+            for name, values in self._read_group(group, names, 0, counts[group]).items():
+                hashed = hashlib.blake2b(digest_size=8)
+                hashed.update(_digest_bytes(values))
+                out[f"{group}/{name}"] = (hashed, counts[group])
+        return out
 
     def _resumable_slot(self) -> tuple[str | None, str]:
         """(the newest valid slot that passes its checksums, a note when a newer one failed them and was
@@ -987,13 +1032,15 @@ class CaseStore:
                        reverse=True)
         failed = []
         for step, slot in valid:
-            damage = self.slot_damage(slot)
+            damage, hashes = self._check_slot(slot)
             if not damage:
+                self._resumed_rows = hashes
+                self._overwrite_first = failed[0][0] if failed else None
                 note = "; ".join(f"checkpoint {s} (step {k}) fails its checksum ({', '.join(d)}): passed over"
                                  for s, k, d in failed)
                 where = self.where if self.where != "/" else self._place.filename
                 return slot, (f"{where}: {note}; resumed from {slot} (step {step})" if failed else "")
-            failed.append((slot, step, [name.rsplit("/", 1)[-1] for name in damage]))
+            failed.append((slot, step, [name.removeprefix(f"checkpoint/{slot}/") for name in damage]))
         if failed:
             raise FileFormatError(f"{self.where}: every checkpoint fails its checksum ("
                                   + "; ".join(f"{s}: {', '.join(d)}" for s, _, d in failed) + "): cannot resume")
@@ -1017,7 +1064,9 @@ class CaseStore:
 
         ``flush`` makes the file durable between the phases (h5py File.flush).
         """
-        g = f"checkpoint/{'slot1' if self.newest_checkpoint_slot() == 'slot0' else 'slot0'}"
+        slot = self._overwrite_first or ('slot1' if self.newest_checkpoint_slot() == 'slot0' else 'slot0')
+        self._overwrite_first = None
+        g = f"checkpoint/{slot}"
         self._put(f"{g}/meta", [0], 0)
         flush()
         faults.point("checkpoint")
@@ -1035,6 +1084,9 @@ class CaseStore:
         self._put(f"{g}/scalars", written[-1])
         written.append(np.array((state.step, self._length("timeseries"), self._length("snapshots")), dtype=np.int64))
         self._put(f"{g}/meta", written[-1], 1)
+        if self.version >= RECORDS_SINCE:         # the rows a resume from this slot keeps
+            self._put(f"{g}/records", [self._digest_of(f"{group}/{name}", self._length(group))
+                                       for group, names in self._record_names() for name in names])
         if self.version >= DIGESTS_SINCE:
             self._put(f"{g}/digest", [digest(v) for v in written])
         flush()
@@ -1083,6 +1135,8 @@ class CaseStore:
         slot, _ = self._resumable_slot()
         if slot is None:
             return None
+        # the rows kept, verified: an ended case's checksums go on from them (:meth:`_append`)
+        self._running.update({path: (hashed.copy(), rows) for path, (hashed, rows) in self._resumed_rows.items()})
         g = f"checkpoint/{slot}"
         meta = self._read(f"{g}/meta")
         scalars = _unpack_scalars(self._read(f"{g}/scalars"), self._scalars)
