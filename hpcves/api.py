@@ -5,7 +5,7 @@ fetches these names from here on first use, so ``import hpcves`` stays light)::
 
     import hpcves
 
-    case = hpcves.load_case("jobs/case.toml")             # a frozen Case (model/params.py)
+    case = hpcves.load_case("jobs/demo_case.toml")        # a frozen Case (model/params.py)
     outcome = hpcves.run_case(case, "out/case.h5")         # runs to t_end, with a progress bar; Outcome(...)
     ds = hpcves.open_case("out/case.h5")                   # xarray.Dataset over time (and snapshots)
     found = hpcves.classify(ds)                            # Classification: regime, period, reason
@@ -20,6 +20,8 @@ elsewhere); ``progress=False`` shows none.
 """
 from __future__ import annotations
 
+import functools
+import re
 import time
 from pathlib import Path
 
@@ -27,15 +29,44 @@ from hpcves.analysis.regimes import AnalysisSettings, Classification
 from hpcves.analysis.regimes import classify as _classify
 from hpcves.campaign.study import Study, load_study
 from hpcves.config import load_case
+from hpcves.errors import HpcvesError
 from hpcves.model.params import Case
 from hpcves.reports.analyze import analyze
 from hpcves.reports.datasets import open_campaign, open_case
 from hpcves.run.runner import Outcome
+from hpcves.run.store import FINISHED
+
+#: how the command line's options read as this module's arguments, in the messages of errors raised here
+_ARGUMENTS = ((re.compile(r"hpcves run --resume (\S+?)([);,]?)(?=\s|$)"),
+               r"hpcves.run_case(None, '\1', resume=True)\2"),
+              (re.compile(r"--resume --retry-failed"), "resume=True, retry_failed=True"),
+              (re.compile(r"--retry-failed"), "retry_failed=True"),
+              (re.compile(r"--resume"), "resume=True"),
+              (re.compile(r"--overwrite"), "overwrite=True"))
+
+
+def _in_python_words(function):
+    """``function`` whose hpcves errors name its arguments (``overwrite=True``) where the messages,
+    shared with the command line, name options (``--overwrite``)."""
+    @functools.wraps(function)
+    def wrapper(*args, **kwargs):
+        try:
+            return function(*args, **kwargs)
+        except HpcvesError as exc:
+            text = str(exc)
+            for pattern, words in _ARGUMENTS:
+                text = pattern.sub(words, text)
+            if text == str(exc):
+                raise
+            raise type(exc)(text) from None
+    return wrapper
+
 
 __all__ = ("load_case", "load_study", "run_case", "run_campaign", "analyze", "classify", "open_case",
            "open_campaign", "AnalysisSettings")
 
 
+@_in_python_words
 def run_case(case: Case | str | Path, path: str | Path, *, resume: bool = False, overwrite: bool = False,
              max_steps: int | None = None, progress=True) -> Outcome:
     """Run one case into the new HDF5 file ``path`` (``hpcves run CASE.toml --out PATH``), or with
@@ -50,13 +81,16 @@ def run_case(case: Case | str | Path, path: str | Path, *, resume: bool = False,
     else:
         opened = create_case_file(path, load_case(case) if isinstance(case, (str, Path)) else case, overwrite)
     bar = CaseBar(Path(path).name) if progress is True else None
+    outcome = None
     try:
-        return run_file(opened, resume=resume, max_steps=max_steps, progress=bar or progress or None)
+        outcome = run_file(opened, resume=resume, max_steps=max_steps, progress=bar or progress or None)
+        return outcome
     finally:
-        if bar is not None:
-            bar.close()
+        if bar is not None:             # a finished run (decided early, too) shows 100 %
+            bar.close(done=outcome is not None and outcome.status == FINISHED)
 
 
+@_in_python_words
 def run_campaign(study: Study | str | Path, path: str | Path | None = None, *, resume: bool = False,
                  retry_failed: bool = False, overwrite: bool = False, progress: bool = True):
     """Run (or with ``resume`` continue) a study in this process, one case after the other, into
@@ -100,8 +134,13 @@ class CaseBar:
         self.bar.set_postfix_str(f"{tick.steps_per_second:,.0f} steps/s, theta = {tick.theta:.3f}", refresh=False)
         self.bar.refresh()
 
-    def close(self) -> None:
+    def close(self, done: bool = False) -> None:
+        """Close the bar; ``done``: the run ended, and the bar shows it full (its last tick may have come
+        before t_end, or the run stopped once decided)."""
         if self.bar is not None:
+            if done:
+                self.bar.n = self.bar.total
+                self.bar.refresh()
             self.bar.close()
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import difflib
+import math
 import os
 import stat
 import tomllib
@@ -107,7 +108,17 @@ def refuse_unknown(values: dict, known, where: str) -> None:
     unknown = sorted(set(values) - set(known))
     if unknown:
         raise ConfigError(f"{where}: unknown key{'s' * (len(unknown) > 1)} "
-                          f"{', '.join(did_you_mean(key, known) for key in unknown)} (known: {', '.join(known)})")
+                          f"{', '.join(_home(key, where) or did_you_mean(key, known) for key in unknown)} "
+                          f"(known: {', '.join(known)})")
+
+
+def _home(key: str, where: str) -> str:
+    """``N (it belongs in [numerics])`` for a key of a case's table given in another table ('' else)."""
+    for table, cls in GROUPS.items():
+        names = {f.name for f in dataclasses.fields(cls)} | ({"N_min"} if table == "numerics" else set())
+        if key in names and not where.startswith(f"[{table}]"):
+            return f"{key} (it belongs in [{table}])"
+    return ""
 
 
 def did_you_mean(name: str, known) -> str:
@@ -126,7 +137,11 @@ def from_table(cls, values: dict, where: str, prefix: str):
     (messages name ``where``, e.g. "[search]", and ``prefix.key``)."""
     types = typing.get_type_hints(cls)
     refuse_unknown(values, sorted(f.name for f in dataclasses.fields(cls)), where)
-    return cls(**{key: check_type(f"{prefix}.{key}", value, types[key]) for key, value in values.items()})
+    checked = {key: check_type(f"{prefix}.{key}", value, types[key]) for key, value in values.items()}
+    for key, value in checked.items():         # inf or nan: a threshold no case can meet, or always meets
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ConfigError(f"{where}: {prefix}.{key} = {value!r}: must be a finite number")
+    return cls(**checked)
 
 
 #: numerics.N = "auto": the bounds N adapts between unless N_min / N_max are given
@@ -145,6 +160,10 @@ def auto_N(values: dict) -> dict:
     out = dict(values)
     del out["N"]
     out["N"] = out.pop("N_min", AUTO_N[0])
+    if "N_min" in values:                       # checked under its own name (Numerics would say numerics.N)
+        N_min = check_type("numerics.N_min", values["N_min"], int)
+        if not (16 <= N_min <= 4096 and N_min % 2 == 0):
+            raise ConfigError(f"numerics.N_min = {N_min}: must be even, from 16 to 4096")
     out.setdefault("N_max", AUTO_N[1])
     if out["N_max"] == 0:
         raise ConfigError('numerics.N_max = 0 with N = "auto": give the largest N it may grow to (default 512)')

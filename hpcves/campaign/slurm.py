@@ -16,7 +16,7 @@ import shlex
 from dataclasses import dataclass
 from pathlib import Path
 
-from hpcves.config import did_you_mean
+from hpcves.config import did_you_mean, not_a_regular_file
 from hpcves.model.params import ConfigError
 
 #: seconds before the wall time at which SLURM sends SIGTERM: the campaign's stop_timeout
@@ -32,7 +32,7 @@ _PLACEHOLDER = re.compile(r"\{\{\s*(\w+)\s*\}\}")
 
 #: what a template may use, and what each holds (docs/cluster.md shows this table)
 PLACEHOLDERS = {
-    "job_name": "the job's name: hpcves-<study name>",
+    "job_name": "the job's name: hpcves-<study name> (characters other than letters, digits, . _ - + as _)",
     "summary": "the plan in a line: cases, core-hours, wall time on the ranks",
     "script": "the batch script's own path (shell-quoted)",
     "ranks": "MPI ranks to ask for (--ntasks)",
@@ -40,7 +40,7 @@ PLACEHOLDERS = {
     "signal_seconds": "seconds before the wall time that SIGTERM is to come (--signal=TERM@...)",
     "mem_per_cpu": "memory a rank needs, in MiB with SLURM's unit: e.g. 640M (--mem-per-cpu)",
     "memory_note": "how mem_per_cpu was sized, in a line",
-    "log": "the log file name: hpcves-<study name>-%j.log",
+    "log": "the log file name: hpcves-<study name, as in job_name>-%j.log",
     "workdir": "the directory --plan ran in (shell-quoted)",
     "study_file": "the study file (shell-quoted)",
     "output": "the campaign file (shell-quoted)",
@@ -80,13 +80,35 @@ def mem_per_cpu(rank_bytes: int) -> int:
     return 64 * math.ceil(MEMORY_MARGIN * rank_bytes / 2**20 / 64)
 
 
+#: the largest template read (a batch script is a few kB; a larger file is something else)
+TEMPLATE_BYTES = 1 << 20
+_BRACES = re.compile(r"\{\{(.*?)\}\}", re.DOTALL)
+
+
 def read_template(path: Path | None) -> str:
-    """The text of the template at ``path`` (None: the default), its placeholders checked."""
+    """The text of the template at ``path`` (None: the default), its placeholders checked. A device,
+    a pipe, a file over TEMPLATE_BYTES or one that is not UTF-8 text is refused before it is read
+    whole (/dev/zero or a FIFO would hang the reading)."""
     where = str(path) if path else "the default template"
+    source = Path(path or TEMPLATE)
     try:
-        text = Path(path or TEMPLATE).read_text()
+        kind = not_a_regular_file(source)
+        if kind:
+            raise ConfigError(f"--slurm-template {path}: {kind}, not a template file")
+        if source.stat().st_size > TEMPLATE_BYTES:
+            raise ConfigError(f"--slurm-template {path}: {source.stat().st_size} bytes, more than a batch script's "
+                              f"{TEMPLATE_BYTES} at most: not a template")
+        text = source.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"--slurm-template {path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at offset "
+                          f"{exc.start}): not a template") from None
     except OSError as exc:
         raise ConfigError(f"--slurm-template {path}: cannot read it ({exc.strerror or exc})") from None
+    malformed = [m.group(0) for m in _BRACES.finditer(text) if not _PLACEHOLDER.fullmatch(m.group(0))]
+    if malformed:
+        raise ConfigError(f"{where}: {malformed[0]!r} is not a placeholder (a name of letters, digits and '_' "
+                          f"in double braces, e.g. {{{{ job_name }}}}); a template may use {', '.join(PLACEHOLDERS)}"
+                          " (docs/cluster.md)")
     unknown = sorted({m.group(1) for m in _PLACEHOLDER.finditer(text)} - set(PLACEHOLDERS))
     if unknown:
         def named(name: str) -> str:
@@ -97,6 +119,23 @@ def read_template(path: Path | None) -> str:
                           + ", ".join(named(u) for u in unknown)
                           + f"; a template may use {', '.join(PLACEHOLDERS)} (docs/cluster.md)")
     return text
+
+
+def refuse_unsafe_paths(**paths) -> None:
+    """Refuse a path for the batch script that holds a line break or another control character: in a
+    comment line a line break ends the comment and the rest runs as shell code (quoting does not help
+    there). ``paths``: {placeholder: path}."""
+    for name, path in paths.items():
+        shown = str(Path(path).absolute())
+        if not shown.isprintable():
+            raise ConfigError(f"{name.replace('_', ' ')} {shown!r}: its path holds a line break or another control "
+                              "character, which a batch script cannot hold safely; rename it")
+
+
+def _job_label(name: str) -> str:
+    """The study's name as it may stand in an ``#SBATCH`` line (which sbatch splits at spaces) and a
+    file name: every character but letters, digits, '.', '_', '-' and '+' as '_'."""
+    return re.sub(r"[^A-Za-z0-9._+-]", "_", name)
 
 
 def fill(text: str, values: dict[str, str]) -> str:
@@ -112,10 +151,14 @@ def slurm_script(*, script: Path, study_name: str, study_file: Path, output: Pat
     def q(p) -> str:
         return shlex.quote(str(Path(p).absolute()))       # not resolve(): a venv's python is a link
 
+    refuse_unsafe_paths(script=script, study_file=study_file, output=output, hpcves=hpcves, python=python,
+                        workdir=workdir)
+    label = _job_label(study_name)
+
     text = read_template(None) if template is None else template
     memory = mem_per_cpu(size.rank_bytes)
     values = {
-        "job_name": f"hpcves-{study_name}",
+        "job_name": f"hpcves-{label}",
         "summary": summary,
         "script": q(script),
         "ranks": str(size.ranks),
@@ -125,7 +168,7 @@ def slurm_script(*, script: Path, study_name: str, study_file: Path, output: Pat
         "memory_note": (f"{memory} MiB a rank: {MEMORY_MARGIN:g} x the {size.rank_bytes / 2**20:.0f} MiB that a "
                         f"rank holds at N = {largest_N} compiling its engine (run/timing.py rank_bytes, "
                         "measured: BENCHMARKS.md, \"Memory of a rank\")"),
-        "log": f"hpcves-{study_name}-%j.log",
+        "log": f"hpcves-{label}-%j.log",
         "workdir": q(workdir),
         "study_file": q(study_file),
         "output": q(output),

@@ -85,6 +85,7 @@ import hashlib
 import itertools
 import json
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -608,12 +609,20 @@ class ChainPlan:
                 yield {k: value if k == self.along else point[k] for k in sweep}, j > 0
 
 
+#: what a start's name may be
+START_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.+-]{0,63}")
+
+
 def start_table(table: dict, base: Case) -> tuple:
     """((name, {key: value}), ...) of a ``[starts]`` table, each start validated on the base case."""
     if not table:
         return ()
     starts = []
     for name, values in table.items():
+        if not START_NAME.fullmatch(name):
+            # a start's name labels tables, figures and file names (regimes.csv, case pages)
+            raise ConfigError(f"[starts]: the name {name!r}: letters, digits, '_', '-', '.' and '+' only, "
+                              "beginning with a letter or digit (it labels tables, figures and file names)")
         where = f"starts.{name}"
         if not isinstance(values, dict):
             raise ConfigError(f"{where} = {values!r}: must be a table of {', '.join(START_KEYS)} (or {{}})")

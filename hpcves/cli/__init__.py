@@ -13,7 +13,9 @@ import importlib
 
 import click
 
-from hpcves.cli.terminal import log_to_terminal
+from hpcves.cli.terminal import fail, log_to_terminal
+from hpcves.errors import ConfigError
+from hpcves.files import faults
 from hpcves.version import __version__
 
 #: command -> ``module:function`` of its click command
@@ -45,3 +47,7 @@ class LazyGroup(click.Group):
 def main():
     """Two-phase vesicles in shear flow: simulations, campaigns, analysis."""
     log_to_terminal()
+    try:
+        faults.check_environment()
+    except ConfigError as exc:
+        fail(str(exc))

@@ -90,7 +90,14 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
     elif report.note:
         click.echo(report.note, err=True)
     directory = report.written[0].parent
-    click.echo(f"tables and figures in {directory}/: " + ", ".join(p.name for p in report.written))
+    pages = [p for p in report.written if p.parent.name == "cases" and p.name.startswith("<case>")]
+    click.echo(f"tables and figures in {directory}/: "
+               + ", ".join(p.name for p in report.written if p not in pages))
+    if pages:
+        count = pages[0].name.partition("(")[2].rstrip(")")
+        click.echo(f"case pages ({count}): {pages[0].parent}/<case>.png")
+    else:
+        click.echo("case pages: none drawn (--case-figures all, flagged or ID,... draws them)")
     damaged = report.damaged
     if damaged:
         fail(f"{report.source.path}: {len(damaged)} damaged case{'s' * (len(damaged) != 1)}, analysed as "

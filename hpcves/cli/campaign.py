@@ -12,7 +12,7 @@ from hpcves.campaign import IO_MODES
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import load_study
 from hpcves.cli.plan import print_plan
-from hpcves.cli.terminal import CampaignProgress, StopFlag, duration, error, fail, os_error_text
+from hpcves.cli.terminal import CampaignProgress, StopFlag, compiling, duration, error, fail, os_error_text
 from hpcves.errors import HpcvesError
 from hpcves.files.atomic import check_output_path
 from hpcves.reports.critical import critical_table, write_critical_csv
@@ -172,6 +172,9 @@ def _campaign(comm, size, rank, study_file, resume, retry_failed, overwrite, out
     path = out or study.output
     _on_rank_0(comm, size, rank, lambda: check_output_path(path))
     terminal = _CampaignTerminal(study, path, quiet)
+    if rank == 0 and not quiet and compiling():
+        click.echo("compiling the time step (numba: the first campaign on this machine, ~20-50 s on every rank; "
+                   "cached for every later run)", err=True)
     try:
         with StopFlag() as stop:
             summary = run_campaign(study, path, comm if size > 1 else None, resume=resume,

@@ -13,7 +13,7 @@ import click
 
 from hpcves.campaign.plan import DECIDED_AFTER, memory_per_rank, plan
 from hpcves.campaign.queue import computing_ranks, ranks_for
-from hpcves.campaign.slurm import JobSize, mem_per_cpu, read_template, slurm_script
+from hpcves.campaign.slurm import JobSize, mem_per_cpu, read_template, refuse_unsafe_paths, slurm_script
 from hpcves.campaign.slurm import max_jobs as default_max_jobs
 from hpcves.campaign.structure import file_bytes
 from hpcves.campaign.study import load_study
@@ -45,6 +45,12 @@ def print_plan(study_file, out, slurm_file, max_time, slurm_template=None, max_j
             fail(str(exc))
         if max_jobs is not None and max_jobs < 1:
             fail(f"--max-jobs {max_jobs}: must be at least 1")
+        try:                                                  # before the timing, as the rest
+            refuse_unsafe_paths(script=Path(slurm_file), study_file=Path(study_file),
+                                output=Path(out or study.output), hpcves=_hpcves(), python=Path(sys.executable),
+                                workdir=Path.cwd())
+        except HpcvesError as exc:
+            fail(str(exc))
     # a step is timed in a scratch directory, removed when the timing ends; SIGTERM (a batch system,
     # `timeout`) would kill the process before that: noted instead, the timing runs stop at their next
     # step, the directory is removed, and the command exits with 128 + 15
@@ -75,7 +81,7 @@ def print_plan(study_file, out, slurm_file, max_time, slurm_template=None, max_j
                + (": not enough, the campaign would refuse to start)" if size > free else ")"))
     if not slurm_file:
         return
-    hpcves = shutil.which("hpcves") or str(Path(sys.executable).with_name("hpcves"))
+    hpcves = _hpcves()
     likely = f"likely {basis.core_seconds / 3600:.3g}, " if estimate.likely else ""
     jobs = max_jobs or default_max_jobs(estimate.wall(ranks), ask)
     memory, largest = memory_per_rank(study)
@@ -93,6 +99,11 @@ def print_plan(study_file, out, slurm_file, max_time, slurm_template=None, max_j
     click.echo(f"batch script: {slurm_file}, from {slurm_template or 'the default template'}: {ranks} ranks, "
                f"{duration(ask)} a job, at most {jobs} jobs, {mem_per_cpu(memory)} MiB a rank "
                f"(set --account and --partition in it, then sbatch {slurm_file})")
+
+
+def _hpcves() -> Path:
+    """The hpcves command the batch script runs."""
+    return Path(shutil.which("hpcves") or Path(sys.executable).with_name("hpcves"))
 
 
 #: the cases a rank should get at least, where that costs little wall time: each rank pays its start-up,

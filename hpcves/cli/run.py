@@ -6,7 +6,7 @@ import sys
 import click
 
 from hpcves.cli.refuse import refuse_a_campaign_file, refuse_a_study_as_case
-from hpcves.cli.terminal import ProgressLine, StopFlag, clean_errors, duration
+from hpcves.cli.terminal import ProgressLine, StopFlag, clean_errors, compiling, duration
 from hpcves.config import load_case
 from hpcves.run.casefile import create_case_file, open_for_resume, run_file
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
@@ -56,6 +56,9 @@ def run_command(case_file, out, resume, overwrite, quiet):
                + (f", {case.physics.initial_phase} phase" if case.physics.initial_phase != "published" else "")
                + ("  (resuming)" if resume else ""),
                err=True)
+    if not quiet and compiling():
+        click.echo("compiling the time step (numba: the first run on this machine, ~20-50 s; cached for every "
+                   "later run)", err=True)
     progress = None if quiet else ProgressLine()
     try:
         with StopFlag() as stop:

@@ -89,6 +89,13 @@ class ProgressLine(StatusLine):
                       f"  |  ETA {duration(tick.eta_seconds)}  |  theta = {tick.theta:.4f}")
 
 
+def compiling() -> bool:
+    """Whether the first step of this process will compile the solver's kernels (numba's cache is cold)."""
+    from hpcves.solver.compiled import cache_is_warm
+
+    return cache_is_warm() is False
+
+
 def duration(seconds: float) -> str:
     if seconds != seconds or seconds == float("inf"):
         return "?"

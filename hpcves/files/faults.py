@@ -19,16 +19,31 @@ Without the variable, which is the case outside those tests, :func:`point` retur
 from __future__ import annotations
 
 import os
+import re
 import signal
 
+from hpcves.errors import ConfigError
+
+#: the points a fault may be injected at (the list above)
+POINTS = ("block-grown", "case-laid-out", "publish", "checkpoint", "finished", "analysis-stored")
 _SPEC = os.environ.get("HPCVES_FAULT", "")
+_FORM = re.compile(r"([a-z-]+)(?::([1-9][0-9]{0,8}))?(?:@([0-9]{1,6}))?")
 _passes: dict[str, int] = {}
 
 
 def _parse(spec: str) -> tuple[str, int, int | None]:
-    name, _, rank = spec.partition("@")
-    name, _, count = name.partition(":")
-    return name, int(count or 1), (int(rank) if rank else None)
+    """(point, n, rank or None) of ``point[:n][@rank]``; ConfigError where it is not of that form."""
+    found = _FORM.fullmatch(spec)
+    if found is None or found[1] not in POINTS:
+        raise ConfigError(f"HPCVES_FAULT={spec!r}: not point[:n][@rank] with n >= 1, a point one of "
+                          f"{', '.join(POINTS)} (a test's fault injection; unset it to run normally)")
+    return found[1], int(found[2] or 1), (int(found[3]) if found[3] is not None else None)
+
+
+def check_environment() -> None:
+    """Refuse a malformed ``HPCVES_FAULT`` up front (the command line calls this before any work)."""
+    if _SPEC:
+        _parse(_SPEC)
 
 
 def _rank() -> int:

@@ -26,6 +26,7 @@ from hpcves.files.lock import CampaignLock
 from hpcves.model.params import Case
 from hpcves.run import runner
 from hpcves.run.store import CaseStore, FileFormatError, open_file, refuse_unopenable, safe_flush, storage_bytes
+from hpcves.run.stored import read_stored_start
 
 
 @dataclass
@@ -60,6 +61,8 @@ def create_case_file(path, case: Case, overwrite: bool = False) -> OpenRun:
     check_output_path(path)
     if path.exists() and not overwrite:
         raise FileFormatError(f"{path}: exists already (use --overwrite to replace it)")
+    if case.physics.initial_shape == "stored":      # a start that cannot be read: refused before any file
+        read_stored_start(case.physics)
     if not path.absolute().parent.is_dir():         # (the lock would make it)
         raise StorageError(f"{path}: cannot create it (its directory {path.absolute().parent} does not exist); "
                            "nothing was written")

@@ -930,3 +930,14 @@ def spectral_tails(theta_tilde, psi):
     the health check compares the samples' against: the same arithmetic, so equal at t = 0)."""
     N = theta_tilde.size
     return _tail(np.fft.rfft(theta_tilde), N), _tail(np.fft.rfft(psi), N)
+
+
+def cache_is_warm() -> bool | None:
+    """Whether numba's cache on disk holds the step's kernels, compiled from this source: False means
+    the first step compiles them (~20-50 s, once per machine), None that it cannot tell. Asks numba's
+    cache index (``_load_index``, private: it checks the source's stamp the way loading does), since
+    numba offers no public question for it."""
+    try:
+        return all(bool(kernel._cache._cache_file._load_index()) for kernel in (shape_rates, flow_rates, sbdf2))
+    except Exception:                     # noqa: BLE001 -- another numba's internals: say nothing
+        return None
