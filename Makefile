@@ -24,7 +24,7 @@ setup:
 	@./scripts/bootstrap.sh
 
 test: setup
-	$(PY) -m ruff check hpcves scripts tests bench
+	$(PY) -m ruff check hpcves analysis tests bench
 	$(PY) -m pytest -m "not slow and not faults" -q --durations=15
 
 demo: setup
@@ -32,7 +32,7 @@ demo: setup
 	$(MPIRUN) -n 2 $(HPCVES) campaign jobs/demo.toml --overwrite
 	$(HPCVES) status $(DEMO)/demo.h5
 	$(HPCVES) analyze $(DEMO)/demo.h5 --out $(DEMO)/analysis --jobs 2
-	$(PY) scripts/plot_campaign.py $(DEMO)/demo.h5 --out $(DEMO)/overview.png
+	$(PY) analysis/plot_campaign.py $(DEMO)/demo.h5 --out $(DEMO)/overview.png
 	@echo "demo: $(DEMO)/demo.h5; regimes in $(DEMO)/analysis/regimes.md, phase diagram $(DEMO)/analysis/phase_diagram.png, overview $(DEMO)/overview.png"
 
 bench: setup
@@ -46,7 +46,7 @@ bench: setup
 
 validate: setup
 	$(PY) -m pytest -m slow -q
-	$(PY) scripts/validate.py --out VALIDATION.md
+	$(PY) analysis/validate.py --out VALIDATION.md
 
 # kill real mpirun jobs at random moments (creation included), resume, compare bitwise (KILLS=40)
 KILLS   ?= 40
@@ -61,7 +61,7 @@ faults: setup
 STUDY   ?=
 RETRY_FAILED ?=
 reproduce: setup
-	$(PY) scripts/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" $(if $(STUDY),--study $(STUDY)) \
+	$(PY) analysis/reproduce.py --grid $(GRID) --np $(NP) --mpirun "$(MPIRUN)" $(if $(STUDY),--study $(STUDY)) \
 	    $(if $(RETRY_FAILED),--retry-failed) \
 	    --out $(if $(filter fine,$(GRID)),REPRODUCTION-fine.md,REPRODUCTION.md)
 

@@ -59,7 +59,7 @@ fi
 
 # 4. hpcves and the rest of its dependencies --------------------------------
 stamp="$VENV/.hpcves-installed"
-# (again where the editable install points at another clone: scripts run from bench/ or scripts/
+# (again where the editable install points at another clone: scripts run from bench/ or analysis/
 # would import that clone's hpcves)
 here="$(pwd -P)"
 case "$VPY" in /*) vpy_abs="$VPY" ;; *) vpy_abs="$here/$VPY" ;; esac

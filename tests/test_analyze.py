@@ -236,11 +236,11 @@ def test_case_pages_are_drawn_for_the_cases_asked_for_and_alike_in_parallel(camp
 
 
 def test_the_overview_script_draws_every_case_of_a_campaign(campaign, tmp_path):
-    """scripts/plot_campaign.py (make demo's last step) reads a campaign of the current layout, whose
+    """analysis/plot_campaign.py (make demo's last step) reads a campaign of the current layout, whose
     cases are rows of blocks with no group of their own, and draws the overview and one page a case."""
     from pathlib import Path
 
-    script = Path(__file__).resolve().parent.parent / "scripts" / "plot_campaign.py"
+    script = Path(__file__).resolve().parent.parent / "analysis" / "plot_campaign.py"
     out = subprocess.run([sys.executable, str(script), str(campaign), "--out", str(tmp_path / "overview.png"),
                           "--cases", str(tmp_path / "cases")], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr

@@ -1,11 +1,11 @@
-"""The claims table of REPRODUCTION.md (scripts/claims.py): each claim measured from synthetic regimes."""
+"""The claims table of REPRODUCTION.md (analysis/claims.py): each claim measured from synthetic regimes."""
 import math
 import sys
 from pathlib import Path
 from types import SimpleNamespace
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "analysis"))
 
 import claims  # noqa: E402
 

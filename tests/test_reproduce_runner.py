@@ -1,4 +1,4 @@
-"""make reproduce's campaign loop (scripts/reproduce.py run_campaigns): it stops at a campaign that
+"""make reproduce's campaign loop (analysis/reproduce.py run_campaigns): it stops at a campaign that
 ended with work left, passes a SIGTERM on to the running campaign and waits for it, and counts the
 wall time of every call. Fake ``mpirun`` and ``hpcves`` stand in for the real ones."""
 import json
@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "scripts"))
+sys.path.insert(0, str(ROOT / "analysis"))
 
 import reproduce  # noqa: E402
 
@@ -108,7 +108,7 @@ def test_a_sigterm_is_passed_on_to_the_running_campaign_and_stops_the_reproducti
     ledger, ready = tmp_path / "walls.json", tmp_path / "ready"
     script = textwrap.dedent(f"""
         import sys
-        sys.path.insert(0, {str(ROOT / 'scripts')!r})
+        sys.path.insert(0, {str(ROOT / 'analysis')!r})
         import reproduce
         reproduce.run_campaigns({jobs!r}, {mpirun!r}, 2, {hpcves!r}, __import__('pathlib').Path({str(ledger)!r}))
     """)

@@ -315,7 +315,7 @@ def test_an_adaptive_run_samples_on_the_requested_times_and_its_file_validates(t
         snapshots = f["snapshots/t"][:int(f["snapshots/length"][()])]      # on sample times that coincide
         assert np.allclose(snapshots, np.arange(5) * 0.05, rtol=0, atol=1e-15) and snapshots.size == 5
         theta = f["timeseries/theta"][:n]
-    # the in-memory record of bench/ and scripts/error_rule.py is the same run
+    # the in-memory record of bench/ and analysis/error_rule.py is the same run
     record = diagnostics.inclination_record(case)
     assert np.array_equal(record.t, np.arange(n) * 0.005) and np.array_equal(record.theta, theta)
 

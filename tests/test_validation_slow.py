@@ -57,7 +57,7 @@ def test_the_discretisation_error_bar_covers_the_period_and_inclination_error():
 
     from hpcves.analysis import accuracy
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analysis"))
     import error_rule
 
     reference = error_rule.run("PT a", "sparse", 1e-4)

@@ -5,7 +5,7 @@ An adaptive run (``numerics.rtol``) keeps each step's local error estimate below
 proportional to rtol (tolerance proportionality, measured in
 tests/test_stepcontrol.py). The error of what ``hpcves analyze`` reads from
 theta(t) then follows the same law, with constants measured by
-scripts/error_rule.py over TT, PT and TU cases at rtol = 0.1 ... 0.003, at the
+analysis/error_rule.py over TT, PT and TU cases at rtol = 0.1 ... 0.003, at the
 job files' sampling and at a sparse one (docs/error_rule.md):
 
     |T - T_exact| / T      <= PERIOD_PER_RTOL * rtol
@@ -22,7 +22,7 @@ tolerance picks the orbit the vesicle settles on: periods 1 % (rtol = 1e-2,
 The spatial error (the grid N) follows the run's spectral tail instead: the largest
 share of the top third of the Fourier modes of theta_tilde or psi over the settled
 part of the run (the samples' tail_theta, tail_psi), with constants measured by
-scripts/spatial_error.py against runs at N = 192 (docs/spatial_error.md):
+analysis/spatial_error.py against runs at N = 192 (docs/spatial_error.md):
 
     |T - T_exact| / T      <= PERIOD_PER_TAIL * tail
     |theta - theta_exact|  <= INCLINATION_PER_TAIL * tail    (rad)

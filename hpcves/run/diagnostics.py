@@ -366,7 +366,7 @@ def inclination_record(case, start: State | None = None, engine: str | None = No
     """Run ``case`` in memory to its t_end (from ``start``, default its initial state), keeping only
     theta at its sample times (no file, no checks); ``engine`` as Solver takes it.
 
-    For benchmarks and measurements of the time stepping (bench/, scripts/error_rule.py); ``hpcves
+    For benchmarks and measurements of the time stepping (bench/, analysis/error_rule.py); ``hpcves
     run`` (runner.py) records every series and watches the run's health.
     """
     from hpcves.run import schedule

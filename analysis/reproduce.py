@@ -672,7 +672,7 @@ def assemble(path: Path, grid: str) -> None:
     unrecorded = [m["study"] for m in metas if m["campaign_wall_s"] is None or m["analysis_wall_s"] is None]
     lines = [
         "# Reproduction of the published studies (`make reproduce`)", "",
-        f"Assembled by `scripts/reproduce.py --grid {grid}` on {datetime.date.today()} from one section per "
+        f"Assembled by `analysis/reproduce.py --grid {grid}` on {datetime.date.today()} from one section per "
         "campaign, each written when its campaign was last analysed: `make reproduce STUDY=name` reruns (or "
         "continues) one campaign and rewrites its section, `make reproduce` does all of them. "
         f"**Wall time: {(campaign + analysis) / 3600:.2f} h in all** (target for the coarse set on 2 cores: "
@@ -693,7 +693,7 @@ def assemble(path: Path, grid: str) -> None:
         lines += [f"Not run yet: {', '.join(missing)} (`make reproduce STUDY={','.join(missing)}`).", ""]
     lines += ["## The publication's claims beside hpcves", "",
               "Every claim of the publication's results sections, where it makes it (the label in "
-              "publication.tex), and what the campaigns of this reproduction find (scripts/claims.py says how "
+              "publication.tex), and what the campaigns of this reproduction find (analysis/claims.py says how "
               "each is measured: a region of a diagram by its decided cases, **agrees** from 90 % with the "
               "regime it names, **mostly** from 50 %). The publication's runs used dt = 1e-5 and an ellipse "
               "smoothed by their code, which also filters the top modes of its tangent-angle equation every "
@@ -712,7 +712,7 @@ def assemble(path: Path, grid: str) -> None:
               "starts (docs/numerics.md, \"Initial shape\"): the ellipse the publication states, and the "
               "smoothed shape its authors' code started from; each section says which. What mapping both "
               "starts costs against one, and what a cheaper scheme would miss: docs/attractor_cost.md "
-              "(scripts/attractor_cost.py).", ""]
+              "(analysis/attractor_cost.py).", ""]
     for _, body in present.values():
         lines += [body.rstrip(), ""]
     flagged = [line for m in metas for line in m["doubts"]]

@@ -1,6 +1,6 @@
 """Overview of a campaign file: theta(t) and the last shape of every case.
 
-    python scripts/plot_campaign.py out/demo/demo.h5 --out out/demo/overview.png [--cases DIR]
+    python analysis/plot_campaign.py out/demo/demo.h5 --out out/demo/overview.png [--cases DIR]
 
 ``--cases DIR`` also writes the one-page summary of every case (DIR/<id>.png).
 The file may belong to a campaign that is still running.

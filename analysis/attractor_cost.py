@@ -16,7 +16,7 @@ attractors are those the two refinements share where the starts reach a differen
 topology (attractor_map.compare(values=False), as REPRODUCTION.md counts them); the cheap scheme finds
 those of them that lie on its point set.
 
-    .venv/bin/python scripts/attractor_cost.py       (seconds: it reads what make reproduce wrote)
+    .venv/bin/python analysis/attractor_cost.py       (seconds: it reads what make reproduce wrote)
 """
 from __future__ import annotations
 
@@ -101,7 +101,7 @@ def main() -> None:
                      f"{r['differ']} of {r['decided']}", f"{r['found']} of {r['differ']}"])
     text = [
         "# What an attractor map costs (make reproduce, coarse set)", "",
-        f"Written by scripts/attractor_cost.py on {datetime.date.today()} ({platform.node()}), from the "
+        f"Written by analysis/attractor_cost.py on {datetime.date.today()} ({platform.node()}), from the "
         "campaign files and analyses make reproduce left in out/reproduce/coarse. Compute: the sum of the "
         "cases' wall seconds on one core each. \"Second start at coarse points and crossing ends\": the "
         "ellipse's refinement plus the authors' start run only at the coarse grid and at both ends of every "

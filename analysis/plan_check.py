@@ -1,6 +1,6 @@
 """The plan of a study (hpcves campaign --plan) against what its campaign took.
 
-    python scripts/plan_check.py jobs/demo.toml out/demo/demo.h5 [STUDY FILE ...]
+    python analysis/plan_check.py jobs/demo.toml out/demo/demo.h5 [STUDY FILE ...]
 
 For each pair: the cases planned (known, at most) and run; the core-hours of the
 plan (likely, ceiling) and of the campaign (the wall time of every case, summed);

@@ -1,4 +1,4 @@
-"""Summary figure of one case file: ``python scripts/plot_case.py case.h5 --out case.png``."""
+"""Summary figure of one case file: ``python analysis/plot_case.py case.h5 --out case.png``."""
 import argparse
 import sys
 from pathlib import Path

@@ -1,6 +1,6 @@
 """Measure the spatial error of periods and inclinations against the spectral tail of the run.
 
-The time-step error has its rule (scripts/error_rule.py, docs/error_rule.md); this is the
+The time-step error has its rule (analysis/error_rule.py, docs/error_rule.md); this is the
 grid's. Each case runs at fixed N in {32, 48, 64, 96, 128} and at a reference N = 192, all
 at rtol = 1e-4 (a time-step error of 1.7e-5 of a period and 2.5e-7 rad: below what is
 measured here), on the same sample times; period and mean theta are read with the estimator
@@ -12,7 +12,7 @@ what every sample records and what N = "auto" steers by). The ratios
 
 are what a spatial error bar proportional to the tail has to cover.
 
-    .venv/bin/python scripts/spatial_error.py --jobs 2 --out docs/spatial_error.md   (~30 min on 2 cores)
+    .venv/bin/python analysis/spatial_error.py --jobs 2 --out docs/spatial_error.md   (~30 min on 2 cores)
 """
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def render(results: dict) -> tuple[list[str], dict, bool]:
     whether the rule of hpcves/analysis/accuracy.py covers every TT and PT run."""
     seconds = sum(r["seconds"] for r in results.values())
     lines = ["# The spatial error of periods and inclinations against the spectral tail", "",
-             f"Measured {time.strftime('%Y-%m-%d')} by `scripts/spatial_error.py` ({seconds / 60:.0f} min of runs "
+             f"Measured {time.strftime('%Y-%m-%d')} by `analysis/spatial_error.py` ({seconds / 60:.0f} min of runs "
              f"on a shared 2-core machine). Each run at fixed N against one at N = {REFERENCE_N}, all at rtol = "
              f"{RTOL:g} on the same sample times; tail: the largest share of the top third of the Fourier modes of "
              "theta_tilde or psi over the run's settled part (what each sample records as tail_theta, tail_psi).", "",

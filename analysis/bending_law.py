@@ -12,7 +12,7 @@
 3. Moderately deflated cases (Delta = 0.94, TU at S = 5 and S = 20) at tight rtol, where
    psi overshoots 1 by a few per cent: the size of the law's effect there.
 
-    .venv/bin/python scripts/bending_law.py --jobs 2      (~10 min on 2 cores)
+    .venv/bin/python analysis/bending_law.py --jobs 2      (~10 min on 2 cores)
 """
 from __future__ import annotations
 
@@ -99,7 +99,7 @@ def _task(task):
 def render(results: list[dict], seconds: float) -> tuple[list[str], bool]:
     periods = {(r["psi_bar"], r["S"], r["law"]): r for r in results if r["kind"] == "period"}
     lines = ["# The saturating bending law against the linear one", "",
-             f"Measured {time.strftime('%Y-%m-%d')} by `scripts/bending_law.py` ({seconds / 60:.0f} min of runs on "
+             f"Measured {time.strftime('%Y-%m-%d')} by `analysis/bending_law.py` ({seconds / 60:.0f} min of runs on "
              f"a shared 2-core machine). rtol = {RTOL:g}; hpcves/model/bending.py has the law, docs/numerics.md "
              "(\"Bending law\") the reasoning.", "",
              "## The period table at Delta = 0.194 (N = 128, 640 shear times, period after t_end / 4)", "",

@@ -11,7 +11,7 @@
    decided as ``hpcves run`` runs them (N = 128, rtol = 1e-3): regime, period, inclination and
    the soft domains of the pattern (analysis/pattern.py) over the settled record.
 
-    .venv/bin/python scripts/initial_shape.py --jobs 2      (~3 min on 2 cores)
+    .venv/bin/python analysis/initial_shape.py --jobs 2      (~3 min on 2 cores)
 """
 from __future__ import annotations
 
@@ -152,7 +152,7 @@ def main(argv=None) -> None:
     lines = [
         "# The two starts of a deflated vesicle",
         "",
-        f"Written by `scripts/initial_shape.py` on {datetime.date.today()} ({platform.node()}, "
+        f"Written by `analysis/initial_shape.py` on {datetime.date.today()} ({platform.node()}, "
         f"{time.monotonic() - start:.0f} s on {args.jobs} processes); docs/numerics.md, \"Initial shape\", "
         "says what the smoothed start is and why it matters.",
         "",

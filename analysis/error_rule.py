@@ -15,7 +15,7 @@ so the controller alone sets the step), and reads period and mean of theta
 with the estimator of ``hpcves analyze`` (hpcves.analysis.periodicity.analyze) on the
 same sample times as the reference, so the estimator's own bias cancels.
 
-    .venv/bin/python scripts/error_rule.py --out docs/error_rule.md   (~40 min on one core)
+    .venv/bin/python analysis/error_rule.py --out docs/error_rule.md   (~40 min on one core)
 """
 from __future__ import annotations
 
@@ -83,7 +83,7 @@ def _zero_if_nan(value: float) -> float:
 def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str], bool]:
     """The Markdown report of the measurement, and whether the rule of accuracy.py covers every run."""
     lines = ["# The discretisation error of periods and inclinations against rtol", "",
-             f"Measured {time.strftime('%Y-%m-%d')} by `scripts/error_rule.py` ({seconds / 60:.0f} min of runs, "
+             f"Measured {time.strftime('%Y-%m-%d')} by `analysis/error_rule.py` ({seconds / 60:.0f} min of runs, "
              "one at a time on a shared 2-core machine); hpcves/analysis/accuracy.py states the rule these "
              "numbers set. "
              f"Each run at rtol is compared with a run at rtol = {REFERENCE_RTOL:g} on the same sample times, "
@@ -126,7 +126,7 @@ def render(results: dict, seconds: float, tumbling: list[str]) -> tuple[list[str
                 lines.append(f"| | | | | | {sampling} | {rtol:g} | {r['steps']} | {r['period']:.7g} | "
                              + " | ".join(cells) + f" | {r['mean']:.6f} | {dm:.1e} | {dm / rtol:.4f} |")
     lines += ["", "The TU rows are not in the rule. The TU case continued from one state (t = 10, reached at "
-              "rtol = 1e-4) to t = 250 at four tolerances (`scripts/error_rule.py --tumbling`; periods from "
+              "rtol = 1e-4) to t = 250 at four tolerances (`analysis/error_rule.py --tumbling`; periods from "
               "sin 2 theta, as `hpcves analyze` reads a tumbling case):", "", *tumbling, "", TUMBLING_NOTE,
               "", f"PT and TT: largest ratios period excess {worst_period:.4f}, inclination {worst_theta:.4f} rad. "
               "The rule "
