@@ -178,9 +178,11 @@ def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):
     assert nowhere.returncode == 2 and "does not exist" in nowhere.stderr and "timing" not in nowhere.stderr
 
 
-def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
-    """The script with stand-ins for srun and sbatch: a job that ran nothing resubmits, a second one
-    in a row does not; one that finished the campaign does not."""
+def test_the_slurm_chain_keeps_a_successor_waiting_while_work_is_left(tmp_path):
+    """The script with stand-ins for srun, sbatch and scancel. Each job submits its successor first
+    (afterany: it starts however this job ends -- a chain whose job was killed before its last lines
+    stopped, since only those lines resubmitted); a job that finds the campaign complete cancels it;
+    idle jobs in a row and the cap stop the chain; messages name the script as submitted, not $0."""
     study_file = tmp_path / "w.toml"
     output = tmp_path / "w.h5"
     study_file.write_text(TINY.format(name="w", output=output) + "[sweep]\nshear_rate = [10, 20]\n")
@@ -188,50 +190,76 @@ def test_the_slurm_script_resubmits_while_work_is_left(tmp_path):
     assert hpcves("campaign", study_file, "--plan", "--slurm", script).returncode == 0
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
-    submitted = tmp_path / "submitted"
-    (bin_dir / "sbatch").write_text(f'#!/bin/bash\necho "$@" >> {submitted}\n')
+    submitted, cancelled = tmp_path / "submitted", tmp_path / "cancelled"
+    (bin_dir / "sbatch").write_text(f'#!/bin/bash\necho "$@" >> {submitted}\necho 4242\n')
+    (bin_dir / "scancel").write_text(f'#!/bin/bash\necho "$@" >> {cancelled}\n')
     (bin_dir / "srun").write_text("#!/bin/bash\n" + ('shift\nexec "$@"\n'))      # drop --kill-on-bad-exit
     (bin_dir / "idle-srun").write_text("#!/bin/bash\nexit 0\n")                    # a job cut before it ran
+    (bin_dir / "killed-srun").write_text("#!/bin/bash\nkill -9 $PPID\n")           # the job dies mid-way
     for f in bin_dir.iterdir():
         f.chmod(0o755)
-    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}")
+    env = dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", SLURM_JOB_ID="4241")
+
+    def job(text: str, name: str):
+        path = tmp_path / name                              # slurmd's spooled copy: $0 is not the script
+        path.write_text(text)
+        return subprocess.run(["bash", str(path)], env=env, capture_output=True, text=True, cwd=tmp_path,
+                              timeout=300)
+
+    def lines(path):
+        return path.read_text().splitlines() if path.exists() else []
+
+    successor = f"--parsable --dependency=afterany:4241 {script}"
 
     # the campaign file exists, no case has run (stopped at once): work is left
     run_campaign(load_study(study_file), output, stop_flag=lambda: True)
-    idle = script.read_text().replace('srun --kill-on-bad-exit=0', 'idle-srun --kill-on-bad-exit=0')
-    (tmp_path / "idle.sh").write_text(idle)
-    first = subprocess.run(["bash", str(tmp_path / "idle.sh")], env=env, capture_output=True, text=True,
-                           cwd=tmp_path, timeout=300)
+    text = script.read_text()
+    idle = text.replace("srun --kill-on-bad-exit=0", "idle-srun --kill-on-bad-exit=0")
+    first = job(idle, "spool1")
     assert first.returncode == 0, first.stderr
-    assert "work left: submitting the next job" in first.stdout
-    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
+    assert "work left: job 4242 continues (job 2 of at most" in first.stdout, first.stdout
+    assert lines(submitted) == [successor] and lines(cancelled) == []
 
-    # a second job in a row that advanced nothing ends the chain: a job that can never progress (a
-    # creation longer than the job) would otherwise resubmit forever
-    again = subprocess.run(["bash", str(tmp_path / "idle.sh")], env=env, capture_output=True, text=True,
-                           cwd=tmp_path, timeout=300)
-    assert again.returncode == 0, again.stderr
-    assert "submitting" not in again.stdout and "2 jobs in a row advanced nothing" in again.stderr, again.stderr
-    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
-    assert (tmp_path / "w.h5.idle_jobs").read_text().strip() == "2"
-    assert (tmp_path / "w.h5.jobs").read_text().strip() == "2"
+    # a job killed before its last lines: its successor was submitted before it ran
+    killed = job(text.replace("srun --kill-on-bad-exit=0", "killed-srun --kill-on-bad-exit=0"), "spool2")
+    assert killed.returncode != 0
+    assert lines(submitted) == [successor] * 2 and lines(cancelled) == []
 
-    # the chain's cap on jobs: the third job of a chain of at most 3 does not resubmit, work left or not
+    # the two jobs so far found the campaign as it was: the next one stops the chain at once -- a job
+    # that can never progress (a creation longer than the job) would run forever
+    stopped = job(idle, "spool3")
+    assert stopped.returncode == 1 and "the last 2 jobs of this chain advanced nothing" in stopped.stderr, \
+        stopped.stderr
+    assert f"sbatch {script} once the cause is fixed" in stopped.stderr and "spool" not in stopped.stderr
+    assert len(lines(submitted)) == 2                                    # the stopping job submitted none
     (tmp_path / "w.h5.idle_jobs").unlink()
-    (tmp_path / "capped.sh").write_text(re.sub(r"^MAX_JOBS=\d+$", "MAX_JOBS=3", idle, flags=re.M))
-    capped = subprocess.run(["bash", str(tmp_path / "capped.sh")], env=env, capture_output=True, text=True,
-                            cwd=tmp_path, timeout=300)
-    assert capped.returncode == 0, capped.stderr
-    assert "submitting" not in capped.stdout and "this was job 3 of at most 3" in capped.stderr, capped.stderr
-    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]
 
-    second = subprocess.run(["bash", str(script)], env=env, capture_output=True, text=True, cwd=tmp_path,
-                            timeout=300)
-    assert second.returncode == 0, second.stderr
-    assert "submitting" not in second.stdout and "status: complete" in second.stdout
-    assert submitted.read_text().split() == [str(tmp_path / "idle.sh")]    # not again
-    assert not (tmp_path / "w.h5.idle_jobs").exists()                     # progress resets the count
-    assert not (tmp_path / "w.h5.jobs").exists()                          # a complete campaign ends the chain
+    # the chain's cap: the job that reaches it submits no successor and says how to go on
+    capped = job(re.sub(r"^MAX_JOBS=\d+$", "MAX_JOBS=4", idle, flags=re.M), "spool4")
+    assert capped.returncode == 0, capped.stderr
+    assert "this was job 4 of at most 4" in capped.stderr and f"then sbatch {script}" in capped.stderr, \
+        capped.stderr
+    assert len(lines(submitted)) == 2
+
+    # the job that completes the campaign cancels its waiting successor and clears the chain's files
+    (tmp_path / "w.h5.jobs").write_text("1\n")
+    (tmp_path / "w.h5.idle_jobs").unlink()
+    done = job(text, "spool5")
+    assert done.returncode == 0, done.stderr
+    assert "status: complete" in done.stdout and "continues" not in done.stdout
+    assert lines(submitted)[-1] == successor and lines(cancelled) == ["4242"]
+    assert not any(tmp_path.glob("w.h5.*_*")) and not (tmp_path / "w.h5.jobs").exists()
+
+
+def test_a_site_template_without_the_signal_line_is_refused_before_the_timing(tmp_path):
+    study_file = tmp_path / "s.toml"
+    study_file.write_text(TINY.format(name="s", output=tmp_path / "s.h5") + "[sweep]\nshear_rate = [10, 20]\n")
+    site = tmp_path / "site.sh"
+    site.write_text("#!/bin/bash\n#SBATCH --ntasks={{ ranks }}\nsrun {{ hpcves }} campaign {{ study_file }}\n")
+    result = hpcves("campaign", study_file, "--plan", "--slurm", tmp_path / "job.sh", "--slurm-template", site)
+    assert result.returncode == 2 and "timing" not in result.stderr, result.stderr
+    assert "no '#SBATCH --signal=TERM@{{ signal_seconds }}' line" in result.stderr, result.stderr
+    assert not (tmp_path / "job.sh").exists()
 
 
 def test_a_site_brings_its_own_batch_script_template(tmp_path):
@@ -241,6 +269,7 @@ def test_a_site_brings_its_own_batch_script_template(tmp_path):
     study_file.write_text(TINY.format(name="s", output=tmp_path / "s.h5") + "[sweep]\nshear_rate = [10, 20]\n")
     site = tmp_path / "site.sh"
     site.write_text("#!/bin/bash\n#SBATCH --account=phys42 --qos=long\n#SBATCH --ntasks={{ ranks }}\n"
+                    "#SBATCH --signal=TERM@{{ signal_seconds }}\n"
                     "#SBATCH --mem-per-cpu={{mem_per_cpu}}\n#SBATCH --time={{ time }}\n"
                     "module load mpi/site\nsrun {{ hpcves }} campaign {{ study_file }} --out {{ output }} --resume\n")
     script = tmp_path / "job.sh"
@@ -251,7 +280,7 @@ def test_a_site_brings_its_own_batch_script_template(tmp_path):
     assert "--account=phys42 --qos=long" in text and "module load mpi/site" in text and "{{" not in text
     assert f"--mem-per-cpu={mem_per_cpu(rank_bytes(32, False))}M" in text
     assert f"campaign {study_file.resolve()} --out {(tmp_path / 's.h5').resolve()} --resume" in text
-    site.write_text("#SBATCH --ntasks={{ rank }}\n")
+    site.write_text("#SBATCH --ntasks={{ rank }}\n#SBATCH --signal=TERM@{{ signal_seconds }}\n")
     wrong = hpcves("campaign", study_file, "--plan", "--slurm", script, "--slurm-template", site)
     assert wrong.returncode == 2 and "timing" not in wrong.stderr
     assert "unknown placeholder {{ rank }} (did you mean {{ ranks }}?)" in wrong.stderr

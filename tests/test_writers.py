@@ -46,7 +46,7 @@ def case_file(tmp_path):
     return path
 
 
-@pytest.mark.parametrize("suffix", [".lock", ".partial", ".jobs", ".idle_jobs", ".status.json"])
+@pytest.mark.parametrize("suffix", [".lock", ".partial", ".jobs", ".idle_jobs", ".progress_seen", ".status.json"])
 def test_an_output_named_like_a_side_file_is_refused_by_every_command_that_makes_one(tmp_path, case_file, suffix):
     """`campaign --out a.h5.lock` made an HDF5 file that a later `campaign --out a.h5` truncated to
     0 bytes as its lock; `--out b.h5.partial` was deleted as debris by a later command on b.h5."""

@@ -1,10 +1,12 @@
 """A SLURM batch script for a study, sized from its plan (``hpcves campaign --plan --slurm``).
 
 The script is a template filled in (``{{ name }}`` placeholders, the syntax of Jinja's variables):
-the default, templates/slurm.sh, runs ``hpcves campaign --resume`` under srun, asks
-``hpcves status --json`` what is left, and submits itself again while work is left (status exit
-3) -- a study larger than one job's wall time goes on in the next job, from the checkpoints --
-unless MAX_IDLE_JOBS jobs in a row advanced nothing or the chain has run its MAX_JOBS. A site
+the default, templates/slurm.sh, first submits its successor (``--dependency=afterany``: it starts
+once this job has ended, however it ended -- a lost node, an out-of-memory kill), runs ``hpcves
+campaign --resume`` under srun, asks ``hpcves status --json`` what is left, and cancels the successor
+once nothing is (status exit 0 or 1) -- a study larger than one job's wall time goes on in the next
+job, from the checkpoints -- unless MAX_IDLE_JOBS jobs in a row advanced nothing or the chain has run
+its MAX_JOBS. A site
 brings its own template (``--slurm-template FILE``) with the same placeholders
 (:data:`PLACEHOLDERS`; docs/cluster.md). Every path in it is absolute, so it runs from any directory.
 """
@@ -109,6 +111,10 @@ def read_template(path: Path | None) -> str:
         raise ConfigError(f"{where}: {malformed[0]!r} is not a placeholder (a name of letters, digits and '_' "
                           f"in double braces, e.g. {{{{ job_name }}}}); a template may use {', '.join(PLACEHOLDERS)}"
                           " (docs/cluster.md)")
+    if not re.search(r"^#SBATCH[ \t].*--signal=", text, re.M):
+        raise ConfigError(f"{where}: no '#SBATCH --signal=TERM@{{{{ signal_seconds }}}}' line: without it SLURM kills "
+                          "the ranks at the wall time instead of asking them to checkpoint first, and each job loses "
+                          "what its cases computed since their last checkpoint; add the line (docs/cluster.md)")
     unknown = sorted({m.group(1) for m in _PLACEHOLDER.finditer(text)} - set(PLACEHOLDERS))
     if unknown:
         def named(name: str) -> str:

@@ -189,10 +189,10 @@ def copy_for_change(path, extra_bytes: float, what: str) -> Path:
 
 
 #: what hpcves keeps beside a file ``<name>``: ``<name>.lock`` (who writes it: lock.py), ``<name>.partial``
-#: (its next version while that is built: here), ``<name>.jobs``, ``<name>.idle_jobs`` and
-#: ``<name>.status.json`` (a batch chain's counts and last status: campaign/templates/slurm.sh); a figure
-#: or movie ``<stem>.<ext>`` is built as ``<stem>.partial.<ext>``
-SIDE_SUFFIXES = (".lock", ".partial", ".jobs", ".idle_jobs", ".status.json")
+#: (its next version while that is built: here), ``<name>.jobs``, ``<name>.idle_jobs``,
+#: ``<name>.progress_seen`` and ``<name>.status.json`` (a batch chain's counts and last status:
+#: campaign/templates/slurm.sh); a figure or movie ``<stem>.<ext>`` is built as ``<stem>.partial.<ext>``
+SIDE_SUFFIXES = (".lock", ".partial", ".jobs", ".idle_jobs", ".progress_seen", ".status.json")
 
 
 def side_file_name(path) -> str:

@@ -6,9 +6,11 @@
 # cluster"), then:  sbatch {{ script }}
 #
 # SIGTERM reaches every task {{ signal_seconds }} s before the wall time: each rank checkpoints its case
-# and the job ends cleanly; while work is left (hpcves status exits 3) the script submits itself
-# again, and the next job continues with --resume, bitwise as if never interrupted -- at most
-# {{ max_jobs }} jobs in all (MAX_JOBS below), and not after {{ max_idle_jobs }} jobs in a row that advanced nothing.
+# and the job ends cleanly. Each job first submits its successor, to start once it has ended however it
+# ends (--dependency=afterany: a lost node, an out-of-memory kill, a scancel of this job alone), and
+# cancels it once the campaign is complete; the next job continues with --resume, bitwise as if never
+# interrupted -- at most {{ max_jobs }} jobs in all (MAX_JOBS below), and not after {{ max_idle_jobs }} jobs in a row that
+# advanced nothing. To stop the whole chain: scancel --name={{ job_name }}
 # Memory: {{ memory_note }}
 #SBATCH --job-name={{ job_name }}
 #SBATCH --account=CHANGE_ME
@@ -24,16 +26,13 @@ set -uo pipefail
 # module load openmpi hdf5/parallel python      # your site's names; the same as when hpcves was installed
 export OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 MKL_NUM_THREADS=1
 cd {{ workdir }}
+SCRIPT={{ script }}      # this script as submitted ($0 is slurmd's copy of it)
 STUDY={{ study_file }}
 OUT={{ output }}
 HPCVES={{ hpcves }}
 PYTHON={{ python }}
 MAX_JOBS={{ max_jobs }}
 MAX_IDLE_JOBS={{ max_idle_jobs }}
-
-# the jobs of this chain so far, this one included (deleted once the campaign is complete)
-jobs=$(( $(cat "$OUT.jobs" 2>/dev/null || echo 0) + 1 ))
-echo "$jobs" > "$OUT.jobs"
 
 # progress in a status --json: the cases in the file and their simulated time added up ("none": no file)
 progress() {
@@ -44,7 +43,32 @@ try:
 except Exception:
     print("none")'
 }
-before=$("$HPCVES" status --json "$OUT" 2>/dev/null | progress)
+
+# the jobs of this chain so far, this one included, and those in a row that found the campaign where the
+# one before found it (however that one ended); the files go once the campaign is complete
+jobs=$(( $(cat "$OUT.jobs" 2>/dev/null || echo 0) + 1 ))
+echo "$jobs" > "$OUT.jobs"
+now=$("$HPCVES" status --json "$OUT" 2>/dev/null | progress)
+if [ -f "$OUT.progress_seen" ] && [ "$(cat "$OUT.progress_seen")" = "$now" ]; then
+    idle=$(( $(cat "$OUT.idle_jobs" 2>/dev/null || echo 0) + 1 ))
+else
+    idle=0
+fi
+echo "$idle" > "$OUT.idle_jobs"
+echo "$now" > "$OUT.progress_seen"
+if [ "$idle" -ge "$MAX_IDLE_JOBS" ]; then
+    echo "the last $idle jobs of this chain advanced nothing: stopping it (see their logs; delete $OUT.idle_jobs and sbatch $SCRIPT once the cause is fixed)" >&2
+    exit 1
+fi
+next=""
+if [ "$jobs" -lt "$MAX_JOBS" ]; then
+    next=$(sbatch --parsable --dependency=afterany:"${SLURM_JOB_ID:?}" "$SCRIPT") || next=""
+    next=${next%%;*}
+fi
+stop_chain() {
+    if [ -n "$next" ]; then scancel "$next" || true; fi
+}
+
 status=0
 srun --kill-on-bad-exit=0 "$HPCVES" campaign "$STUDY" --out "$OUT" --resume --quiet || status=$?
 # campaign: 0 done or stopped by the signal, 1 some case failed, 2 bad input or a refused write
@@ -54,25 +78,18 @@ left=0
 print("status:", "complete" if s.get("complete") else "work left: " + str(s.get("left")), s.get("totals", ""))' \
     "$OUT.status.json" || true
 # status: 0 complete, 1 complete with failed cases, 3 work left, 2 unreadable or damaged
-# a job that advanced nothing (creation that does not fit in a job, a site problem) may happen once;
-# MAX_IDLE_JOBS in a row end the chain instead of resubmitting it forever
-if [ "$(progress < "$OUT.status.json")" = "$before" ]; then
-    idle=$(( $(cat "$OUT.idle_jobs" 2>/dev/null || echo 0) + 1 ))
-    echo "$idle" > "$OUT.idle_jobs"
-else
-    idle=0
-    rm -f "$OUT.idle_jobs"
-fi
-if [ "$left" -eq 3 ] && [ "$status" -le 1 ] && [ "$idle" -lt "$MAX_IDLE_JOBS" ] && [ "$jobs" -lt "$MAX_JOBS" ]; then
-    echo "work left: submitting the next job ($((jobs + 1)) of at most $MAX_JOBS)"
-    sbatch "$0"
-elif [ "$left" -eq 3 ] && [ "$idle" -ge "$MAX_IDLE_JOBS" ]; then
-    echo "work left, but $idle jobs in a row advanced nothing: not resubmitting (see the logs; delete $OUT.idle_jobs and sbatch again once the cause is fixed)" >&2
-elif [ "$left" -eq 3 ] && [ "$jobs" -ge "$MAX_JOBS" ]; then
-    echo "work left, but this was job $jobs of at most $MAX_JOBS (the plan's estimate was short, or cases take longer here): not resubmitting; raise MAX_JOBS in $0 or delete $OUT.jobs, then sbatch $0" >&2
+if [ "$left" -eq 3 ] && [ "$status" -le 1 ] && [ -n "$next" ]; then
+    echo "work left: job $next continues (job $((jobs + 1)) of at most $MAX_JOBS)"
+elif [ "$left" -eq 3 ] && [ "$status" -le 1 ]; then
+    echo "work left, but this was job $jobs of at most $MAX_JOBS (the plan's estimate was short, or cases take longer here): no job follows; raise MAX_JOBS in $SCRIPT or delete $OUT.jobs, then sbatch $SCRIPT" >&2
 elif [ "$left" -eq 3 ]; then
-    echo "work left, but the campaign ended with status $status: not resubmitting; see the log above" >&2
+    stop_chain
+    echo "work left, but the campaign ended with status $status: the chain stops here; see the log above, then sbatch $SCRIPT" >&2
 elif [ "$left" -le 1 ]; then
-    rm -f "$OUT.jobs"
+    stop_chain
+    rm -f "$OUT.jobs" "$OUT.idle_jobs" "$OUT.progress_seen"
+else
+    stop_chain
+    echo "hpcves status could not read $OUT (exit $left): the chain stops here" >&2
 fi
 exit "$status"
