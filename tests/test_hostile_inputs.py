@@ -273,3 +273,28 @@ def test_numbas_cache_index_answers_whether_the_step_is_compiled(tmp_path):
                            "print(cache_is_warm())"], capture_output=True, text=True, timeout=300,
                           env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "empty")})
     assert cold.stdout.strip() == "False", cold.stderr
+
+
+@pytest.mark.parametrize("progress", ["", "log"])
+def test_mpirun_from_a_terminal_shows_live_progress(tmp_path, progress):
+    """Under mpirun rank 0's stderr is a pipe, so a user at a terminal saw one line and the summary; the
+    launcher's own stderr says whether a person watches (a batch job's goes to its log: one line every
+    30 s there). Run in a pseudo-terminal (util-linux's script)."""
+    import shutil
+    import subprocess
+
+    from jobs import MPIRUN, mpi_env
+
+    if MPIRUN is None or shutil.which("script") is None:
+        pytest.skip("needs mpirun and script(1)")
+    study_file = study(tmp_path / "s")
+    typescript = tmp_path / "typescript"
+    hpcves = shutil.which("hpcves") or os.path.join(os.path.dirname(os.sys.executable), "hpcves")
+    command = f"{MPIRUN} -n 2 {hpcves} campaign {study_file}"
+    env = dict(mpi_env(), HPCVES_PROGRESS=progress)
+    done = subprocess.run(["script", "-qec", command, str(typescript)], env=env, capture_output=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stdout.decode(errors="replace")
+    shown = typescript.read_bytes().decode(errors="replace")
+    assert "cases |" in shown, shown
+    assert ("\r[" in shown) is (progress != "log"), repr(shown[-600:])

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import signal
 import sys
 import time
@@ -45,15 +46,58 @@ def clean_errors(func):
     return wrapper
 
 
+#: the MPI launchers that hand a rank's stderr to their own over a pipe (Open MPI's names, MPICH's)
+LAUNCHERS = ("mpirun", "mpiexec", "orterun", "prterun", "mpiexec.hydra", "hydra_pmi_proxy")
+
+
+def _process(pid: int) -> tuple[str, int, str]:
+    """(name, parent pid, where its stderr goes) of a process, from Linux's /proc ('', 0, '' elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            stat = f.read()
+        name, rest = stat[stat.index("(") + 1:stat.rindex(")")], stat[stat.rindex(")") + 2:].split()
+        try:
+            target = os.readlink(f"/proc/{pid}/fd/2")
+        except OSError:
+            target = ""
+        return name, int(rest[1]), target
+    except (OSError, ValueError, IndexError):
+        return "", 0, ""
+
+
+def interactive(stream) -> bool:
+    """Whether ``stream`` reaches a person at a terminal: a TTY itself, or -- under mpirun, which hands a
+    rank's stderr on through a pipe -- the launcher above this process writes to one (its stderr, read
+    from /proc, is a terminal device). A batch job's launcher writes to its log: not interactive.
+    ``HPCVES_PROGRESS=tty`` or ``=log`` says which, where this guesses wrong."""
+    chosen = os.environ.get("HPCVES_PROGRESS", "").strip().lower()
+    if chosen in ("tty", "log"):
+        return chosen == "tty"
+    try:
+        if stream.isatty():
+            return True
+    except (AttributeError, ValueError):
+        return False
+    pid = os.getppid()
+    for _ in range(3):                       # the rank's parent, or a proxy's (MPICH's hydra)
+        name, parent, stderr = _process(pid)
+        if name in LAUNCHERS:
+            return stderr.startswith(("/dev/pts/", "/dev/tty")) and not stderr.startswith("/dev/ttyS")
+        if not parent:
+            break
+        pid = parent
+    return False
+
+
 class StatusLine:
-    """One status line on stderr: rewritten in place on a terminal; on a pipe or a log
-    file, written as a new line at most every LOG_SECONDS."""
+    """One status line on stderr: rewritten in place on a terminal (also under mpirun started from
+    one: :func:`interactive`); on a pipe or a log file, written as a new line at most every LOG_SECONDS."""
 
     LOG_SECONDS = 30.0
 
     def __init__(self, stream=sys.stderr):
         self.stream = stream
-        self.tty = stream.isatty()
+        self.tty = interactive(stream)
         self._last = 0.0
         self._width = 0
 
