@@ -75,6 +75,7 @@ def create_case_file(path, case: Case, overwrite: bool = False) -> OpenRun:
 
 
 def _create(path: Path, case: Case):
+    """The file of :func:`create_case_file`, made under ``<path>.partial`` and renamed (its lock held)."""
     if path.exists():                       # nor while an older hpcves's run has it open (HDF5's own lock)
         try:
             open_file(path, "r+").close()
