@@ -298,3 +298,18 @@ def test_mpirun_from_a_terminal_shows_live_progress(tmp_path, progress):
     shown = typescript.read_bytes().decode(errors="replace")
     assert "cases |" in shown, shown
     assert ("\r[" in shown) is (progress != "log"), repr(shown[-600:])
+
+
+def test_every_fault_point_in_the_package_is_one_the_variable_may_name():
+    """The list HPCVES_FAULT is checked against must hold every point the code passes (it missed
+    verdicts-stored, which the scale tests kill at: they would have been refused)."""
+    import re
+    from pathlib import Path
+
+    from hpcves.files import faults
+
+    root = Path(faults.__file__).resolve().parents[1]
+    used = {m for path in root.rglob("*.py") for m in re.findall(r'faults\.point\("([a-z-]+)"\)', path.read_text())}
+    assert used and used == set(faults.POINTS), (used, faults.POINTS)
+    for point in used:
+        assert faults._parse(f"{point}:2@1") == (point, 2, 1)

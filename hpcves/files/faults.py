@@ -12,7 +12,9 @@ likely to hurt:
 * ``checkpoint``: inside a checkpoint write, once after the slot is marked invalid and once
   after its data are written, before it is marked valid again (run/store.py);
 * ``finished``: a case has just recorded that it finished (runner.py);
-* ``analysis-stored``: ``hpcves analyze`` has written its results into the copy, before the rename.
+* ``analysis-stored``: ``hpcves analyze`` has written its results into the copy, before the rename;
+* ``verdicts-stored``: a staged campaign's rank 0 has written the verdicts of a stage in place, before
+  the next stage's cases are added (campaign/stages.py).
 
 Without the variable, which is the case outside those tests, :func:`point` returns at once.
 """
@@ -25,7 +27,7 @@ import signal
 from hpcves.errors import ConfigError
 
 #: the points a fault may be injected at (the list above)
-POINTS = ("block-grown", "case-laid-out", "publish", "checkpoint", "finished", "analysis-stored")
+POINTS = ("block-grown", "case-laid-out", "publish", "checkpoint", "finished", "analysis-stored", "verdicts-stored")
 _SPEC = os.environ.get("HPCVES_FAULT", "")
 _FORM = re.compile(r"([a-z-]+)(?::([1-9][0-9]{0,8}))?(?:@([0-9]{1,6}))?")
 _passes: dict[str, int] = {}
