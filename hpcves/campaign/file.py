@@ -98,6 +98,8 @@ class CampaignFile:
             self._cases, self._blocks = None, Blocks(h5)
         #: format 2: {case id: (index row, block, row)} and the index's config column (read when first needed)
         self._rows, self._configs = None, None
+        #: the index's swept columns of the complete cases, read when first needed (:meth:`swept_disagree`)
+        self._swept = None
 
     # ------------------------------------------------------------------ creation / opening
     @classmethod
@@ -210,7 +212,7 @@ class CampaignFile:
             dataset = index[key]
             dataset.resize((stop,))
             dataset[start:stop] = np.array(values, dtype=object if key == "config" else dataset.dtype)
-        self._rows = None
+        self._rows, self._swept = None, None
         if source is not None and attr_text(self.h5.attrs.get("campaign_toml", "")) != source:
             self.h5.attrs["campaign_toml"] = source
             self.h5.attrs["campaign_toml_sha256"] = text_digest(source)
@@ -355,12 +357,14 @@ class CampaignFile:
     def swept_disagree(self, i: int, case) -> list[str]:
         """Where the index's swept values of case ``i`` (what tables, diagrams and growth read) are not
         its parameters (what it ran: ``case``, from its config): one was edited or damaged."""
-        index = self.h5["index"]
+        if self._swept is None:               # read once: a check of every case reads them all
+            n = int(self.h5.attrs["n_cases"])
+            self._swept = {key: self.h5["index"][key][:n] for key in self.sweep_keys}
         found = []
-        for key in self.sweep_keys:
+        for key, column in self._swept.items():
             if key == "start" or not hasattr(case.physics, key):
                 continue
-            listed, ran = float(index[key][i]), float(getattr(case.physics, key))
+            listed, ran = float(column[i]), float(getattr(case.physics, key))
             if listed != ran and not (listed != listed and ran != ran):
                 found.append(f"index/{key} lists {listed:g}, its config ran {key} = {ran:g} (edited or damaged)")
         return found
