@@ -398,8 +398,11 @@ def periods_section(c: Context) -> list[str]:
     return lines + _images([p for p in c.figures if "periods" in p.name and "theta" not in p.name])
 
 
-CRITICAL_NOTE = ("S_C is the geometric middle of the final bracket [largest TT, smallest PT/TU]; Delta E_b is "
-                 "the bending-energy gap (max - min of E_b over a period) of the PT case at the bracket's top.")
+CRITICAL_NOTE = ("S_C lies in the final bracket [largest TT, smallest PT/TU], the result and its error bar; the "
+                 "best estimate inside it extrapolates 1/T^2 of the PT cases above the bracket to zero (a "
+                 "saddle-node's T ~ (S - S_C)^(-1/2)), or is the bracket's geometric centre where that lands "
+                 "outside, as 'found from' says. Delta E_b is the bending-energy gap (max - min of E_b over a "
+                 "period) of the PT case at the bracket's top.")
 
 
 def sc_b2_section(c: Context) -> list[str]:

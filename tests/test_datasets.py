@@ -10,6 +10,7 @@ import hpcves
 from conftest import tiny_study
 from hpcves.campaign.study import study_from_toml
 from hpcves.run.store import FileFormatError
+from hpcves.run.verdict import PARAMETERS
 
 CASE = """
 [physics]
@@ -64,28 +65,55 @@ def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_
     # selection by parameter, the xarray way
     pt = ds.where((ds.shear_rate == 80) & (ds.psi_bar == 0.3), drop=True)
     assert list(pt["case"].values) == ["0003"]
+    assert "t" not in ds.coords                    # a variable: NaN beyond a case's end is no coordinate's
     few = hpcves.open_campaign(campaign, variables=["theta"])
-    assert list(few.data_vars) == ["theta", "regime", "period", "period_err", "period_dt_err", "period_N_err",
+    assert list(few.data_vars) == ["t", "theta", "regime", "period", "period_err", "period_dt_err", "period_N_err",
                                    "theta_mean", "theta_mean_err", "theta_mean_dt_err", "theta_mean_N_err",
                                    "t_settle", "cycles", "bending_gap", "reason", "regime_flag"]
     with pytest.raises(FileFormatError, match="no series thetta"):
         hpcves.open_campaign(campaign, variables=["thetta"])
 
 
+def test_cases_are_selected_by_their_parameters_and_one_case_comes_on_its_own_time_axis(campaign):
+    """ds.sel(shear_rate=..., psi_bar=...) on the campaign Dataset (the case ids stay), and
+    ds.hpcves.case(...): that case as open_case gives it, time its dimension."""
+    ds = hpcves.open_campaign(campaign)
+    one = ds.sel(shear_rate=80, psi_bar=0.3)
+    assert "case" not in one.dims and str(one["case"].values) == "0003"
+    assert np.array_equal(one["theta"].values, ds["theta"].values[3])
+    both = ds.sel(shear_rate=80)                              # not every swept parameter named: a subset
+    assert list(both["case"].values) == ["0002", "0003"]
+    assert list(both.sel(psi_bar=0.3)["case"].values.ravel()) == ["0003"]       # chained
+    assert list(ds.sel(shear_rate=slice(50, None), psi_bar=[0.0])["case"].values) == ["0002"]
+    assert str(ds.sel(shear_rate=79, psi_bar=0.31, method="nearest")["case"].values) == "0003"
+    assert list(ds.sel(case="0001")["psi_bar"].values.ravel()) == [0.3]            # by id, as before
+    with pytest.raises(KeyError, match=r"no case with shear_rate = 60 \(the cases have shear_rate = 40, 80\)"):
+        ds.sel(shear_rate=60)
+    case = ds.hpcves.case(shear_rate=80, psi_bar=0.3)
+    alone = hpcves.open_case(campaign, "0003", snapshots=False)
+    assert case["theta"].dims == ("time",) and np.array_equal(case["time"].values, alone["time"].values)
+    assert np.array_equal(case["theta"].values, alone["theta"].values)
+    assert case["time"].attrs["long_name"] == "time t" == alone["time"].attrs["long_name"]
+    assert ds.hpcves.case("0003").identical(case)
+    with pytest.raises(KeyError, match="2 cases have shear_rate = 80"):
+        ds.hpcves.case(shear_rate=80)
+
+
 def assert_cf(ds):
-    """What CF-1.11 asks of hpcves' Datasets: Conventions; long_name on every variable and units on the
-    numeric ones; flags of the variable's type; attribute names without dots; no missing value in a
-    dimension coordinate (the 2-D ``t`` is an auxiliary coordinate: NaN allowed there)."""
+    """What CF-1.11 asks of hpcves' Datasets, and what a plot needs of them: Conventions; on every variable
+    a long_name short enough to label an axis, and units only where a quantity has them (a dimensionless
+    one leaves them out, as CF allows, so no axis reads "[1]"); flags of the variable's type; attribute
+    names without dots; no missing value in any coordinate."""
     assert ds.attrs["Conventions"] == "CF-1.11"
     for name, var in ds.variables.items():
         assert var.attrs.get("long_name"), name
-        if var.dtype.kind in "fiu":
-            assert "units" in var.attrs, name
+        assert len(var.attrs["long_name"]) <= 40, (name, var.attrs["long_name"])
+        assert var.attrs.get("units") != "1", name
         if "flag_values" in var.attrs:
             assert var.attrs["flag_values"].dtype == var.dtype
             assert len(var.attrs["flag_meanings"].split()) == len(var.attrs["flag_values"])
         assert not [k for k in var.attrs if "." in k], name
-        if name in ds.dims and var.dtype.kind == "f":
+        if name in ds.coords and var.dtype.kind == "f":
             assert not np.isnan(var.values).any(), name
     assert not [k for k in ds.attrs if "." in k]
 
@@ -100,15 +128,17 @@ def test_the_hpcves_engine_a_datatree_and_cf_metadata_and_netcdf_readers(campaig
     ds = xr.open_dataset(campaign, engine="hpcves")
     assert ds.identical(hpcves.open_campaign(campaign))
     assert_cf(ds)
-    assert ds["shear_rate"].attrs == {"long_name": "dimensionless shear rate S", "units": "1"}
-    assert ds["period"].attrs["units"] == "1" and ds["theta_mean"].attrs["units"] == "rad"
+    assert ds["shear_rate"].attrs == {"long_name": "shear rate S", "comment": "dimensionless shear rate S"}
+    assert "units" not in ds["period"].attrs and ds["theta_mean"].attrs["units"] == "rad"
+    assert "period of the inclination" in ds["period"].attrs["comment"]        # the whole description
     assert ds["regime_flag"].cf.is_flag_variable and ds["status_flag"].cf.is_flag_variable
     for code, meaning in (("TT", "tank_treading"), ("PT", "phase_treading"), ("undecided", "undecided")):
         assert np.array_equal(ds["regime_flag"].cf == meaning, ds["regime"] == code)
     assert (ds["status_flag"].cf == "finished").all()
-    assert ds.cf["T"].name == "t"                                      # cf-xarray finds the time
+    assert "T" not in ds.cf.axes                       # no shared time axis: each case has its own (t a variable)
     one = xr.open_dataset(campaign, engine="hpcves", case="0003")
     assert one.identical(hpcves.open_case(campaign, "0003"))
+    assert one.cf["T"].name == "time"                                   # cf-xarray finds the time
     assert_cf(one)
     assert "numerics_N" in one.attrs and one.attrs["status"] == "finished"
 
@@ -128,6 +158,7 @@ def test_the_hpcves_engine_a_datatree_and_cf_metadata_and_netcdf_readers(campaig
     with netCDF4.Dataset(tmp_path / "cases.nc") as nc:
         assert nc.Conventions == "CF-1.11" and nc["theta"].units == "rad"
         assert list(nc["regime_flag"].flag_values) == [0, 1, 2, 3]
+    assert xr.open_dataset(tmp_path / "cases.nc").identical(ds.drop_indexes(PARAMETERS).drop_encoding())
     tree.to_netcdf(tmp_path / "tree.nc", engine="h5netcdf")
     back = xr.open_datatree(tmp_path / "tree.nc", engine="h5netcdf")
     assert list(back["analysis/regime"].values) == list(ds["regime"].values)

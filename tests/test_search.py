@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from hpcves.analysis.search import CONVERGED, RUNNING, STOPPED, UNBRACKETED, SearchSettings, step
+from hpcves.analysis.search import CONVERGED, RUNNING, STOPPED, UNBRACKETED, SearchSettings, estimate_critical, step
 from hpcves.model.params import ConfigError
 
 
@@ -31,7 +31,7 @@ def test_the_search_brackets_the_transition_to_the_tolerance(critical, rel_tol):
     assert state.status == CONVERGED, state
     assert state.low < critical <= state.high                     # the truth is inside the bracket
     assert state.high / state.low - 1 <= rel_tol
-    assert abs(state.critical - critical) / critical <= rel_tol
+    assert abs(state.centre - critical) / critical <= rel_tol
     assert len(results) <= settings.cases_needed()                 # bisection: logarithmic cost
 
 
@@ -106,7 +106,7 @@ def test_a_search_along_lambda_speaks_of_lambda_c():
     settings = SearchSettings.from_dict({"low": 1, "high": 20, "along": "viscosity_ratio", "rel_tol": 0.05})
     assert (settings.symbol, settings.column, settings.stem) == ("lambda", "lambda_C", "critical_lambda")
     state, results = run_search(settings, lambda lam: "TU" if lam >= 4.2 else "TT")
-    assert state.status == CONVERGED and state.low < 4.2 <= state.high and "lambda_C = " in state.reason
+    assert state.status == CONVERGED and state.low < 4.2 <= state.high and "lambda_C in [" in state.reason
     above, _ = run_search(settings, lambda lam: "TT")
     assert "TT up to lambda = 20: lambda_C > 20" in above.reason
     assert SearchSettings(low=10.0, high=320.0).column == "S_C"
@@ -114,3 +114,72 @@ def test_a_search_along_lambda_speaks_of_lambda_c():
         SearchSettings.from_dict({"low": 1, "high": 20, "along": "psi_bar"})
     with pytest.raises(ConfigError, match="the range of lambda"):
         SearchSettings.from_dict({"low": 1, "along": "viscosity_ratio"})
+
+
+# --- the best estimate inside a bracket (estimate_critical)
+def saddle_node(critical, curvature=0.0, upper="TU"):
+    """A saddle-node on a circle at ``critical``: above it a periodic motion with 1/T^2 = 0.3 d exp(c d),
+    d = x - critical; below it a stationary state with theta^2 = 0.05 d exp(c d), d = critical - x."""
+    def at(x):
+        d = abs(x - critical)
+        if x >= critical:
+            frequency2 = 0.3 * d * math.exp(curvature * d)
+            return (upper, math.nan, 1 / math.sqrt(frequency2) if frequency2 > 0 else math.inf)
+        return ("TT", math.sqrt(0.05 * d * math.exp(curvature * d)), math.nan)
+    return at
+
+
+def searched(critical, curvature=0.0, upper="TU", rel_tol=0.05):
+    settings = SearchSettings(low=2.0, high=8.0, rel_tol=rel_tol, along="viscosity_ratio", max_cases=40)
+    motion = saddle_node(critical, curvature, upper)
+    state, results = run_search(settings, lambda x: motion(x)[0])
+    assert state.status == CONVERGED
+    return state, {x: motion(x) for x in results}
+
+
+def test_the_estimate_of_an_exact_saddle_node_is_its_critical_value():
+    state, cases = searched(4.23)
+    estimate = estimate_critical(state.low, state.high, cases)
+    assert estimate.value == pytest.approx(4.23, abs=1e-9)
+    assert len(estimate.extrapolations) == 2 and "weighted mean of" in estimate.method     # both sides used
+
+
+@pytest.mark.parametrize("curvature, share", [(-0.2, 0.1), (0.3, 0.2), (1.0, 0.3)])
+@pytest.mark.parametrize("critical", [2.31, 3.05, 4.15, 4.23, 5.5, 6.74, 7.4])
+def test_the_estimate_lies_inside_the_bracket_and_nearer_the_truth_than_the_centre(critical, curvature, share):
+    state, cases = searched(critical, curvature)
+    estimate = estimate_critical(state.low, state.high, cases)
+    assert state.low <= estimate.value <= state.high
+    # the scaling's next order (exp(c d): 1/T^2 bends by about c d over the cases' distance d) leaves an error
+    # that grows with c: a ``share`` of the bracket, and less than the centre's wherever that is larger
+    width = state.high - state.low
+    assert abs(estimate.value - critical) <= share * width
+    if abs(state.centre - critical) > share * width:
+        assert abs(estimate.value - critical) < abs(state.centre - critical)
+
+
+def test_the_estimate_narrows_with_the_bracket():
+    errors = []
+    for rel_tol in (0.1, 0.02, 0.005):
+        state, cases = searched(4.23, curvature=1.0, rel_tol=rel_tol)
+        errors.append(abs(estimate_critical(state.low, state.high, cases).value - 4.23))
+    assert errors[0] > errors[1] > errors[2]
+
+
+def test_a_phase_treading_transition_uses_the_period_alone():
+    state, cases = searched(4.23, upper="PT")
+    estimate = estimate_critical(state.low, state.high, cases)
+    assert len(estimate.extrapolations) == 1 and estimate.method.startswith("1/T^2 -> 0 above (PT)")
+    assert estimate.value == pytest.approx(4.23, abs=1e-9)
+
+
+def test_an_extrapolation_outside_the_bracket_is_named_and_not_used():
+    # periods that do not diverge at the bracket (a finite-frequency onset): 1/T^2 -> 0 lies far below it
+    cases = {4.0: ("TT", 0.1, math.nan), 4.2: ("TT", 0.0, math.nan), 4.3: ("PT", math.nan, 2.0),
+             4.5: ("PT", math.nan, 1.9)}
+    estimate = estimate_critical(4.2, 4.3, cases)
+    assert math.isnan(estimate.value)
+    assert "none inside the bracket" in estimate.method and "1/T^2 -> 0 above (PT) gives" in estimate.method
+    # a frequency that falls away from the transition gives nothing to extrapolate
+    falling = {**cases, 4.5: ("PT", math.nan, 2.5)}
+    assert estimate_critical(4.2, 4.3, falling).extrapolations == ()

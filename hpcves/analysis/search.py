@@ -16,7 +16,9 @@ the same in every run.
 * Bisect geometrically (S spans decades): the next case is sqrt(lo hi) --
   or, with ``points = k``, the k rates that split [lo, hi] into k + 1 equal
   ratios, run side by side (for many ranks and few searches) -- until
-  ``hi / lo - 1 <= rel_tol``; then S_C = sqrt(lo hi), bracket [lo, hi].
+  ``hi / lo - 1 <= rel_tol``; the result is the bracket [lo, hi] (its geometric
+  centre sqrt(lo hi) is kept as ``SearchState.centre``; a best estimate inside the
+  bracket comes from the cases' periods and inclinations, :func:`estimate_critical`).
 * Stop without S_C, saying why, when: the range does not bracket a
   transition (TT everywhere: S_C > high; PT at ``low`` already: S_C < low);
   a case inside the bracket is undecided, failed or at the model's limit; TT is found above a PT
@@ -32,6 +34,8 @@ from hpcves.config import clean_number, from_table
 from hpcves.model.params import ConfigError
 
 CONVERGED, RUNNING, UNBRACKETED, STOPPED = "converged", "running", "not bracketed", "stopped"
+#: how a critical value was found where nothing better than the bracket is known
+CENTRE = "the bracket's geometric centre"
 
 #: what a search may run along -> (its symbol, the column of its critical value, the stem of its tables)
 AXES = {"shear_rate": ("S", "S_C", "critical_shear"), "viscosity_ratio": ("lambda", "lambda_C", "critical_lambda")}
@@ -107,7 +111,7 @@ class SearchState:
     next_values: tuple             # to run now (empty unless running)
     low: float                     # bracket: the largest TT below the transition (nan if none)
     high: float                    # the smallest PT/TU above it (nan if none)
-    critical: float                # sqrt(low high) once converged, else nan
+    centre: float                  # sqrt(low high) once converged, else nan (no estimate: estimate_critical)
     reason: str
 
 
@@ -156,9 +160,8 @@ def step(settings: SearchSettings, results: dict) -> SearchState:
         return SearchState(STOPPED, (), lo, hi, nan,
                            f"TT again at {S} = {_list(wrong)} above PT at {S} = {hi:g}: not a single transition")
     if hi / lo - 1 <= settings.rel_tol:
-        critical = math.sqrt(lo * hi)
-        return SearchState(CONVERGED, (), lo, hi, critical,
-                           f"{S_C} = {critical:.4g} in [{lo:g}, {hi:g}] ({len(results)} cases)")
+        return SearchState(CONVERGED, (), lo, hi, math.sqrt(lo * hi),
+                           f"{S_C} in [{lo:g}, {hi:g}] ({len(results)} cases)")
     left = settings.max_cases - len(results)
     if left <= 0:
         return SearchState(STOPPED, (), lo, hi, nan, f"max_cases = {settings.max_cases} spent; {S_C} in "
@@ -169,3 +172,66 @@ def step(settings: SearchSettings, results: dict) -> SearchState:
 
 def _list(values) -> str:
     return ", ".join(f"{v:g}" for v in values)
+
+
+@dataclass(frozen=True)
+class CriticalEstimate:
+    """A best estimate of the critical value inside a converged bracket, and how it was found.
+
+    ``value`` is nan where no extrapolation lands inside the bracket; the bracket stays the result's
+    error bar either way (the extrapolations carry errors of their own that nothing here bounds).
+    """
+
+    value: float
+    method: str            # what ``value`` is, in words, for a table
+    extrapolations: tuple  # (what, value) of every extrapolation tried, inside the bracket or not
+
+
+def root_of_square(x1: float, y1: float, x2: float, y2: float) -> float:
+    """Where y^2, taken as linear in x through (x1, y1^2) and (x2, y2^2), vanishes: x1 - y1^2 (x2 - x1) /
+    (y2^2 - y1^2); nan where y^2 does not change."""
+    change = y2 * y2 - y1 * y1
+    return x1 - y1 * y1 * (x2 - x1) / change if change != 0 else math.nan
+
+
+def estimate_critical(low: float, high: float, cases: dict) -> CriticalEstimate:
+    """A best estimate of the critical value in the bracket [low, high] from ``cases`` = {value searched
+    along: (regime, mean inclination theta, period)} of a search's finished cases.
+
+    Both transitions a search finds end a stationary state at a saddle-node: past it the motion is
+    periodic with a period that diverges as T ~ (x - x_C)^(-1/2) (a saddle-node on the invariant
+    circle, Strogatz, *Nonlinear Dynamics and Chaos*, sec. 4.3), so the frequency squared 1/T^2 of
+    the two PT/TU cases nearest above the bracket, taken as linear in x, vanishes at x_C. Below a
+    tank-treading -> tumbling transition the inclination of the stationary state falls to zero
+    (Keller & Skalak 1982: sin^2 theta ~ (x_C - x)), so theta^2 of the two TT cases nearest below
+    the bracket gives a second estimate. The extrapolations that land inside the bracket are
+    averaged with weights 1 / (d1 d2)^2 -- a secant through cases at distances d1, d2 from x_C misses
+    a root of c d (1 + a d) by about a d1 d2, so the nearer pair counts more; d1 and d2 are measured
+    from the estimate itself, found by iterating from the plain mean. One that lands outside the
+    bracket is not used (the scaling does not hold that far from x_C).
+    """
+    rates = sorted(cases)
+    tried = []                     # (what, root, the two cases it extrapolates from)
+    above = [(x, 1.0 / cases[x][2]) for x in rates if x >= high and cases[x][0] in (PT, TU)
+             and math.isfinite(cases[x][2]) and cases[x][2] > 0][:2]
+    if len(above) == 2 and above[1][1] > above[0][1]:
+        tried.append((f"1/T^2 -> 0 above ({cases[above[0][0]][0]})", root_of_square(*above[0], *above[1]),
+                      (above[0][0], above[1][0])))
+    if cases.get(high, ("",))[0] == TU:
+        below = [(x, cases[x][1]) for x in rates if x <= low and cases[x][0] == TT
+                 and math.isfinite(cases[x][1]) and cases[x][1] > 0][-2:]
+        if len(below) == 2 and below[0][1] > below[1][1]:
+            tried.append(("theta^2 -> 0 below (TT)", root_of_square(*below[0], *below[1]),
+                          (below[0][0], below[1][0])))
+    inside = [(what, x, pair) for what, x, pair in tried if low <= x <= high]
+    tried = tuple((what, x) for what, x, _ in tried)
+    if not inside:
+        left = "; ".join(f"{what} gives {x:.4g}" for what, x in tried)
+        return CriticalEstimate(math.nan, "none inside the bracket" + (f" ({left}: outside)" if left else ""),
+                                tried)
+    value = sum(x for _, x, _ in inside) / len(inside)
+    for _ in range(8 if len(inside) > 1 else 0):        # the weights measure d1, d2 from the estimate
+        weights = [1.0 / max(abs((a - value) * (b - value)), 1e-300) ** 2 for _, _, (a, b) in inside]
+        value = sum(w * x for w, (_, x, _) in zip(weights, inside)) / sum(weights)
+    method = ", ".join(f"{what}: {x:.4g}" for what, x, _ in inside)
+    return CriticalEstimate(value, (method if len(inside) == 1 else f"weighted mean of {method}"), tried)

@@ -77,8 +77,11 @@ def analyze_command(file, out, overrides, axes, no_write_back, which, no_case_fi
         column = "S_C" if "S_C" in s else "lambda_C"
         if column == "lambda_C":
             where += f", S = {s['shear_rate']:g}"
-        value = f"{column} = {s[column]:.4g}" if s[column] == s[column] else s["status"]
-        click.echo(f"search {where}: {value}  ({s['reason']})")
+        if s[column] == s[column]:
+            click.echo(f"search {where}: {column} in [{s['bracket_low']:.4g}, {s['bracket_high']:.4g}], best "
+                       f"estimate {s[column]:.4g} ({s[column + '_from']}; {s['cases']} cases)")
+        else:
+            click.echo(f"search {where}: {s['status']}  ({s['reason']})")
 
     for r in report.refinements:
         where = ", ".join(f"{k} = {r[k]:g}" for k in r if k not in REFINEMENT_FIELDS)

@@ -203,7 +203,7 @@ def _search_brief(outcome) -> str:
     point = ", ".join(f"{k} = {v:g}" for k, v in outcome.point.items() if k in outcome.swept_keys) or outcome.column
     state = outcome.state
     if state.status == "converged":
-        return f"{point}: {outcome.column} = {state.critical:.4g}"
+        return f"{point}: {outcome.column} in [{state.low:.4g}, {state.high:.4g}]"
     if state.status == "running" and state.low == state.low:
         return f"{point}: [{state.low:g}, {state.high:g}]"
     return f"{point}: {state.status}"

@@ -24,6 +24,9 @@ from hpcves.campaign.file import CampaignFile
 from hpcves.model.params import ADDED_LATER, parameter_of
 from hpcves.reports.conventions import (
     CONVENTIONS,
+    SERIES_NAMES,
+    SNAPSHOT_NAMES,
+    described,
     netcdf_attrs,
     parameter_attrs,
     regime_flag,
@@ -41,8 +44,10 @@ RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "t
 
 
 def _attrs(table: dict, name: str) -> dict:
-    long_name, units = table.get(name, (name, "1"))
-    return {"long_name": long_name, "units": units}
+    """CF attributes of a series (``table`` SERIES_ATTRS) or a snapshot field (SNAPSHOT_ATTRS)."""
+    description, units = table.get(name, (name, "1"))
+    short = (SERIES_NAMES if table is SERIES_ATTRS else SNAPSHOT_NAMES).get(name)
+    return described(description, units, short)
 
 
 def _case_variables(store: CaseStore, names, snapshots: bool, sample_dim: str) -> dict:
@@ -121,7 +126,7 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
         coords["snapshot"] = data.pop("snapshot_t")[1]
         coords["alpha"] = np.arange(N) / N
     ds = xr.Dataset({k: xr.Variable(*v) for k, v in data.items()}, coords=coords, attrs=attrs)
-    ds["time"].attrs.update(t[2])
+    ds["time"].attrs.update(t[2], axis="T")         # CF: the time axis, for cf-xarray and others
     if snapshots:
         ds["snapshot"].attrs.update(_attrs(SNAPSHOT_ATTRS, "t"))
         ds["alpha"].attrs.update(_attrs(SNAPSHOT_ATTRS, "alpha"))
@@ -133,16 +138,21 @@ def open_case(path, case: str | None = None, *, variables=None, snapshots: bool 
 def open_campaign(path, *, variables=None, tree: bool = False):
     """Every case of a campaign file as one xarray Dataset over (case, sample): each case's series
     from its first sample to its last computed one, NaN beyond (cases differ in length and in
-    sampling, so the time is the 2-D auxiliary coordinate ``t`` (case, sample), not a shared axis);
-    the swept parameters, status and search index as coordinates along ``case``; and, where the file
+    sampling, so the time is the variable ``t`` (case, sample), not a shared axis); the parameters,
+    status and search index as coordinates along ``case``; and, where the file
     was analysed (``hpcves analyze``), each case's regime, period, mean inclination and their error bars.
 
     ``variables``: the series to read (default: all). A case whose data cannot be read comes back
     with status "damaged" and NaN series. ``tree``: the file as an xarray DataTree instead --
     ``/cases`` this Dataset, ``/analysis`` every column of the analysis (where analysed), and
     ``/refinement`` (with ``/refinement/boundaries``) or ``/search``: the verdict of every
-    refinement or search of a refine or search file, replayed from its analysed cases."""
+    refinement or search of a refine or search file, replayed from its analysed cases.
+
+    The parameters select cases, ``ds.sel(shear_rate=40, psi_bar=0.3)``, and ``ds.hpcves.case(...)`` gives
+    one case over its own time axis (reports/selection.py)."""
     import xarray as xr
+
+    from hpcves.reports import selection
 
     path = Path(path)
     with open_file(path, "r", locking=False) as h5, reading(str(path)):
@@ -194,17 +204,15 @@ def open_campaign(path, *, variables=None, tree: bool = False):
     coords = {"case": ("case", ids, {"long_name": "case id"}),
               "status": ("case", statuses, result_attrs("status")),
               "status_flag": ("case", flags, flag_attrs),
-              "search": ("case", searches, {"long_name": "search (or refinement) of the case; -1 in a grid",
-                                            "units": "1"}),
+              "search": ("case", searches, {"long_name": "search of the case",
+                                            "comment": "the search or refinement the case belongs to; -1 in a grid"}),
               **{k: ("case", np.asarray(v), parameter_attrs(k)) for k, v in parameters.items()}}
     if "centroid" in data:
         coords["xy"] = ("xy", ["x", "y"], {"long_name": "component"})
-    t = data.pop("t", None)
-    if t is not None:
-        coords["t"] = t
     ds = xr.Dataset(data, coords=coords, attrs=attrs)
     ds.coords["sample"] = ("sample", np.arange(ds.sizes.get("sample", 0)),
-                           {"long_name": "index of the sample in its case's record", "units": "1"})
+                           {"long_name": "sample", "comment": "index of the sample in its case's record"})
+    ds = selection.with_parameter_index(ds, PARAMETERS)
     for column, values in results.items():
         ds[column] = ("case", values, result_attrs(column))
     if "regime" in results:
