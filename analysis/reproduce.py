@@ -399,9 +399,10 @@ def periods_section(c: Context) -> list[str]:
 
 
 CRITICAL_NOTE = ("S_C lies in the final bracket [largest TT, smallest PT/TU], the result and its error bar; the "
-                 "best estimate inside it extrapolates 1/T^2 of the PT cases above the bracket to zero (a "
-                 "saddle-node's T ~ (S - S_C)^(-1/2)), or is the bracket's geometric centre where that lands "
-                 "outside, as 'found from' says. Delta E_b is the bending-energy gap (max - min of E_b over a "
+                 "best estimate inside it extrapolates 1/T^2 of the two PT cases nearest above the bracket to zero "
+                 "(a saddle-node's T ~ (S - S_C)^(-1/2); VALIDATION.md section 7 tests it), or is the bracket's "
+                 "geometric centre where no two lie within 5 bracket widths or the root lands outside, as 'found "
+                 "from' says. Delta E_b is the bending-energy gap (max - min of E_b over a "
                  "period) of the PT case at the bracket's top.")
 
 

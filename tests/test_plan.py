@@ -1,4 +1,5 @@
 """hpcves campaign --plan: cases, core-hours, ranks and wall time; the SLURM script sized from it."""
+import dataclasses
 import os
 import re
 import stat
@@ -10,6 +11,7 @@ from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.plan import Plan, Stage, makespan, plan
 from hpcves.campaign.slurm import mem_per_cpu
 from hpcves.campaign.study import load_study, study_from_toml
+from hpcves.model.params import Case, Numerics, Physics, RunControl
 from hpcves.run.timing import StepCost, rank_bytes
 from jobs import hpcves, mpi_env, start_job
 
@@ -148,6 +150,24 @@ def test_step_cost_is_measured_once_per_kind_of_step(tmp_path):
     # dt is 1e-3 in every case and every 10th step samples: one kind, timed once
     assert len(cost.measured) == 1 and len(said) == 1 and "N = 32" in said[0]
     assert len(set(seconds)) == 1
+
+
+def test_each_n_is_timed_once_whatever_the_cases_sample():
+    """Cases that sample and snapshot at different shares of their steps share one timing of their N: a
+    case's cost is the bare step plus its shares of a sample's and a snapshot's cost."""
+    said = []
+    cost = StepCost(steps=20, announce=said.append)
+    base = Case(Physics(shear_rate=10.0, psi_bar=0.3), Numerics(N=32, dt=1e-3),
+                RunControl(t_end=0.05, sample_interval=1e-3, snapshot_interval=0.01, checkpoint_interval=0.05))
+    every = [dataclasses.replace(base, run=dataclasses.replace(base.run, sample_interval=k * 1e-3,
+                                                               snapshot_interval=m * 1e-3))
+             for k, m in ((1, 1), (1, 10), (4, 10), (10, 50))]
+    seconds = [cost(c) for c in every]
+    assert len(said) == 1 and len(cost.measured) == 1 and "N = 32" in said[0]
+    parts = cost.measured[StepCost.kind_of(base)]
+    assert parts.step > 0 and parts.sample >= 0 and parts.snapshot >= 0
+    assert seconds == [parts.cost(*StepCost.shares(c)) for c in every]
+    assert seconds == sorted(seconds, reverse=True)            # fewer writes never cost more
 
 
 def test_plan_on_the_command_line_and_its_slurm_script(tmp_path):

@@ -179,7 +179,18 @@ def test_an_extrapolation_outside_the_bracket_is_named_and_not_used():
              4.5: ("PT", math.nan, 1.9)}
     estimate = estimate_critical(4.2, 4.3, cases)
     assert math.isnan(estimate.value)
-    assert "none inside the bracket" in estimate.method and "1/T^2 -> 0 above (PT) gives" in estimate.method
+    assert "no extrapolation inside the bracket" in estimate.method and "1/T^2 -> 0 above (PT) gives" in estimate.method
     # a frequency that falls away from the transition gives nothing to extrapolate
     falling = {**cases, 4.5: ("PT", math.nan, 2.5)}
     assert estimate_critical(4.2, 4.3, falling).extrapolations == ()
+
+
+def test_only_cases_near_the_bracket_are_extrapolated_from():
+    """A search's first stage leaves a case at the range's end; T ~ 1/S there, not (S - S_C)^(-1/2): a
+    secant through it would pin the root to the bracket's end."""
+    cases = {35.0: ("TT", 0.57, math.nan), 38.7: ("TT", 0.57, math.nan), 40.0: ("PT", 0.58, 0.65),
+             320.0: ("PT", 0.59, 0.0217)}
+    estimate = estimate_critical(38.7, 40.0, cases)
+    assert math.isnan(estimate.value) and "no two cases on a side within 5 bracket widths" in estimate.method
+    near = {**cases, 44.0: ("PT", 0.58, 0.3)}                            # within 5 widths (6.5) of 40
+    assert 38.7 <= estimate_critical(38.7, 40.0, near).value <= 40.0

@@ -187,6 +187,10 @@ class CriticalEstimate:
     extrapolations: tuple  # (what, value) of every extrapolation tried, inside the bracket or not
 
 
+#: how far from the bracket, in bracket widths, a case may lie and still be extrapolated from
+LOCAL_WIDTHS = 5.0
+
+
 def root_of_square(x1: float, y1: float, x2: float, y2: float) -> float:
     """Where y^2, taken as linear in x through (x1, y1^2) and (x2, y2^2), vanishes: x1 - y1^2 (x2 - x1) /
     (y2^2 - y1^2); nan where y^2 does not change."""
@@ -204,31 +208,36 @@ def estimate_critical(low: float, high: float, cases: dict) -> CriticalEstimate:
     the two PT/TU cases nearest above the bracket, taken as linear in x, vanishes at x_C. Below a
     tank-treading -> tumbling transition the inclination of the stationary state falls to zero
     (Keller & Skalak 1982: sin^2 theta ~ (x_C - x)), so theta^2 of the two TT cases nearest below
-    the bracket gives a second estimate. The extrapolations that land inside the bracket are
-    averaged with weights 1 / (d1 d2)^2 -- a secant through cases at distances d1, d2 from x_C misses
-    a root of c d (1 + a d) by about a d1 d2, so the nearer pair counts more; d1 and d2 are measured
-    from the estimate itself, found by iterating from the plain mean. One that lands outside the
-    bracket is not used (the scaling does not hold that far from x_C).
+    the bracket gives a second estimate. Only cases within ``LOCAL_WIDTHS`` bracket widths of the
+    bracket count: the scaling is a local law, and a secant through a far case (a search's first
+    stage at ``high``, where T ~ 1/S) would pin the root to the bracket's end. The extrapolations
+    that land inside the bracket are averaged with weights 1 / (d1 d2)^2 -- a secant through cases
+    at distances d1, d2 from x_C misses a root of c d (1 + a d) by about a d1 d2, so the nearer pair
+    counts more; d1 and d2 are measured from the estimate itself, found by iterating from the plain
+    mean. One that lands outside the bracket is not used (the scaling does not hold that far).
     """
     rates = sorted(cases)
+    reach = LOCAL_WIDTHS * (high - low)
     tried = []                     # (what, root, the two cases it extrapolates from)
-    above = [(x, 1.0 / cases[x][2]) for x in rates if x >= high and cases[x][0] in (PT, TU)
+    above = [(x, 1.0 / cases[x][2]) for x in rates if high <= x <= high + reach and cases[x][0] in (PT, TU)
              and math.isfinite(cases[x][2]) and cases[x][2] > 0][:2]
     if len(above) == 2 and above[1][1] > above[0][1]:
         tried.append((f"1/T^2 -> 0 above ({cases[above[0][0]][0]})", root_of_square(*above[0], *above[1]),
                       (above[0][0], above[1][0])))
     if cases.get(high, ("",))[0] == TU:
-        below = [(x, cases[x][1]) for x in rates if x <= low and cases[x][0] == TT
+        below = [(x, cases[x][1]) for x in rates if low - reach <= x <= low and cases[x][0] == TT
                  and math.isfinite(cases[x][1]) and cases[x][1] > 0][-2:]
         if len(below) == 2 and below[0][1] > below[1][1]:
             tried.append(("theta^2 -> 0 below (TT)", root_of_square(*below[0], *below[1]),
                           (below[0][0], below[1][0])))
     inside = [(what, x, pair) for what, x, pair in tried if low <= x <= high]
     tried = tuple((what, x) for what, x, _ in tried)
+    if not tried:
+        return CriticalEstimate(math.nan, f"no two cases on a side within {LOCAL_WIDTHS:g} bracket widths to "
+                                          "extrapolate from", ())
     if not inside:
         left = "; ".join(f"{what} gives {x:.4g}" for what, x in tried)
-        return CriticalEstimate(math.nan, "none inside the bracket" + (f" ({left}: outside)" if left else ""),
-                                tried)
+        return CriticalEstimate(math.nan, f"no extrapolation inside the bracket ({left})", tried)
     value = sum(x for _, x, _ in inside) / len(inside)
     for _ in range(8 if len(inside) > 1 else 0):        # the weights measure d1, d2 from the estimate
         weights = [1.0 / max(abs((a - value) * (b - value)), 1e-300) ** 2 for _, _, (a, b) in inside]

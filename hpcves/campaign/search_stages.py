@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hpcves.analysis.search import CENTRE, RUNNING, SearchSettings, SearchState, step
+from hpcves.analysis.search import RUNNING, SearchSettings, SearchState, step
 from hpcves.campaign.study import Study, search_keys
 from hpcves.run.store import ENDED
 from hpcves.run.verdict import Verdict, case_data, verdict_of
@@ -48,14 +48,13 @@ class SearchOutcome:
         return self.settings.column
 
     def row(self) -> dict:
-        """One row of critical_shear.csv (critical_lambda.csv), its critical value the bracket's centre
-        (reports/critical.py puts a better estimate there where the cases' periods give one)."""
+        """One row of critical_shear.csv (critical_lambda.csv): the bracket, and no estimate inside it (the
+        campaign knows the cases' regimes, not their periods: reports/critical.py estimates)."""
         reason = self.state.reason
         if self.state.status == RUNNING:
             reason = (f"unfinished: next {self.symbol} = {', '.join(f'{s:g}' for s in self.state.next_values)} "
                       f"({reason})")
-        return {**self.point, self.column: self.state.centre, f"{self.column}_from": CENTRE if
-                self.state.centre == self.state.centre else "", "bracket_low": self.state.low,
+        return {**self.point, self.column: math.nan, f"{self.column}_from": "", "bracket_low": self.state.low,
                 "bracket_high": self.state.high, "bending_gap": math.nan, "bending_gap_err": math.nan,
                 "status": self.state.status, "cases": len(self.regimes), "reason": reason}
 

@@ -212,7 +212,8 @@ def _search_brief(outcome) -> str:
 def _print_searches(outcomes, critical_csv) -> None:
 
     click.echo(critical_table([o.row() for o in outcomes], outcomes[0].swept_keys, outcomes[0].column))
-    click.echo(f"critical {'shear rates' if outcomes[0].symbol == 'S' else 'viscosity ratios'}: {critical_csv}")
+    click.echo(f"critical {'shear rates' if outcomes[0].symbol == 'S' else 'viscosity ratios'}: {critical_csv} (the "
+               "brackets; hpcves analyze adds the best estimate inside each)")
 
 
 def _print_refinements(study, outcomes, refine_csv) -> None:

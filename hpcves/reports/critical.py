@@ -58,24 +58,27 @@ def critical_rows(source, rows: list[dict], study) -> list[dict]:
             if math.isfinite(estimate.value):
                 row[o.column], row[f"{o.column}_from"] = estimate.value, estimate.method
             else:
-                row[f"{o.column}_from"] = f"{CENTRE}: {estimate.method}"
+                row[o.column], row[f"{o.column}_from"] = o.state.centre, f"{CENTRE}: {estimate.method}"
         row["bending_gap"], row["bending_gap_err"] = gaps.get((o.index, o.state.high), (math.nan, math.nan))
         out.append(row)
     return out
 
 
 def critical_table(rows: list[dict], keys, column: str = "S_C") -> str:
-    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then its critical value
-    (``column``: S_C or lambda_C) and its bracket."""
-    body = [[f"{r[k]:g}" for k in keys]
-            + [f"[{fmt(r['bracket_low'], '.4g')}, {fmt(r['bracket_high'], '.4g')}]", fmt(r[column], ".4g"),
-               r.get(f"{column}_from", ""),
-               _gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]),
-               r["status"], r["reason"]] for r in rows]
-    return markdown_table([LABELS.get(k, k) for k in keys]
-                          + [f"{column} lies in", "best estimate", "found from", "Delta E_b at the bracket's top",
-                             "cases", "status", "reason"],
-                          body, left=(len(keys) + 2, len(keys) + 5, len(keys) + 6))
+    """Markdown table of critical_shear.csv rows: the ``keys`` of each search, then the bracket of its
+    critical value (``column``: S_C or lambda_C) and, where the rows have them (hpcves analyze's), the best
+    estimate inside it and how it was found."""
+    estimates = any(r.get(f"{column}_from") for r in rows)
+    body = [[f"{r[k]:g}" for k in keys] + [f"[{fmt(r['bracket_low'], '.4g')}, {fmt(r['bracket_high'], '.4g')}]"]
+            + ([fmt(r[column], ".4g"), r[f"{column}_from"]] if estimates else [])
+            + [_gap(r["bending_gap"], r["bending_gap_err"]), str(r["cases"]), r["status"], r["reason"]]
+            for r in rows]
+    shift = 2 if estimates else 0
+    return markdown_table([LABELS.get(k, k) for k in keys] + [f"{column} lies in"]
+                          + (["best estimate", "found from"] if estimates else [])
+                          + ["Delta E_b at the bracket's top", "cases", "status", "reason"],
+                          body, left=((len(keys) + 2,) if estimates else ()) + (len(keys) + 3 + shift,
+                                                                                 len(keys) + 4 + shift))
 
 
 def _gap(gap: float, error: float) -> str:
@@ -83,8 +86,8 @@ def _gap(gap: float, error: float) -> str:
 
 
 _ESTIMATE = ("The best estimate inside it: past the transition the period diverges as T ~ (x - x_C)^(-1/2), so "
-             "1/T^2 of the two PT/TU cases nearest above the bracket, extrapolated linearly to zero, gives x_C; below "
-             "a TT -> TU transition theta^2 of the two nearest TT cases extrapolated to zero gives another; those "
+             "1/T^2 of the two PT/TU cases nearest above the bracket (within 5 bracket widths), extrapolated linearly "
+             "to zero, gives x_C; below a TT -> TU transition theta^2 of the two nearest TT cases gives another; those "
              "inside the bracket are averaged, the pair nearer the transition weighted more. Where none lands "
              "inside, the bracket's geometric centre stands in, and says so.")
 

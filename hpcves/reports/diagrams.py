@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from hpcves.analysis import accuracy
+from hpcves.analysis.search import CENTRE
 from hpcves.model.params import PARAMETER_NAMES
 
 REGIME_STYLE = {            # colour, marker, label
@@ -337,15 +338,17 @@ def paper_diagram(rows: list[dict], x_key: str, y_key: str, regions, lines=(), b
 
 def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", along: str = "shear_rate"):
     """S_C (lambda_C: ``along`` = "viscosity_ratio") against one swept parameter: the bracket as an error
-    bar, the critical value as a point; a search that did not bracket it is an arrow at the end of its range."""
+    bar, the best estimate inside it as a point (hollow where it is only the bracket's centre); a search
+    that did not bracket it is an arrow at the end of its range."""
     column, symbol = CRITICAL[along]
     fig = Figure(figsize=(7, 5), constrained_layout=True)
     ax = fig.subplots()
     for r in searches:
         x, low, high = r[x_key], r["bracket_low"], r["bracket_high"]
         if np.isfinite(r[column]):
+            centre = str(r.get(f"{column}_from", "")).startswith(CENTRE)
             ax.errorbar([x], [r[column]], yerr=[[r[column] - low], [high - r[column]]], fmt="D", color="C0",
-                        mec="k", ms=8, capsize=5, lw=2)
+                        mec="k", ms=8, capsize=5, lw=2, mfc="white" if centre else "C0")
         elif np.isfinite(low) and np.isfinite(high):
             ax.plot([x, x], [low, high], color="C1", lw=3)
             ax.annotate(r["status"], (x, high), textcoords="offset points", xytext=(5, 0), fontsize=9)
@@ -374,8 +377,14 @@ def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", alo
         twin.set_ylabel(r"bending-energy gap $\Delta E_b$ at the bracket top", color="tab:orange", fontsize=12)
         twin.set_ylim(bottom=0.0, top=1.15 * max(r["bending_gap"] + np.nan_to_num(r["bending_gap_err"])
                                                   for r in gaps))
-        handles = [matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k", label=f"{symbol} (left)"),
-                   twin.get_legend_handles_labels()[0][0]]
+    handles = [matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k",
+                                       label=f"{symbol}: estimate, bar: bracket" + (" (left)" if gaps else ""))]
+    if any(str(r.get(f"{column}_from", "")).startswith(CENTRE) for r in searches if np.isfinite(r[column])):
+        handles.append(matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k", mfc="white",
+                                               label="hollow: the bracket's centre (no estimate)"))
+    if gaps:
+        handles.append(twin.get_legend_handles_labels()[0][0])
+    if any(np.isfinite(r[column]) for r in searches):
         ax.legend(handles=handles, frameon=False, fontsize=10, loc="upper center")
     if title:
         ax.set_title(title, fontsize=13)

@@ -3,7 +3,7 @@
 ``hpcves campaign --plan`` multiplies these by the steps a case is expected to take
 (campaign/plan.py). A step's cost depends on N, on whether the vesicle has a phase
 field, and on how often it samples and snapshots; not on the shear rate or the step size
-as such.
+as such: each N is timed once (:class:`StepCost`), its samples and snapshots apart.
 """
 from __future__ import annotations
 
@@ -62,40 +62,72 @@ def rank_bytes(N: int, contrast: bool, compiling: bool = True) -> int:
                                                                else BYTES_PER_N2) * N * N
 
 
-class StepCost:
-    """``seconds_per_step`` measured once per kind of step and remembered: ``cost(case)`` for
-    every case of a study, ``measured`` for a report.
+@dataclasses.dataclass(frozen=True)
+class StepParts:
+    """A step's wall seconds taken apart: the step itself (the solve and the loop around it), and what a
+    sample and a snapshot add when one is due."""
 
-    A step's cost is the solve (N; with or without a phase field) plus what it writes: a
-    sample of every series costs about as much as the solve, a snapshot more (h5py's
-    per-dataset overhead; docs/numerics.md). So the kind is N, the phase field, and the
-    shares of steps that sample and snapshot at the settled step -- the same for most cases
-    of a study, since the step, the sampling and t_end all scale as 1 / S."""
+    step: float
+    sample: float
+    snapshot: float
+
+    def cost(self, samples: float, snapshots: float) -> float:
+        """Seconds per step for shares ``samples`` and ``snapshots`` of the steps that sample and snapshot."""
+        return self.step + samples * self.sample + snapshots * self.snapshot
+
+
+class StepCost:
+    """A step's cost, timed once per N and remembered: ``cost(case)`` for every case of a study,
+    ``measured`` for a report.
+
+    A step's cost is the solve (N; with or without a phase field; the rates' grid) plus what it
+    writes: a sample of every series costs about as much as the solve, a snapshot more (h5py's
+    per-dataset overhead; docs/numerics.md). The shares of steps that sample and snapshot differ
+    from case to case (the step, the sampling and t_end scale differently with S), so each kind of
+    solve is timed three ways -- writing nothing, sampling every step, snapshotting every step --
+    and a case's cost is ``StepParts.cost`` at its own shares."""
 
     def __init__(self, steps: int = 150, announce=lambda text: None, stop_requested=lambda: False):
         self.steps, self.announce, self.stop_requested = steps, announce, stop_requested
-        self.measured: dict = {}             # kind (kind_of) -> seconds per step
+        self.measured: dict = {}             # kind (kind_of) -> StepParts
 
     @staticmethod
     def kind_of(case: Case) -> tuple:
-        """(N, homogeneous, samples per step, snapshots per step, dealias), the shares to 2 digits; where N
-        adapts, the N its start needs (resolution.expected_N: the run is timed from that start)."""
+        """(N, homogeneous, dealias): what sets the solve's cost; where N adapts, the N its start needs
+        (resolution.expected_N: the run is timed from that start)."""
+        return expected_N(case), case.physics.homogeneous, case.numerics.dealias
+
+    @staticmethod
+    def shares(case: Case) -> tuple[float, float]:
+        """The shares of a case's steps that sample and snapshot, at its settled step."""
         dt = case.settled_step
-        share = lambda interval: float(f"{min(1.0, dt / interval):.2g}")       # noqa: E731
-        return (expected_N(case), case.physics.homogeneous, share(case.run.sample_interval),
-                share(case.run.snapshot_interval), case.numerics.dealias)
+        return min(1.0, dt / case.run.sample_interval), min(1.0, dt / case.run.snapshot_interval)
 
     def __call__(self, case: Case) -> float:
         kind = self.kind_of(case)
         if kind not in self.measured:
-            N, homogeneous, samples, snapshots, dealias = kind
+            N, homogeneous, dealias = kind
             self.announce(f"timing a step at N = {N}" + (" (homogeneous)" if homogeneous else "")
-                          + dealias_label(dealias)
-                          + f", sampling every {1 / samples:.3g} steps ...")
+                          + dealias_label(dealias) + ", with and without samples and snapshots ...")
             if not self.measured:              # the first run in a process loads and plans: not timed
                 seconds_per_step(case, steps=20, repeats=1, stop_requested=self.stop_requested)
-            self.measured[kind] = seconds_per_step(case, self.steps, stop_requested=self.stop_requested)
-        return self.measured[kind]
+            self.measured[kind] = self._parts(case)
+        return self.measured[kind].cost(*self.shares(case))
+
+    def _parts(self, case: Case) -> StepParts:
+        """The three timings of ``case``'s kind of step; a write's share is the difference to the bare
+        step (never below 0: on a busy machine the bare step may come out the slower)."""
+        dt = case.settled_step                             # fixed, whatever the sampling below
+        case = dataclasses.replace(case, numerics=dataclasses.replace(case.numerics, dt=dt, rtol=None))
+        far = 1e6 * max(dt, case.run.t_end)                # an interval no timed run reaches
+
+        def timed(sample: float, snapshot: float) -> float:
+            run = dataclasses.replace(case.run, sample_interval=sample, snapshot_interval=snapshot)
+            return seconds_per_step(dataclasses.replace(case, run=run), self.steps,
+                                    stop_requested=self.stop_requested)
+
+        bare = timed(far, far)
+        return StepParts(bare, max(0.0, timed(dt, far) - bare), max(0.0, timed(far, dt) - bare))
 
 
 #: the samples of the case whose layout is timed (layout_seconds)
