@@ -159,3 +159,23 @@ def test_a_live_run_in_another_process_keeps_its_file(tmp_path, case_file):
     assert run.returncode == 0, err
     assert "resume with: hpcves run --resume" in out, out
     assert writer(path) is None
+
+
+@pytest.mark.parametrize("command", ["run", "campaign"])
+def test_a_users_file_under_the_partial_name_is_kept_and_the_command_refused(tmp_path, case_file, command):
+    """hpcves removes the ``.partial`` an interrupted change left (an HDF5 file, or the zeros of a
+    reservation made before its first bytes); a file of the user's that bears the name is neither
+    removed nor truncated: the command refuses, naming it."""
+    study, _ = write_tiny_study(tmp_path / "s", t_end=0.01, shear="[40]", psi="[0.3]")
+    out = tmp_path / "b.h5"
+    notes = tmp_path / "b.h5.partial"
+    notes.write_text("my notes on b.h5\n")
+    args = ("run", case_file, "--out", out) if command == "run" else ("campaign", study, "--out", out)
+    line = refused(invoke(*args))
+    assert f"{notes}: there, but not a file hpcves left" in line and "move it away" in line, line
+    assert notes.read_text() == "my notes on b.h5\n" and not out.exists()
+    notes.unlink()
+    notes.write_bytes(b"\0" * 4096)                      # a reservation cut short: hpcves's own debris
+    result = invoke(*args)
+    assert result.exit_code == 0, result.output
+    assert out.exists() and not notes.exists()

@@ -39,7 +39,10 @@ import shutil
 from pathlib import Path
 
 from hpcves.config import not_a_regular_file
-from hpcves.errors import StorageError  # noqa: F401 -- raised here; callers import it from here too
+from hpcves.errors import (
+    FileFormatError,
+    StorageError,  # noqa: F401 -- raised here; callers import it from here too
+)
 from hpcves.files import faults
 
 #: what a file needs beyond its datasets' raw bytes, per case (object headers, attributes, the config
@@ -55,10 +58,31 @@ def partial_path(path) -> Path:
     return path.with_name(path.name + ".partial")
 
 
+#: the first bytes of an HDF5 file (with no user block, as hpcves writes them)
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
 def remove_partial(path) -> bool:
-    """Remove a leftover ``.partial`` of ``path`` (call it holding the file's lock); True if there was one."""
+    """Remove a leftover ``.partial`` of ``path`` (call it holding the file's lock); True if there was one.
+
+    Only what hpcves leaves there is removed: an HDF5 file, or the zeros of a reservation made before
+    the file's first bytes were written (:func:`new_partial`). Anything else -- a user's file that
+    happens to bear the name, a link, a directory -- is refused with a FileFormatError, not deleted
+    (and not truncated by the next :func:`new_partial` either)."""
+    partial = partial_path(path)
+    if not os.path.lexists(partial):
+        return False
+    head = b""
+    if not os.path.islink(partial) and os.path.isfile(partial):
+        with open(partial, "rb") as f:
+            head = f.read(len(HDF5_SIGNATURE))
+    ours = not os.path.islink(partial) and os.path.isfile(partial) and (head == HDF5_SIGNATURE
+                                                                          or not head.strip(b"\0"))
+    if not ours:
+        raise FileFormatError(f"{partial}: there, but not a file hpcves left (hpcves builds the next version "
+                              f"of {Path(path).name} under that name): move it away, then run this again")
     try:
-        os.unlink(partial_path(path))
+        os.unlink(partial)
         return True
     except FileNotFoundError:
         return False
@@ -154,8 +178,9 @@ def new_partial(path, nbytes: float, what: str) -> Path:
     path = Path(path)
     partial = partial_path(path)
     require_space(path, nbytes, what)
+    remove_partial(path)                  # debris of an earlier try; a user's file there is refused
     try:
-        fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        fd = os.open(partial, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
         try:
             _reserve(fd, nbytes)
             os.pwrite(fd, empty_hdf5_image(FILE_FORMAT), 0)
@@ -174,6 +199,7 @@ def copy_for_change(path, extra_bytes: float, what: str) -> Path:
     partial = partial_path(path)
     size = path.stat().st_size
     require_space(path, size + extra_bytes, what)
+    remove_partial(path)                  # debris of an earlier try; a user's file there is refused
     try:
         shutil.copyfile(path, partial)
         shutil.copymode(path, partial)
