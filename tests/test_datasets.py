@@ -87,6 +87,7 @@ def test_cases_are_selected_by_their_parameters_and_one_case_comes_on_its_own_ti
     assert list(ds.sel(shear_rate=slice(50, None), psi_bar=[0.0])["case"].values) == ["0002"]
     assert str(ds.sel(shear_rate=79, psi_bar=0.31, method="nearest")["case"].values) == "0003"
     assert list(ds.sel(case="0001")["psi_bar"].values.ravel()) == [0.3]            # by id, as before
+    assert str(ds.sel(shear_rate=80.0004, psi_bar=0.3)["case"].values) == "0003"   # as a table prints it
     with pytest.raises(KeyError, match=r"no case with shear_rate = 60 \(the cases have shear_rate = 40, 80\)"):
         ds.sel(shear_rate=60)
     case = ds.hpcves.case(shear_rate=80, psi_bar=0.3)

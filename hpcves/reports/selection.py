@@ -14,8 +14,9 @@ import numpy as np
 import xarray as xr
 from xarray.core.indexing import IndexSelResult
 
-#: relative tolerance of a parameter match: values in a file are the study's numbers, written once
-MATCH_RTOL = 1e-9
+#: relative tolerance of a parameter match: a value as the tables print it (6 significant digits, %g)
+#: selects its case; a campaign's values lie much further apart than that
+MATCH_RTOL = 1e-5
 
 
 def _close(values: np.ndarray, label: float) -> np.ndarray:
