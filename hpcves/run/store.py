@@ -148,6 +148,8 @@ class CaseStore(CaseRecords, CaseCheckpoints):
         self._overwrite_first = None
         #: {record: (BLAKE2b of its rows, their count)} that the slot a resume chose builds on (format 6)
         self._resumed_rows = {}
+        #: (config text, the Case parsed from it): :attr:`case` parses a text once
+        self._parsed = None
         #: the series this case records (files written before OPTIONAL_SERIES existed lack those)
         self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or self._place.has(f"timeseries/{n}"))
 
@@ -332,7 +334,11 @@ class CaseStore(CaseRecords, CaseCheckpoints):
 
     @property
     def case(self) -> Case:
-        return stored_case(self.config, self.where)
+        """The case its config holds, parsed once for as long as the config text is the same."""
+        text = self.config
+        if self._parsed is None or self._parsed[0] != text:
+            self._parsed = (text, stored_case(text, self.where))
+        return self._parsed[1]
 
     @property
     def status(self) -> Status | int:
