@@ -313,3 +313,16 @@ def test_every_fault_point_in_the_package_is_one_the_variable_may_name():
     assert used and used == set(faults.POINTS), (used, faults.POINTS)
     for point in used:
         assert faults._parse(f"{point}:2@1") == (point, 2, 1)
+
+
+@pytest.mark.parametrize("command", [("run", "{case}", "--out", "{evil}"), ("run", "--resume", "{evil}"),
+                                     ("campaign", "{evil}"), ("status", "{evil}"), ("analyze", "{evil}"),
+                                     ("shapes", "{evil}"), ("animate", "{evil}")])
+def test_a_file_name_with_a_line_break_gets_one_line_from_every_command(tmp_path, command):
+    """A path with a newline in its name printed as two lines in every message that named it."""
+    case = tmp_path / "case.toml"
+    case.write_text(BASE_RUN)
+    evil = tmp_path / "a\nb.h5"
+    line = refused(invoke(*[a.format(case=case, evil=evil) for a in command]))
+    assert line.startswith(f"Error: {str(evil)!r}: the name holds a line break") and "rename it" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["case.toml"]

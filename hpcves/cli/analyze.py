@@ -4,7 +4,7 @@ from __future__ import annotations
 import click
 
 from hpcves.analysis import accuracy
-from hpcves.cli.terminal import StatusLine, clean_errors, fail
+from hpcves.cli.terminal import OneLinePath, StatusLine, clean_errors, fail
 from hpcves.model.params import ConfigError
 from hpcves.reports.analyze import analyze, parse_overrides
 from hpcves.reports.case_pages import SELECTIONS
@@ -17,8 +17,8 @@ def _case_selection(which: str):
 
 
 @click.command("analyze")
-@click.argument("file", type=click.Path())
-@click.option("--out", "out", type=click.Path(),
+@click.argument("file", type=OneLinePath())
+@click.option("--out", "out", type=OneLinePath(),
               help="Directory for the tables and figures (default: <file>_analysis next to the file).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Override a threshold of the classification, e.g. --set min_cycles=5 (see [analysis]).")

@@ -12,7 +12,7 @@ from hpcves.campaign import IO_MODES
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import load_study
 from hpcves.cli.plan import print_plan
-from hpcves.cli.terminal import CampaignProgress, StopFlag, compiling, duration, error, fail, os_error_text
+from hpcves.cli.terminal import CampaignProgress, OneLinePath, StopFlag, compiling, duration, error, fail, os_error_text
 from hpcves.errors import HpcvesError
 from hpcves.files.atomic import check_output_path
 from hpcves.reports.critical import critical_table, write_critical_csv
@@ -33,13 +33,13 @@ def mpi_world():
 
 
 @click.command("campaign", epilog=CAMPAIGN_EXIT)
-@click.argument("study_file", type=click.Path())
+@click.argument("study_file", type=OneLinePath())
 @click.option("--resume", is_flag=True,
               help="Continue the campaign file (finished cases are kept, running ones continue from "
                    "their checkpoints); starts it if it does not exist yet.")
 @click.option("--retry-failed", is_flag=True, help="With --resume: run the failed cases again, from the start.")
 @click.option("--overwrite", is_flag=True, help="Delete an existing campaign file and start over.")
-@click.option("--out", "out", type=click.Path(), help="Campaign file (default: [campaign] output).")
+@click.option("--out", "out", type=OneLinePath(), help="Campaign file (default: [campaign] output).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--io", "io", type=click.Choice(IO_MODES), default="auto", show_default=True,
               help="How several ranks write the file: mpio (parallel HDF5, every rank writes its cases), "
@@ -48,12 +48,12 @@ def mpi_world():
 @click.option("--plan", "show_plan", is_flag=True,
               help="Run nothing: time a step at each N here, then print the cases, the core-hours, and "
                    "the wall time on a suggested number of ranks (without mpirun).")
-@click.option("--slurm", "slurm_file", type=click.Path(),
+@click.option("--slurm", "slurm_file", type=OneLinePath(),
               help="With --plan: also write a SLURM batch script sized from the plan to this file.")
 @click.option("--max-time", type=float, default=24.0, show_default=True,
               help="With --plan: the longest job to ask for, in hours (the script resubmits itself "
                    "while work is left).")
-@click.option("--slurm-template", "slurm_template", type=click.Path(),
+@click.option("--slurm-template", "slurm_template", type=OneLinePath(),
               help="With --slurm: your site's batch-script template instead of the default "
                    "(hpcves/campaign/templates/slurm.sh; its {{ placeholders }}: docs/cluster.md).")
 @click.option("--max-jobs", type=int,

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import click
 
-from hpcves.cli.terminal import StatusLine, clean_errors
+from hpcves.cli.terminal import OneLinePath, StatusLine, clean_errors
 from hpcves.files.atomic import check_output_path
 from hpcves.model.params import ConfigError
 from hpcves.reports.figures import (
@@ -20,11 +20,11 @@ from hpcves.reports.figures import (
 
 
 @click.command("shapes")
-@click.argument("file", type=click.Path())
+@click.argument("file", type=OneLinePath())
 @click.option("--case", "case_ids", multiple=True, metavar="ID", help="A case to draw (repeat for more rows).")
 @click.option("--where", "where", multiple=True, metavar="KEY=VALUE",
               help="Draw every case with this parameter value, e.g. --where psi_bar=0.5 (repeatable).")
-@click.option("--out", "out", type=click.Path(), help="The figure (PNG or PDF; default <file>_shapes.png).")
+@click.option("--out", "out", type=OneLinePath(), help="The figure (PNG or PDF; default <file>_shapes.png).")
 @click.option("--shapes", "n_shapes", type=click.IntRange(1, 12), default=6, show_default=True,
               help="Shapes per row.")
 @click.option("--no-streamlines", is_flag=True, help="Shapes only (faster).")
@@ -49,9 +49,9 @@ def shapes_command(file, case_ids, where, out, n_shapes, no_streamlines):
 
 
 @click.command("animate")
-@click.argument("file", type=click.Path())
+@click.argument("file", type=OneLinePath())
 @click.option("--case", "case_id", metavar="ID", help="The case of a campaign file to animate.")
-@click.option("--out", "out", type=click.Path(),
+@click.option("--out", "out", type=OneLinePath(),
               help="The movie: .mp4 (needs ffmpeg) or .gif (default <file>_<case>.mp4, or .gif without ffmpeg).")
 @click.option("--fps", type=click.IntRange(1, 60), default=12, show_default=True, help="Frames per second.")
 @click.option("--no-streamlines", is_flag=True, help="Shapes only (faster).")

@@ -6,7 +6,7 @@ import sys
 import click
 
 from hpcves.cli.refuse import refuse_a_campaign_file, refuse_a_study_as_case
-from hpcves.cli.terminal import ProgressLine, StopFlag, clean_errors, compiling, duration
+from hpcves.cli.terminal import OneLinePath, ProgressLine, StopFlag, clean_errors, compiling, duration
 from hpcves.config import load_case
 from hpcves.run.casefile import create_case_file, open_for_resume, run_file
 from hpcves.run.store import FAILED, FINISHED, MODEL_LIMIT, STATUS_NAMES, CaseStore
@@ -17,9 +17,9 @@ RUN_EXIT = ("Exit status: 0 finished, or stopped cleanly with a checkpoint (SIGI
 
 
 @click.command("run", epilog=RUN_EXIT)
-@click.argument("case_file", required=False, type=click.Path())
-@click.option("--out", "out", type=click.Path(), help="HDF5 file to write (new).")
-@click.option("--resume", "resume", type=click.Path(),
+@click.argument("case_file", required=False, type=OneLinePath())
+@click.option("--out", "out", type=OneLinePath(), help="HDF5 file to write (new).")
+@click.option("--resume", "resume", type=OneLinePath(),
               help="Continue the run in this HDF5 file from its last checkpoint.")
 @click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
 @click.option("--quiet", is_flag=True, help="No progress line.")

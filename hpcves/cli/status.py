@@ -11,14 +11,14 @@ import click
 from hpcves.campaign.file import BeingCreated, CreationInterrupted, read_table
 from hpcves.campaign.progress import WORK_LEFT, progress
 from hpcves.cli.refuse import refuse_a_study_file
-from hpcves.cli.terminal import clean_errors, duration, error, fail
+from hpcves.cli.terminal import OneLinePath, clean_errors, duration, error, fail
 from hpcves.files.atomic import check_output_path
 from hpcves.run.store import ENDED_NAMES
 from hpcves.run.verdict import DAMAGED
 
 
 @click.command("status")
-@click.argument("campaign_file", type=click.Path())
+@click.argument("campaign_file", type=OneLinePath())
 @click.option("--check", is_flag=True,
               help="Also check every dataset of every case (shapes, counters, checkpoints), as --resume does: "
                    "about 3 ms a case instead of 0.2.")

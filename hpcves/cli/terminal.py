@@ -27,6 +27,18 @@ def fail(message: str) -> None:
     sys.exit(2)
 
 
+class OneLinePath(click.Path):
+    """A file argument or option that refuses a name with a line break or another control character,
+    in one line and exit status 2: every message, table and batch script names files on one line."""
+
+    def convert(self, value, param, ctx):
+        text = os.fsdecode(value) if isinstance(value, bytes) else str(value)
+        if any(ord(c) < 32 or ord(c) == 127 for c in text):
+            fail(f"{text!r}: the name holds a line break or another control character; rename it (hpcves "
+                 "names files in one-line messages and batch scripts)")
+        return super().convert(value, param, ctx)
+
+
 def os_error_text(exc: OSError) -> str:
     """``path: reason`` of an error of the file system, in one line."""
     reason = exc.strerror or (str(exc).strip().splitlines() or [type(exc).__name__])[0]
