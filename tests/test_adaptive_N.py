@@ -432,6 +432,43 @@ def test_the_stall_watch_counts_a_short_sample_interval_as_a_tenth_of_a_shear_ti
     assert stalled.status == FAILED and stalled.message.startswith("stalled: the time step collapsed: 501 steps")
 
 
+def test_the_stall_watch_floor_grows_as_the_tolerance_tightens(tmp_path):
+    """Below rtol = 1e-3 the start-up takes about 1 / rtol more steps (5563 before t = 0.01 here at 1e-4,
+    1019 at 1e-3): the floor grows with it (limit x 0.1 x 1e-3 / rtol), so a correct run is not stopped
+    (the old floor, limit x 0.1 = 2000 steps, stopped it) -- and a step that collapses still is."""
+    slow = (STALLING.replace("shear_rate = 80.0", "shear_rate = 1.0").replace("t_end = 0.2", "t_end = 0.02")
+            .replace("rtol = 1e-3", "rtol = 1e-4"))
+    assert run_in_process(case_from_toml(slow.format(limit=20000)), tmp_path / "a.h5").status == FINISHED
+    stalled = run_in_process(case_from_toml(slow.format(limit=5000)), tmp_path / "b.h5")
+    assert stalled.status == FAILED and stalled.message.startswith("stalled: the time step collapsed: 5001 steps")
+
+
+@pytest.mark.slow
+def test_the_spinodal_start_up_at_rtol_1e_4_is_not_taken_for_a_stall(tmp_path):
+    """Delta = 0.94, psi_bar = 0.5625, S = 2 from the authors' start at rtol = 1e-4 (issue 65): 25059 steps
+    before the first sample at t = 0.02, where the default watch allowed 2e4 before its floor grew with
+    1 / rtol."""
+    case = case_from_toml("""
+[physics]
+excess_length = 0.94
+psi_bar = 0.5625
+shear_rate = 2.0
+initial_shape = "smoothed"
+psi_init_coordinate = "ellipse_parameter"
+[numerics]
+N = "auto"
+rtol = 1e-4
+[run]
+t_end = 0.04
+sample_interval = 0.02
+snapshot_interval = 0.02
+checkpoint_interval = 0.02
+""")
+    outcome = run_in_process(case, tmp_path / "a.h5")
+    assert outcome.status == FINISHED, outcome.message
+    assert outcome.steps > 20000                    # more than the old floor allowed before t = 0.02
+
+
 def test_a_run_whose_step_collapses_stops_as_stalled_the_same_when_resumed_on_its_way(tmp_path):
     """run.max_steps_per_shear_time: more steps in a sample interval than it allows stop the run as
     stalled (the start-up's ~240 steps in the first 4e-5 here are more than 300 per shear time allow for

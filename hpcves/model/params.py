@@ -374,8 +374,9 @@ class RunControl:
     ``max_steps_per_shear_time`` steps per shear time (per time unit below S = 1)
     of one sample interval: the step has collapsed, as it did where aliasing drove
     the top modes of sharp deflated shapes (numerics.dealias removes that; healthy
-    runs stay below 1.6e4, their start-up included; docs/numerics.md, "Stalled runs";
-    0: no watch).
+    runs stay below 1.6e4 at rtol = 1e-3, their start-up included, whose steps grow
+    as 1 / rtol below that -- and so does the watch's floor; docs/numerics.md,
+    "Stalled runs"; 0: no watch).
     A run stops as diverged when the relative area or length error exceeds
     ``max_area_error`` / ``max_length_error``, when one step needs the area
     projection to undo a relative change above ``max_area_correction``, when

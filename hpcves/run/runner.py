@@ -88,19 +88,25 @@ STALLED = "stalled"
 
 
 #: the shortest sample interval the stall watch counts, in shear times: the spinodal start-up takes
-#: its steps whatever S is (4112 steps before t = 0.02 at S = 1, psi_bar = 0.41, Delta = 0.94)
+#: its steps whatever S is (4112 steps before t = 0.02 at S = 1, psi_bar = 0.41, Delta = 0.94) ...
 STALL_MIN_INTERVAL = 0.1
+#: ... at rtol = 1e-3 or looser; below it the error control resolves the start-up with about 1 / rtol more
+#: steps (Delta = 0.94, psi_bar = 0.5625, S = 2 before t = 0.02: 3489 at 1e-3, 25059 at 1e-4 from the
+#: authors' start; 2538 and 16858 from the ellipse; docs/numerics.md, "Stalled runs"), and so does the floor
+STALL_RTOL = 1e-3
 
 
 def stall_allowance(case) -> float:
     """The steps a run may take from one sample to the next: run.max_steps_per_shear_time for a whole
     sample interval, t and steps in shear times (time units below S = 1), the interval counted as at
-    least STALL_MIN_INTERVAL; inf for a fixed step (it cannot collapse) or no limit."""
+    least STALL_MIN_INTERVAL x max(1, STALL_RTOL / rtol); inf for a fixed step (it cannot collapse)
+    or no limit."""
     limit = case.run.max_steps_per_shear_time
     if not limit or not case.numerics.adaptive:
         return math.inf
     S = max(case.physics.shear_rate, 1.0)
-    return limit * max(case.run.sample_interval * S, STALL_MIN_INTERVAL)
+    floor = STALL_MIN_INTERVAL * max(1.0, STALL_RTOL / case.numerics.rtol)
+    return limit * max(case.run.sample_interval * S, floor)
 
 
 def stalled(case, state: State, since: tuple[float, int]) -> str:
