@@ -19,6 +19,19 @@ def test_tank_treading_phase_treading_and_tumbling_are_told_apart():
     flips = fold(-np.arctan2(0.4 * np.sin(2 * np.pi * t / (2 * T)), np.cos(2 * np.pi * t / (2 * T))))
     tu = classify(series(flips))
     assert tu.regime == TU and tu.theta_min < 0 and tu.period == pytest.approx(T, rel=5e-3), tu
+    assert tu.flips == pytest.approx(tu.cycles, abs=1) and "theta flips" in tu.reason, tu   # a turn by pi a period
+
+
+def test_a_vesicle_that_swings_below_zero_without_flipping_is_told_from_a_tumbling_one():
+    """Delta = 2.3, psi_bar = 0.5, S = 10 (issue 65): theta swings between -0.09 and 0.80 and never passes
+    through -pi/2. min theta < 0 makes it TU by the publication's criterion; the classification says it
+    swings (flips = 0), where a vesicle that turns over flips once a period (a turn by pi)."""
+    swinging = classify(series(oscillation(t, mean=0.355, amplitude=0.25)))
+    assert swinging.regime == TU and swinging.theta_min < 0 and swinging.flips == 0, swinging
+    assert "swings below 0 without flipping" in swinging.reason and "Noguchi & Gompper" in swinging.reason
+    assert swinging.period == pytest.approx(T, rel=5e-3)
+    pt = classify(series(SIGNALS["clean"]))
+    assert pt.regime == PT and np.isnan(pt.flips)
 
 
 def test_a_mixture_that_never_separates_has_no_pattern_to_move():

@@ -16,9 +16,11 @@ membrane's tank-treading velocity V (all recorded by diagnostics.py).
 * **PT**: the pattern moves in the lab frame and theta oscillates with a
   period (checked two ways, periodicity.py), at least ``min_cycles`` settled
   periods long, with min theta >= 0.
-* **TU**: the same, but min theta < 0 over the settled signal: the vesicle flips
-  (its period from sin 2 theta, which stays continuous where theta is folded). A flipping theta
-  whose sampled extremes jitter too much to settle is settled by its flips (:func:`settled_by_flips`).
+* **TU**: the same, but min theta < 0 over the settled signal -- the publication's criterion. The
+  vesicle flips (theta passes through +-pi/2; its period from sin 2 theta, which stays continuous
+  where theta is folded), or it only swings below 0 and back without flipping (``flips`` = 0, and
+  the reason says so: swinging, not tumbling). A flipping theta whose sampled extremes jitter too
+  much to settle is settled by its flips (:func:`settled_by_flips`).
 * **undecided** otherwise -- too short, not settled, still drifting, no
   consistent period, or theta and the pattern disagree -- with the reason.
 
@@ -57,6 +59,9 @@ UNDEFINED = 0.1
 #: ... or when its spread exceeds this many tank-treading speeds (a moment of round-off size: Delta = 2.3,
 #: psi_bar = 0.48, S = 28 had a spread of 31 of them, theta steady to 1e-6 and E_b to 2e-5)
 NOISY = 3.0
+#: what a TU case that never flips is (the classification's reason says it)
+SWINGING = ("swinging: the inclination oscillates about a positive mean and dips below 0, the vesicle "
+            "never turning over; Noguchi & Gompper, PRL 98, 128103 (2007); tumbling by the criterion min theta < 0")
 #: the reason of an undecided case whose theta is steady while its pattern moves: where it is not
 #: physics, the creep of a tank-treading pattern on too coarse a grid (docs/numerics.md), which a
 #: refinement runs again with a tighter numerics.resize_tail (``[refine] min_resize_tail``)
@@ -105,6 +110,7 @@ class Classification:
     period_crossings: float    # the crossing check of the period (nan: not available)
     bending_gap: float = float("nan")       # Delta E_b = max - min of E_b over a period (PT; bending_gap())
     bending_gap_err: float = float("nan")
+    flips: float = float("nan")             # TU: flips through +-pi/2 in the settled part (0: it swings)
 
     def row(self) -> dict:
         return asdict(self)
@@ -241,7 +247,12 @@ def classify(series: dict, settings: AnalysisSettings = AnalysisSettings()) -> C
     periodic = (f"period {p.period:.5g} +- {p.error:.1g} ({cycles():.0f} cycles after t = {a.t_settle:.3g}), "
                 f"amplitude {a.amplitude:.3g} rad")
     if a.minimum < 0:
-        return verdict(TU, f"theta flips: min {a.minimum:.3f} < 0; {periodic}{irregular}")
+        count = int(flip_indices(theta[t >= a.t_settle]).size)
+        if count:
+            return replace(verdict(TU, f"theta flips: min {a.minimum:.3f} < 0, {count} flips through +-pi/2; "
+                                       f"{periodic}{irregular}"), flips=float(count))
+        return replace(verdict(TU, f"theta swings below 0 without flipping: min {a.minimum:.3f} < 0 but never "
+                                   f"through +-pi/2 ({SWINGING}); {periodic}"), flips=0.0)
     if np.isfinite(speed) and speed > settings.pattern_tol:
         found = verdict(PT, f"the pattern {pattern}; theta oscillates, min {a.minimum:.3f} > 0; {periodic}")
         if "E_bending" in series:

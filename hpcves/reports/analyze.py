@@ -46,7 +46,7 @@ COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "N", "regime
                                      "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
                                      "theta_mean_dt_err", "theta_mean_N_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
-                                     "theta_drift", "period_crossings", "bending_gap", "bending_gap_err") \
+                                     "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "flips") \
     + TOPOLOGY_COLUMNS + ("reason",)
 TEXT_COLUMNS = ("case", "status", "regime", "reason")
 

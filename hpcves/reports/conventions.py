@@ -97,6 +97,8 @@ RESULT_ATTRS = {
                          "the period from the crossings of the mean (a check of the period)"),
     "bending_gap": ("bending-energy gap", "1", "bending-energy gap Delta E_b: max - min of E_b over a period"),
     "bending_gap_err": ("bending-energy gap error", "1", "uncertainty of the bending-energy gap"),
+    "flips": ("flips", "1", "flips of the inclination through +-pi/2 in the settled part of a TU case; 0 where "
+              "theta swings below 0 without flipping (swinging); NaN for the other regimes"),
     "soft_domains": ("soft domains", "1", "soft domains (arcs with psi > 1/2) of the settled pattern"),
     "domains_on_tips": ("soft domains on tips", "1", "soft domains holding one of the two tips"),
     "two_fold": ("two-fold pattern", "1", "1 where the settled pattern is two-fold symmetric, else 0"),
