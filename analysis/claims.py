@@ -91,8 +91,17 @@ def region(rows: list[dict], inside, regime: str) -> dict:
     decided = sum(counts.get(k, 0) for k in DECIDED)
     share = counts.get(regime, 0) / decided if decided else math.nan
     verdict = NO_CASES if not decided else AGREES if share >= 0.9 else MOSTLY if share >= 0.5 else DIFFERS
-    text = ", ".join(f"{n} {k}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
+    text = ", ".join(f"{n} {k}" + _swinging(chosen, k) for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
     return {"value": f"{len(chosen)} cases: {text}" if chosen else "no cases there", "verdict": verdict}
+
+
+def _swinging(rows: list[dict], label: str) -> str:
+    """`` (k swing without flipping)`` after the TU count where k of its cases never flip: TU by the
+    publication's criterion (min theta < 0), swinging rather than tumbling (regimes.py, flips = 0)."""
+    if label != "TU":
+        return ""
+    k = sum(1 for r in rows if r["status"] == "finished" and r["regime"] == "TU" and r.get("flips") == 0)
+    return f" ({k} swing without flipping)" if k else ""
 
 
 def _number(value: float, published: float, tolerance: float, text: str) -> dict:

@@ -26,6 +26,16 @@ def test_a_region_is_judged_by_its_decided_cases():
                                                                          "verdict": claims.NO_CASES}
 
 
+def test_tumbling_by_the_publications_criterion_shows_the_cases_that_only_swing():
+    """TU is min theta < 0, the publication's criterion; a TU case that never flips (flips = 0) swings,
+    and the count says how many of them do."""
+    rows = [_row(1, 1.0, regime="TU") | {"flips": 12.0}, _row(2, 1.5, regime="TU") | {"flips": 0.0},
+            _row(3, 2.0, regime="TT")]
+    found = claims.region(rows, lambda r: r["shear_rate"] < 4, "TU")
+    assert found["value"] == "3 cases: 2 TU (1 swing without flipping), 1 TT", found
+    assert found["verdict"] == claims.MOSTLY                            # scored as the publication does
+
+
 def test_a_point_run_again_counts_once_at_its_largest_n():
     rows = [_row(2, 2.0, status="failed", N=128), _row(2, 2.0, regime="TU", N=256)]
     assert claims.region(rows, lambda r: True, "TU") == {"value": "1 cases: 1 TU", "verdict": claims.AGREES}
