@@ -500,6 +500,76 @@ def chain_section(c: Context) -> list[str]:
     return lines
 
 
+def zero_crossings(S, values) -> list[float]:
+    """Where ``values`` (against increasing ``S``) changes sign, by linear interpolation between neighbours."""
+    return [s0 + (s1 - s0) * v0 / (v0 - v1) for s0, s1, v0, v1 in zip(S, S[1:], values, values[1:])
+            if math.isfinite(v0) and math.isfinite(v1) and (v0 < 0) != (v1 < 0)]
+
+
+def swinging_figure(rows: list[dict], directory: Path, name: str) -> Path:
+    """The least settled theta against S: a point per case, by regime (TU: filled where theta flips,
+    hollow where it swings without flipping), the line theta = 0 and the publication's S = 4."""
+    import matplotlib.ticker
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4.5), constrained_layout=True)
+    ax = fig.subplots()
+    ax.axhline(0.0, color="0.5", lw=1)
+    ax.axvline(4.0, color="C3", ls="--", lw=1.2, label="the publication: tumbling for S < 4")
+    ordered = sorted((r for r in rows if math.isfinite(r["theta_min"])), key=lambda r: r["shear_rate"])
+    ax.plot([r["shear_rate"] for r in ordered], [r["theta_min"] for r in ordered], color="0.6", lw=1, zorder=1)
+    styles = {"flips": ("o", "C0", "C0", "TU: theta flips (tumbling)"),
+              "swings": ("o", "C0", "white", "TU: theta swings below 0, no flip"),
+              "PT": ("s", "C1", "C1", "PT"), "TT": ("^", "C2", "C2", "TT")}
+    for key, (marker, edge, face, label) in styles.items():
+        chosen = [r for r in ordered if (r["regime"] == "TU" and ("flips" if r.get("flips", 1) else "swings") == key)
+                  or (r["regime"] != "TU" and r["regime"] == key)]
+        if chosen:
+            ax.plot([r["shear_rate"] for r in chosen], [r["theta_min"] for r in chosen], marker, ms=8, mec=edge,
+                    mfc=face, ls="", label=label, zorder=2)
+    other = [r for r in ordered if r["regime"] not in ("TU", "PT", "TT")]
+    if other:
+        ax.plot([r["shear_rate"] for r in other], [r["theta_min"] for r in other], "x", color="k", ls="",
+                label="undecided, failed", zorder=2)
+    ax.set_xscale("log")
+    ax.set_xticks([2, 3, 4, 5, 6, 8, 10, 12, 16])
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xlabel("shear rate $S$")
+    ax.set_ylabel(r"least settled inclination min $\theta$ [rad]")
+    ax.set_title(r"$\Delta$ = 2.3, $\bar\psi$ = 0.5, from the authors' start")
+    ax.legend(frameon=False, fontsize=9)
+    path = directory / f"{name}_theta_min.png"
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def swinging_section(c: Context) -> list[str]:
+    rows = sorted(claims.points(c.report.rows), key=lambda r: r["shear_rate"])
+    decided = [r for r in rows if r["regime"] in ("TT", "PT", "TU")]
+    crossings = zero_crossings([r["shear_rate"] for r in decided], [r["theta_min"] for r in decided])
+    swinging = [r for r in rows if r["regime"] == "TU" and r.get("flips") == 0]
+    flipping = [r for r in rows if r["regime"] == "TU" and r.get("flips", 0) > 0]
+    lines = ["## Swinging or tumbling: the least inclination against S (Delta = 2.3, psi_bar = 0.5)", "",
+             f"{c.start.capitalize()}, the numerics of `jobs/reproduce/swinging.toml`. The publication calls "
+             "this vesicle tumbling for S < 4, by its criterion min theta < 0 (its fig. 9b). A case is TU here by "
+             "the same criterion; `flips` counts its settled passes through +-pi/2 -- a vesicle that turns over "
+             "flips once a period, one that only swings below 0 and back never does (swinging: Noguchi & "
+             "Gompper, PRL 98, 128103, 2007).", ""]
+    lines += _images([swinging_figure(rows, c.directory, c.name)])
+    body = [[f"{r['shear_rate']:g}", r["regime"], _fmt(r["theta_min"]),
+             _fmt(r.get("flips", math.nan), ".0f") if r["regime"] == "TU" else "", _fmt(r["period"]),
+             r["reason"]] for r in rows]
+    lines += [markdown_table(["S", "regime", "min theta [rad]", "flips", "period", "reason"], body,
+                             left=(1, 5)), ""]
+    where = ", ".join(f"{s:.3g}" for s in crossings) or "nowhere in the range"
+    lines += [f"min theta crosses 0 at S = {where} (linear between neighbouring decided cases), against the "
+              f"publication's 4. Of the TU cases, {len(flipping)} flip and {len(swinging)} swing without "
+              "flipping" + (" (S = " + ", ".join(f"{r['shear_rate']:g}" for r in swinging) + ")" if swinging
+                            else "") + ".", ""]
+    return lines
+
+
 def _phase_section(c: Context) -> list[str]:
     repeated = superseded(c.report.source)
     latest = [r for r in c.report.rows if r["case"] not in repeated]
@@ -612,6 +682,7 @@ SECTIONS = {
     "delta230_S_psi": s_psi_section,
     "delta230_S_psi_smoothed": s_psi_section,
     "delta230_chain": chain_section,
+    "swinging": swinging_section,
     "contrast_lambda_S_D0194": contrast_section,
     "contrast_lambda_S_D094": contrast_section,
     "contrast_lambda_psi": contrast_section,
