@@ -563,8 +563,17 @@ def swinging_section(c: Context) -> list[str]:
     lines += [markdown_table(["S", "regime", "min theta [rad]", "flips", "period", "reason"], body,
                              left=(1, 5)), ""]
     where = ", ".join(f"{s:.3g}" for s in crossings) or "nowhere in the range"
+    zero = [r for r in rows if math.isfinite(r["theta_min"]) and abs(r["theta_min"]) < 1e-12]
+    last_flip = max((r["shear_rate"] for r in flipping), default=math.nan)
+    first_swing = min((r["shear_rate"] for r in swinging), default=math.nan)
     lines += [f"min theta crosses 0 at S = {where} (linear between neighbouring decided cases), against the "
-              f"publication's 4. Of the TU cases, {len(flipping)} flip and {len(swinging)} swing without "
+              "publication's 4" + (" (at S = " + ", ".join(f"{r['shear_rate']:g}" for r in zero)
+                                   + " min theta is 0 to round-off, so which side of 0 it lies on means nothing)"
+                                   if zero else "")
+              + (f"; the vesicle turns over up to S = {last_flip:g} and only swings from S = {first_swing:g} on, so "
+                 f"the flips end between {last_flip:g} and {first_swing:g}"
+                 if math.isfinite(last_flip) and math.isfinite(first_swing) else "") + ". "
+              f"Of the TU cases, {len(flipping)} flip and {len(swinging)} swing without "
               "flipping" + (" (S = " + ", ".join(f"{r['shear_rate']:g}" for r in swinging) + ")" if swinging
                             else "") + ".", ""]
     return lines

@@ -126,7 +126,8 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
     deflated = ("psi048_cases", "psi048_delta_S", "delta094_S_psi", "delta230_S_psi")
     contrast = ("contrast_lambda_S_D0194", "contrast_lambda_S_D094", "contrast_lambda_psi")    # make contrast
     assert {p.stem for p in coarse} == {"homogeneous", "periods", "sc_b2", "sc_psi", *deflated,
-                                       *(f"{name}_smoothed" for name in deflated), "delta230_chain", *contrast}
+                                       *(f"{name}_smoothed" for name in deflated), "delta230_chain", *contrast,
+                                       "swinging"}
     for name in contrast:              # refined over lambda and one more axis, lambda from 0.1 to 62.5
         study = load_study(jobs / f"{name}.toml")
         assert "viscosity_ratio" in study.refine.axes and study.sweep["viscosity_ratio"][0] == 0.1
