@@ -3,7 +3,7 @@
 #   make test   -- set up, then the test suite (what CI runs)
 # Further: make bench (BENCHMARKS.md, ~25 min), make validate (VALIDATION.md, ~4 min),
 #          make faults (the kills at exact moments left out of make test, then FAULTS.md: 40 campaigns
-#          SIGKILLed at random moments, resumed, compared; ~10 min), make reproduce (REPRODUCTION.md),
+#          SIGKILLed at random moments, resumed, compared; ~26 min on 2 cores, 2026-12-07), make reproduce (REPRODUCTION.md),
 #          make contrast (its viscosity-contrast sections, ~30 min).
 
 PY      := .venv/bin/python
