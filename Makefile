@@ -1,7 +1,7 @@
 # Two commands do everything on a fresh Debian machine:
 #   make demo   -- set up (apt + .venv + parallel h5py, once), run a small MPI campaign (mpirun -n 2), analyze it
 #   make test   -- set up, then the test suite (what CI runs)
-# Further: make bench (BENCHMARKS.md, ~25 min), make validate (VALIDATION.md, ~4 min),
+# Further: make bench (BENCHMARKS.md, ~25 min), make validate (VALIDATION.md, ~9 min),
 #          make faults (the kills at exact moments left out of make test, then FAULTS.md: 40 campaigns
 #          SIGKILLed at random moments, resumed, compared; ~26 min on 2 cores, 2026-12-07), make reproduce (REPRODUCTION.md),
 #          make contrast (its viscosity-contrast sections, ~30 min).
