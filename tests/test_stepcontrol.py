@@ -441,3 +441,49 @@ def test_events_in_one_call_are_the_three_cadence_tests(adaptive):
                 assert clock.events(s) == expected, (t, dt_prev)
                 due_on += any(expected)
     assert due_on > 1000                          # the grids were hit, not only missed
+
+
+def test_a_fixed_step_start_up_then_the_controller():
+    """numerics.startup_dt / startup_time: fixed steps (cut only to land on events and on startup_time)
+    until startup_time, then steps under error control -- from the proposal the last fixed step left."""
+    numerics = Numerics(N=32, rtol=1e-3, startup_dt=2e-4, startup_time=4e-3)
+    case = Case(Physics(shear_rate=80.0, psi_bar=0.3), numerics,
+                RunControl(t_end=0.02, sample_interval=1e-3, snapshot_interval=0.01, checkpoint_interval=0.01))
+    solver, clock = Solver(case), schedule.clock(case)
+    state, steps = solver.initial_state(), []
+    while not clock.done(state):
+        before = state.t
+        state, _ = clock.take_step(solver, state, solver.rates(state))
+        steps.append((before, state.t - before))
+    fixed = [k for t, k in steps if t < 4e-3 - 1e-12]
+    assert len(fixed) == 20 and fixed == pytest.approx([2e-4] * 20, rel=1e-9)          # 4e-3 / 2e-4
+    assert any(t == pytest.approx(4e-3, abs=1e-15) for t, _ in steps)                  # landed on startup_time
+    controlled = [k for t, k in steps if t >= 4e-3 - 1e-12]
+    assert controlled and len(set(round(k, 12) for k in controlled)) > 2               # the controller's own
+    plain = schedule.clock(dataclasses.replace(case, numerics=dataclasses.replace(numerics, startup_dt=0.0,
+                                                                                    startup_time=0.0)))
+    state = solver.initial_state()
+    first, _ = plain.take_step(solver, state, solver.rates(state))
+    assert first.t <= numerics.dt_initial < 2e-4                # without it the controller starts at dt_initial
+
+
+def test_a_run_with_a_fixed_step_start_up_resumes_bitwise_across_the_hand_over(tmp_path):
+    case = Case(Physics(shear_rate=40.0, psi_bar=0.3), Numerics(N=32, rtol=1e-3, startup_dt=1e-4, startup_time=2e-3),
+                RunControl(t_end=0.01, sample_interval=1e-3, snapshot_interval=5e-3, checkpoint_interval=1e-3,
+                           checkpoint_wall=0, max_spectral_tail=1.0))
+    whole = run_in_process(case, tmp_path / "a.h5")
+    assert whole.status == FINISHED
+    run_in_process(case, tmp_path / "b.h5", max_steps=15)             # stopped inside the fixed steps
+    resumed = resume_in_process(tmp_path / "b.h5", stops=(20, None))  # and past the hand-over
+    assert resumed.status == FINISHED
+    same_case_files(tmp_path / "a.h5", tmp_path / "b.h5")
+
+
+@pytest.mark.parametrize("numerics, words", [
+    ("dt = 1e-3\nstartup_dt = 1e-5\nstartup_time = 0.01", "belongs to an adaptive run"),
+    ("rtol = 1e-3\nstartup_dt = 1e-5", "give both, with 0 < startup_dt <= startup_time"),
+    ("rtol = 1e-3\nstartup_dt = 0.1\nstartup_time = 0.01", "give both, with 0 < startup_dt <= startup_time"),
+])
+def test_a_start_up_is_checked(numerics, words):
+    with pytest.raises(ConfigError, match=words):
+        case_from_toml(f"[numerics]\n{numerics}\n")

@@ -262,6 +262,11 @@ class Numerics:
     modes above N/2 back onto the resolved ones, which is what makes the sharp tips of
     deflated vesicles grow spurious content near N/2 (docs/numerics.md, "De-aliased
     rates"); 1, the default, computes them on the N nodes.
+    ``startup_dt`` > 0 takes an adaptive run's first ``startup_time`` in fixed steps of
+    startup_dt (cut to land on samples and on startup_time), then hands over to the
+    controller: the publication's fixed dt = 1e-5 through the start-up transient, which
+    selects the attractor where several coexist (docs/numerics.md, "A start-up at a fixed
+    step"); 0, the default, controls every step.
     """
 
     N: int = 128
@@ -278,6 +283,8 @@ class Numerics:
     area_correction: bool = True
     filter_order: int = 0
     dealias: float = 1.0
+    startup_dt: float = 0.0
+    startup_time: float = 0.0
 
     #: the padding factors numerics.dealias may take
     DEALIAS_FACTORS = (1.0, 1.5, 2.0)
@@ -329,6 +336,14 @@ class Numerics:
             _require(self.dealias * largest <= 4096,
                      f"numerics.dealias = {self.dealias}: the rates would be computed on "
                      f"{self.dealias * largest:g} > 4096 nodes (the Stokeslet matrix is dense)")
+        _require(self.startup_dt >= 0 and self.startup_time >= 0,
+                 f"numerics.startup_dt = {self.startup_dt}, startup_time = {self.startup_time}: must be >= 0")
+        if self.startup_dt or self.startup_time:
+            _require(self.rtol is not None, "numerics.startup_dt: a fixed-step start-up belongs to an adaptive run "
+                                            "(give numerics.rtol; a fixed-step run takes numerics.dt throughout)")
+            _require(0 < self.startup_dt <= self.startup_time,
+                     f"numerics.startup_dt = {self.startup_dt}, startup_time = {self.startup_time}: give both, "
+                     "with 0 < startup_dt <= startup_time")
         _require(self.phase_stabilization >= 0.5,
                  f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
                  "(max g'' on [0, 1])")
@@ -510,6 +525,8 @@ class Case:
             unused += ("filter_order",)                            # no filter, as in files from before the option
         if self.numerics.dealias == 1.0:
             unused += ("dealias",)                                 # rates on the N nodes, likewise
+        if not self.numerics.startup_dt:
+            unused += ("startup_dt", "startup_time")               # no fixed-step start-up, likewise
         for key in unused:
             del out["numerics"][key]
         if not self.run.until_decided:

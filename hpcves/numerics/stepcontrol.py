@@ -171,6 +171,19 @@ def advance(solver, state, rates, k: float, control: StepControl, t_event: float
     return Taken(_replaced(new, error=err, dt_next=proposal), err, rejections)
 
 
+def fixed(solver, state, rates, k: float, control: StepControl, t_event: float) -> Taken:
+    """One step of ``k`` from ``state`` (cut to land on ``t_event`` as :func:`fit_to` cuts), accepted whatever
+    its error: a fixed-step stretch of an adaptive run. The state carries its err and the controller's
+    proposal as :func:`advance` leaves them, so the controller takes over from it where the stretch ends."""
+    step, lands = fit_to(state.t, k, t_event)
+    new, _, estimate = solver.step(state, rates, step)
+    err = error_norm(estimate, control)
+    proposal = next_step(step, err, state.error, control, estimate.order) if math.isfinite(err) else step
+    if lands:
+        return Taken(_replaced(new, t=t_event, error=err, dt_next=proposal), err, 0)
+    return Taken(_replaced(new, error=err, dt_next=proposal), err, 0)
+
+
 def _replaced(state, **changes):
     """dataclasses.replace(state, **changes) for a dataclass without __post_init__ or slots (the
     solver's State): its attributes copied, ``changes`` set -- 1.5 us against 15 a step."""

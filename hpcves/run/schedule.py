@@ -22,7 +22,7 @@ import math
 from typing import Protocol
 
 from hpcves.model.params import Case
-from hpcves.numerics.stepcontrol import StepControl, advance
+from hpcves.numerics.stepcontrol import StepControl, advance, fixed
 
 #: two event times closer than this fraction of an interval are the same event
 COINCIDENT = 1e-9
@@ -161,6 +161,8 @@ class AdaptiveClock:
         self.intervals = (run.sample_interval, run.snapshot_interval, run.checkpoint_interval)
         self.control = StepControl(rtol=num.rtol, atol=num.atol, dt_max=num.dt_max, initial_dt=num.dt_initial)
         self._slack = slack
+        #: numerics.startup_dt and startup_time: fixed steps before the controller takes over (0, 0: none)
+        self.startup = (num.startup_dt, num.startup_time)
 
     def legacy(self) -> "AdaptiveClock":
         """This clock with the coincidence rule of hpcves before the fix (for files it wrote)."""
@@ -260,7 +262,12 @@ class AdaptiveClock:
         return min(min(self._next(t, interval) for interval in self.intervals), self.t_end)
 
     def take_step(self, solver, state, rates):
-        """(new state, rejected steps): one accepted step, landing on the next event if it reaches it."""
+        """(new state, rejected steps): one accepted step, landing on the next event if it reaches it --
+        a fixed one of numerics.startup_dt while t is before numerics.startup_time (landing on it too)."""
+        dt, until = self.startup
+        if state.t < until * (1 - COINCIDENT):
+            taken = fixed(solver, state, rates, dt, self.control, min(self.next_event(state.t), until))
+            return taken.state, 0
         k = self.control.initial_dt if math.isnan(state.dt_next) else state.dt_next
         taken = advance(solver, state, rates, k, self.control, self.next_event(state.t))
         return taken.state, taken.rejections
