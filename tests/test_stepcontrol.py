@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import make_solver
+from hpcves.analysis.regimes import classify
 from hpcves.config import case_from_toml
 from hpcves.model.params import Case, ConfigError, Numerics, Physics, RunControl
 from hpcves.numerics import stepcontrol
@@ -487,3 +488,37 @@ def test_a_run_with_a_fixed_step_start_up_resumes_bitwise_across_the_hand_over(t
 def test_a_start_up_is_checked(numerics, words):
     with pytest.raises(ConfigError, match=words):
         case_from_toml(f"[numerics]\n{numerics}\n")
+
+
+@pytest.mark.slow
+def test_the_publications_step_in_the_first_steps_selects_its_attractor(tmp_path):
+    """psi_bar = 0.48, Delta = 2.3, S = 160 from the authors' start (issue 65; docs/numerics.md, "A start-up
+    at a fixed step"): the converged start-up tank-treads with two domains, and ten fixed steps of the
+    publication's 1e-5 first lead to its one-domain phase-treading, period 0.0883."""
+    text = """
+[physics]
+excess_length = 2.3
+psi_bar = 0.48
+shear_rate = 160.0
+initial_shape = "smoothed"
+psi_init_coordinate = "ellipse_parameter"
+[numerics]
+N = "auto"
+dealias = 2
+rtol = 1e-3
+{startup}
+[run]
+t_end = 4.0
+until_decided = true
+sample_interval = 0.000625
+snapshot_interval = 0.05
+checkpoint_interval = 2.0
+"""
+    found = {}
+    for name, startup in (("default", ""), ("startup", "startup_dt = 1e-5\nstartup_time = 1e-4")):
+        outcome = run_in_process(case_from_toml(text.format(startup=startup)), tmp_path / f"{name}.h5")
+        assert outcome.status == FINISHED, outcome.message
+        with open_file(tmp_path / f"{name}.h5", "r") as f:
+            found[name] = classify(CaseStore.open(f).timeseries())
+    assert found["default"].regime == "TT" and found["default"].theta_mean == pytest.approx(0.2983, abs=2e-4)
+    assert found["startup"].regime == "PT" and found["startup"].period == pytest.approx(0.0883, rel=3e-3)
