@@ -518,19 +518,21 @@ def swinging_figure(rows: list[dict], directory: Path, name: str) -> Path:
     ax.axvline(4.0, color="C3", ls="--", lw=1.2, label="the publication: tumbling for S < 4")
     ordered = sorted((r for r in rows if math.isfinite(r["theta_min"])), key=lambda r: r["shear_rate"])
     ax.plot([r["shear_rate"] for r in ordered], [r["theta_min"] for r in ordered], color="0.6", lw=1, zorder=1)
+    def kind(r) -> str:
+        """TU split by whether theta flips; PT and TT as they are; the rest together."""
+        if r["regime"] == "TU":
+            return "flips" if r.get("flips", 1) else "swings"
+        return r["regime"] if r["regime"] in ("PT", "TT") else "other"
+
     styles = {"flips": ("o", "C0", "C0", "TU: theta flips (tumbling)"),
               "swings": ("o", "C0", "white", "TU: theta swings below 0, no flip"),
-              "PT": ("s", "C1", "C1", "PT"), "TT": ("^", "C2", "C2", "TT")}
+              "PT": ("s", "C1", "C1", "PT"), "TT": ("^", "C2", "C2", "TT"),
+              "other": ("x", "k", "k", "undecided, failed")}
     for key, (marker, edge, face, label) in styles.items():
-        chosen = [r for r in ordered if (r["regime"] == "TU" and ("flips" if r.get("flips", 1) else "swings") == key)
-                  or (r["regime"] != "TU" and r["regime"] == key)]
+        chosen = [r for r in ordered if kind(r) == key]
         if chosen:
             ax.plot([r["shear_rate"] for r in chosen], [r["theta_min"] for r in chosen], marker, ms=8, mec=edge,
                     mfc=face, ls="", label=label, zorder=2)
-    other = [r for r in ordered if r["regime"] not in ("TU", "PT", "TT")]
-    if other:
-        ax.plot([r["shear_rate"] for r in other], [r["theta_min"] for r in other], "x", color="k", ls="",
-                label="undecided, failed", zorder=2)
     ax.set_xscale("log")
     ax.set_xticks([2, 3, 4, 5, 6, 8, 10, 12, 16])
     ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))

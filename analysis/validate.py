@@ -20,7 +20,7 @@ import numpy as np  # noqa: E402
 
 from hpcves.analysis.periodicity import crossing_period  # noqa: E402
 from hpcves.analysis.regimes import classify  # noqa: E402
-from hpcves.analysis.search import CENTRE  # noqa: E402
+from hpcves.analysis.search import centre_only  # noqa: E402
 from hpcves.model.params import REFERENCE_EXCESS_LENGTH, Case, Numerics, Physics, RunControl  # noqa: E402
 from hpcves.numerics.spectral import Spectral  # noqa: E402
 from hpcves.reports.case_figures import case_figure, case_title, shape_sequences, shape_strip  # noqa: E402
@@ -411,7 +411,7 @@ def contrast(lines):
                 ends.append("--")
         estimate = row["lambda_C"]
         around = "--"
-        if st.status == "converged" and not row["lambda_C_from"].startswith(CENTRE):
+        if st.status == "converged" and not centre_only(row["lambda_C_from"]):
             around = " / ".join(_contrast_verdict(o.point["excess_length"], float(f"{lam:.5g}")).regime
                                 for lam in (0.99 * estimate, 1.01 * estimate))
         brackets[nu] = (st.low, st.high, estimate)
@@ -516,7 +516,7 @@ def estimates(lines):
         report = analyze(output, WORK / f"{name}_analysis", write_to_file=False, case_figures="none")
         for i, row in enumerate(report.searches):
             around = "--"
-            if row["status"] == "converged" and not row["S_C_from"].startswith(CENTRE):
+            if row["status"] == "converged" and not centre_only(row["S_C_from"]):
                 verdicts = []
                 for share in (0.99, 1.01):
                     S = float(f"{share * row['S_C']:.5g}")

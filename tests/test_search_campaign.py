@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from conftest import TINY_RUN
-from hpcves.analysis.search import CENTRE, CONVERGED, UNBRACKETED
+from hpcves.analysis.search import CONVERGED, UNBRACKETED, centre_only
 from hpcves.campaign import file as campaign_file
 from hpcves.campaign.driver import run_campaign
 from hpcves.campaign.study import study_from_toml
@@ -77,7 +77,7 @@ def assert_estimate(value, found_from, state):
     """A critical value reported as a best estimate lies inside the bracket; where nothing better was found,
     it is the bracket's centre and says so."""
     assert state.low <= value <= state.high, (value, state)
-    if found_from.startswith(CENTRE):
+    if centre_only(found_from):
         assert value == pytest.approx(state.centre, rel=1e-5)              # a CSV keeps 6 digits
     else:
         assert "->" in found_from, found_from

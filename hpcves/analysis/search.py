@@ -37,6 +37,11 @@ CONVERGED, RUNNING, UNBRACKETED, STOPPED = "converged", "running", "not brackete
 #: how a critical value was found where nothing better than the bracket is known
 CENTRE = "the bracket's geometric centre"
 
+
+def centre_only(found_from) -> bool:
+    """Whether a table's ``S_C_from`` (``lambda_C_from``) says its critical value is only the bracket's centre."""
+    return str(found_from).startswith(CENTRE)
+
 #: what a search may run along -> (its symbol, the column of its critical value, the stem of its tables)
 AXES = {"shear_rate": ("S", "S_C", "critical_shear"), "viscosity_ratio": ("lambda", "lambda_C", "critical_lambda")}
 

@@ -72,12 +72,11 @@ def remove_partial(path) -> bool:
     partial = partial_path(path)
     if not os.path.lexists(partial):
         return False
-    head = b""
-    if not os.path.islink(partial) and os.path.isfile(partial):
+    ours = not os.path.islink(partial) and os.path.isfile(partial)
+    if ours:
         with open(partial, "rb") as f:
             head = f.read(len(HDF5_SIGNATURE))
-    ours = not os.path.islink(partial) and os.path.isfile(partial) and (head == HDF5_SIGNATURE
-                                                                          or not head.strip(b"\0"))
+        ours = head == HDF5_SIGNATURE or not head.strip(b"\0")
     if not ours:
         raise FileFormatError(f"{partial}: there, but not a file hpcves left (hpcves builds the next version "
                               f"of {Path(path).name} under that name): move it away, then run this again")

@@ -166,9 +166,7 @@ def advance(solver, state, rates, k: float, control: StepControl, t_event: float
     proposal = next_step(step, err, state.error, control, estimate.order)
     if rejections:
         proposal = min(proposal, step)
-    if lands:
-        return Taken(_replaced(new, t=t_event, error=err, dt_next=proposal), err, rejections)
-    return Taken(_replaced(new, error=err, dt_next=proposal), err, rejections)
+    return _accepted(new, err, proposal, t_event if lands else None, rejections)
 
 
 def fixed(solver, state, rates, k: float, control: StepControl, t_event: float) -> Taken:
@@ -179,9 +177,15 @@ def fixed(solver, state, rates, k: float, control: StepControl, t_event: float) 
     new, _, estimate = solver.step(state, rates, step)
     err = error_norm(estimate, control)
     proposal = next_step(step, err, state.error, control, estimate.order) if math.isfinite(err) else step
-    if lands:
-        return Taken(_replaced(new, t=t_event, error=err, dt_next=proposal), err, 0)
-    return Taken(_replaced(new, error=err, dt_next=proposal), err, 0)
+    return _accepted(new, err, proposal, t_event if lands else None, 0)
+
+
+def _accepted(new, err: float, proposal: float, landed: float | None, rejections: int) -> Taken:
+    """``new`` as accepted: its err and the proposal for the next step recorded, its t set to the event
+    ``landed`` on (None: it landed on none)."""
+    if landed is not None:
+        return Taken(_replaced(new, t=landed, error=err, dt_next=proposal), err, rejections)
+    return Taken(_replaced(new, error=err, dt_next=proposal), err, rejections)
 
 
 def _replaced(state, **changes):

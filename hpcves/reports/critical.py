@@ -44,10 +44,9 @@ def critical_rows(source, rows: list[dict], study) -> list[dict]:
     found = [(case.search, case.parameters[along], row["regime"]) for case, row in zip(source.cases, rows)
              if row["status"] in ENDED_NAMES]
     searched = outcomes(study.search, search_points(study), found, tuple(study.sweep))
-    gaps = {(case.search, case.parameters[along]): (row["bending_gap"], row["bending_gap_err"])
-            for case, row in zip(source.cases, rows)}
-    motions = [{} for _ in searched]
+    gaps, motions = {}, [{} for _ in searched]
     for case, row in zip(source.cases, rows):
+        gaps[(case.search, case.parameters[along])] = (row["bending_gap"], row["bending_gap_err"])
         if row["status"] in ENDED_NAMES:
             motions[case.search][case.parameters[along]] = (row["regime"], row["theta_mean"], row["period"])
     out = []

@@ -20,7 +20,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from hpcves.analysis import accuracy
-from hpcves.analysis.search import CENTRE
+from hpcves.analysis.search import centre_only
 from hpcves.model.params import PARAMETER_NAMES
 
 REGIME_STYLE = {            # colour, marker, label
@@ -346,7 +346,7 @@ def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", alo
     for r in searches:
         x, low, high = r[x_key], r["bracket_low"], r["bracket_high"]
         if np.isfinite(r[column]):
-            centre = str(r.get(f"{column}_from", "")).startswith(CENTRE)
+            centre = centre_only(r.get(f"{column}_from", ""))
             ax.errorbar([x], [r[column]], yerr=[[r[column] - low], [high - r[column]]], fmt="D", color="C0",
                         mec="k", ms=8, capsize=5, lw=2, mfc="white" if centre else "C0")
         elif np.isfinite(low) and np.isfinite(high):
@@ -379,7 +379,7 @@ def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", alo
                                                   for r in gaps))
     handles = [matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k",
                                        label=f"{symbol}: estimate, bar: bracket" + (" (left)" if gaps else ""))]
-    if any(str(r.get(f"{column}_from", "")).startswith(CENTRE) for r in searches if np.isfinite(r[column])):
+    if any(centre_only(r.get(f"{column}_from", "")) for r in searches if np.isfinite(r[column])):
         handles.append(matplotlib.lines.Line2D([], [], marker="D", ls="", color="C0", mec="k", mfc="white",
                                                label="hollow: the bracket's centre (no estimate)"))
     if gaps:

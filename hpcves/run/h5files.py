@@ -12,7 +12,7 @@ import numpy as np
 
 from hpcves.config import not_a_regular_file
 from hpcves.errors import FileFormatError, HpcvesError
-from hpcves.files.atomic import StorageError
+from hpcves.files.atomic import HDF5_SIGNATURE, StorageError
 
 #: what h5py raises when the file under it is damaged (unreadable metadata, objects of the wrong kind);
 #: hpcves's own errors are ValueErrors too: catch them first where they have to go through (see :func:`reading`)
@@ -128,7 +128,7 @@ def superblock_version(path) -> int:
             head = f.read(9)
     except OSError:
         return -1
-    return head[8] if len(head) == 9 and head[:8] == b"\x89HDF\r\n\x1a\n" else -1
+    return head[8] if len(head) == 9 and head[:8] == HDF5_SIGNATURE else -1
 
 
 #: HDF5's chunk cache of every file opened (h5py's rdcc_nbytes): none. A campaign file's blocks keep one
