@@ -382,8 +382,11 @@ def test_series_longer_than_a_chunk_are_written_alike_by_every_mode_and_resume_b
 @needs_mpi
 @pytest.mark.parametrize("io", [pytest.param("mpio", marks=more), "relay"])
 def test_sigterm_checkpoints_every_running_case_and_exits_0(tmp_path, io):
-    # only the stop writes checkpoints; a sample every step makes the first flush come after 512 steps
-    path, output = write_study(tmp_path, t_end=3.0, checkpoint=10.0, sample=1e-3)
+    # only the stop writes checkpoints; a sample every step makes the first flush come after 512 steps.
+    # Two cases, one a rank, of 20000 steps: the state waited for (both ranks past their first flush)
+    # holds for most of a case. At t_end = 3 with four cases a fast CI machine ran the whole campaign
+    # in 2 s, between two polls of the state.
+    path, output = write_study(tmp_path, t_end=20.0, checkpoint=100.0, sample=1e-3, shear="[40]")
 
     def both_ranks_sampling():          # a state, not a time: each rank runs a case that has taken steps
         assert job.poll() is None, job.communicate()
