@@ -194,14 +194,46 @@ def group_from_dict(name: str, values: dict, base=None):
     return dataclasses.replace(base, **kwargs)
 
 
+#: what a file's top-level ``preset = "<name>"`` fills in, key by key, where the file does not give the
+#: key itself: "publication" is the publication's numerics as its authors' code computes them (the
+#: linear law, their smoothed start and its phase coordinate, their time integration at dt = 1e-5
+#: and their filter, no area projection; docs/numerics.md, "The publication's scheme")
+PRESETS = {
+    "publication": {
+        "physics": {"bending_law": "linear", "initial_shape": "smoothed", "psi_init_coordinate": "ellipse_parameter"},
+        "numerics": {"scheme": "ifab2", "dt": 1e-5, "filter_order": 25, "area_correction": False},
+    },
+}
+
+
+def expand_preset(data: dict) -> dict:
+    """``data`` with its ``preset`` (if any) replaced by the keys the preset fills in (PRESETS)."""
+    if "preset" not in data:
+        return data
+    data = dict(data)
+    name = data.pop("preset")
+    if name not in PRESETS:
+        raise ConfigError(f"preset = {name!r}: must be one of {', '.join(map(repr, PRESETS))}")
+    numerics = data.get("numerics", {})
+    if isinstance(numerics, dict) and "rtol" in numerics:
+        raise ConfigError(f"preset = {name!r} takes fixed steps (numerics.dt = {PRESETS[name]['numerics']['dt']:g}): "
+                          "leave numerics.rtol out")
+    for table, values in PRESETS[name].items():
+        given = data.get(table, {})
+        if isinstance(given, dict):
+            data[table] = {**values, **given}
+    return data
+
+
 def case_from_dict(data: dict, base: Case | None = None) -> Case:
-    """A :class:`Case` from a nested dict such as a parsed TOML document."""
+    """A :class:`Case` from a nested dict such as a parsed TOML document (its ``preset`` expanded)."""
+    data = expand_preset(data)
     problems = Problems()
     unknown = sorted(set(data) - set(GROUPS))
     if unknown:
         problems.found.append("unknown table" + ("s" if len(unknown) > 1 else "") + ": "
                               + ", ".join(did_you_mean(f"[{u}]", [f"[{g}]" for g in GROUPS]) for u in unknown)
-                              + " (known: [physics], [numerics], [run])")
+                              + " (known: [physics], [numerics], [run]; and preset = \"publication\")")
     base = base if base is not None else Case()
     groups = {}
     for name in GROUPS:

@@ -261,7 +261,8 @@ def test_every_problem_of_a_case_file_is_told_at_once(tmp_path):
     path = write(tmp_path / "case.toml", content)
     errors = error_lines("run", path, tmp_path)
     assert errors == [f"Error: {path}: {problem}" for problem in (
-        "unknown table: [physic] (did you mean [physics]?) (known: [physics], [numerics], [run])",
+        "unknown table: [physic] (did you mean [physics]?) (known: [physics], [numerics], [run]; "
+        "and preset = \"publication\")",
         "[physics]: unknown key shear (did you mean shear_rate?) (known: " + errors[1].split("(known: ")[1][:-1] + ")",
         "physics.psi_bar = 'a': must be a number",
         "numerics.N = 64.5: must be an integer",

@@ -267,6 +267,11 @@ class Numerics:
     controller: the publication's fixed dt = 1e-5 through the start-up transient, which
     selects the attractor where several coexist (docs/numerics.md, "A start-up at a fixed
     step"); 0, the default, controls every step.
+    ``scheme``: "sbdf2" (the default: variable-step SBDF2, fixed or under error control) or
+    "ifab2", the publication's time integration as its authors' code does it (a second-order
+    integrating factor with Adams-Bashforth for the tangent angle, 20 such substeps of the phase
+    field with the shape frozen, Adams-Bashforth for the position; fixed steps only;
+    solver/timestepping.py, docs/numerics.md "The publication's scheme").
     """
 
     N: int = 128
@@ -285,7 +290,10 @@ class Numerics:
     dealias: float = 1.0
     startup_dt: float = 0.0
     startup_time: float = 0.0
+    scheme: str = "sbdf2"
 
+    #: the time integrations numerics.scheme names
+    SCHEMES = ("sbdf2", "ifab2")
     #: the padding factors numerics.dealias may take
     DEALIAS_FACTORS = (1.0, 1.5, 2.0)
 
@@ -344,6 +352,11 @@ class Numerics:
             _require(0 < self.startup_dt <= self.startup_time,
                      f"numerics.startup_dt = {self.startup_dt}, startup_time = {self.startup_time}: give both, "
                      "with 0 < startup_dt <= startup_time")
+        _require(self.scheme in self.SCHEMES,
+                 f"numerics.scheme = {self.scheme!r}: must be one of {', '.join(map(repr, self.SCHEMES))}")
+        if self.scheme == "ifab2":
+            _require(self.rtol is None, "numerics.scheme = \"ifab2\": the publication's scheme takes fixed steps "
+                     "(give dt, not rtol)")
         _require(self.phase_stabilization >= 0.5,
                  f"numerics.phase_stabilization = {self.phase_stabilization}: must be >= 0.5 "
                  "(max g'' on [0, 1])")
@@ -527,6 +540,8 @@ class Case:
             unused += ("dealias",)                                 # rates on the N nodes, likewise
         if not self.numerics.startup_dt:
             unused += ("startup_dt", "startup_time")               # no fixed-step start-up, likewise
+        if self.numerics.scheme == "sbdf2":
+            unused += ("scheme",)                                  # hpcves's own scheme, likewise
         for key in unused:
             del out["numerics"][key]
         if not self.run.until_decided:

@@ -540,6 +540,8 @@ class Solver:
         fixed = k is None
         if fixed:
             k = self.dt
+        if self.case.numerics.scheme == "ifab2":
+            return self._ifab2(state, rates, k), rates, None
         if state.prev_theta is None:
             theta, psi, center, shift, correction, estimate = self._start(state, rates, k)
         else:
@@ -554,6 +556,91 @@ class Solver:
                     prev2_theta=state.prev_theta, prev2_psi=state.prev_psi, dt_prev2=state.dt_prev,
                     quiet_since=state.quiet_since)
         return new, rates, estimate
+
+    # ------------------------------------------------------------------ the publication's scheme
+    #: the phase field's substeps in one step of the publication's scheme (its code's nloop)
+    PHASE_SUBSTEPS = 20
+
+    def _ifab2(self, state: State, rates: Rates, k: float) -> State:
+        """One step of the publication's scheme, as its authors' code takes it (numerics.scheme = "ifab2").
+
+        In the frame of the material (node alpha of this solver carries the label alpha - a: the
+        fields are translated by a^n on the way in and by a^{n+1} on the way out, exactly in
+        Fourier space), with E = e^{-lam k}, lam = c max(B1, B2) |k|^3 / 4 and G = theta_t + lam
+        theta (the material rate -n . du/ds = F + V theta_s, filtered as numerics.filter_order says):
+
+            theta^{n+1} = E theta^n + k/2 (3 E G^n - E^2 G^{n-1})          (IF-AB2)
+            a, center:  y^{n+1} = y^n + k/2 (3 y_t^n - y_t^{n-1})            (AB2)
+
+        and psi in 20 substeps h = k/20 with the shape frozen at level n, E_h = e^{-lam_psi h},
+        lam_psi = nu a0 eps |k|^4, N = nu d^2 mu/ds^2 + lam_psi psi (the history N^{j-1} carried
+        from substep to substep and from step to step):
+
+            psi^{j+1} = E_h psi^j + h/2 (3 E_h N^j - E_h^2 N^{j-1}).
+
+        The first step is the integrating-factor Euler step, theta^1 = E (theta^0 + k G^0), and
+        20 such substeps of psi. Linear propagator for theta and Adams-Bashforth positions:
+        Hou, Lowengrub & Shelley, J. Comput. Phys. 114 (1994) 312; Sohn et al., J. Comput. Phys.
+        229 (2010) 119; the code: quaife/brinkman, shuwang_code/shear1Ves.m. As in the rest of
+        hpcves (unlike that code) the length is held fixed and theta is projected onto closed
+        curves (and, with numerics.area_correction, onto the initial area). The state's
+        prev_rate_theta and prev_rate_psi hold G^n and the last substep's N (at the nodes).
+        """
+        sp, fft, phys = self.sp, self.sp.fft, self.case.physics
+        first = state.prev_theta is None
+        to_material = sp.shift_symbol(-state.shift)
+        V = rates.mean_tangential_velocity
+        theta_hat = fft.rfft(state.theta)
+        material_rate = fft.rfft(rates.theta) + V * (self._theta_filter if self._theta_filter is not None
+                                                     else 1.0) * sp.ik * theta_hat
+        G = material_rate + self.lam_theta * theta_hat
+        E = np.exp(-self.lam_theta * k)
+        if first:
+            theta_new = E * (to_material * (theta_hat + k * G))
+            shift = state.shift + k * rates.shift
+            center = state.center + k * rates.center
+        else:
+            G_prev = sp.shift_symbol(-state.prev_shift) * fft.rfft(state.prev_rate_theta)
+            theta_new = E * (to_material * (theta_hat + 1.5 * k * G)) - (0.5 * k) * (E * E) * G_prev
+            shift = state.shift + 0.5 * k * (3.0 * rates.shift - state.prev_rate_shift)
+            center = state.center + 0.5 * k * (3.0 * rates.center - state.prev_rate_center)
+        to_nodes = sp.shift_symbol(shift)
+        theta, correction = self._project(to_nodes * theta_new)
+        psi, last_N = state.psi, None
+        if not phys.homogeneous:
+            psi_hat, last_N = self._ifab2_phase(fft.rfft(state.psi) * to_material,
+                                                fft.irfft(to_material * fft.rfft(rates.shape.curvature)),
+                                                None if first else
+                                                to_material * fft.rfft(state.prev_rate_psi), k)
+            psi = self._conserve(fft.irfft(to_nodes * psi_hat), state.psi)
+            last_N = fft.irfft(to_nodes * last_N)
+        return State(step=state.step + 1, theta=theta, psi=psi, center=center, shift=shift,
+                     area_correction=state.area_correction + correction,
+                     prev_theta=state.theta, prev_psi=state.psi, prev_center=state.center, prev_shift=state.shift,
+                     prev_rate_theta=fft.irfft(G), prev_rate_psi=last_N, prev_rate_center=rates.center,
+                     prev_rate_shift=rates.shift, t=(state.step + 1) * self.dt, dt_prev=k,
+                     prev2_theta=state.prev_theta, prev2_psi=state.prev_psi, dt_prev2=state.dt_prev,
+                     quiet_since=state.quiet_since)
+
+    def _ifab2_phase(self, psi_hat, curvature, N_prev, k):
+        """(psi^{n+1}, the last substep's N), spectra in the material frame: the 20 substeps of
+        :meth:`_ifab2` at the frozen ``curvature``; IF-Euler substeps where ``N_prev`` is None."""
+        sp, fft, phys = self.sp, self.sp.fft, self.case.physics
+        lam = phys.mobility * phys.a0 * phys.epsilon * sp.k**4
+        h = k / self.PHASE_SUBSTEPS
+        E = np.exp(-lam * h)
+        euler = N_prev is None
+        for _ in range(self.PHASE_SUBSTEPS):
+            psi = fft.irfft(psi_hat)
+            mu = phasefield.chemical_potential(psi, fft.irfft(sp.k2 * psi_hat), curvature,
+                                               phys.bending_prime(psi), phys.a0, phys.epsilon)
+            N = self._mobility_k2 * fft.rfft(mu) + lam * psi_hat
+            if euler:
+                psi_hat = E * (psi_hat + h * N)
+            else:
+                psi_hat = E * (psi_hat + 1.5 * h * N) - (0.5 * h) * (E * E) * N_prev
+            N_prev = N
+        return psi_hat, N_prev
 
     def _sbdf2(self, state: State, rates: Rates, k: float, w: float):
         if self.engine == "compiled":
