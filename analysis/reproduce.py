@@ -581,6 +581,66 @@ def swinging_section(c: Context) -> list[str]:
     return lines
 
 
+#: the publication's words at the points of publication_mode.toml (its fig. 9b and the text beside it)
+PUBLICATION_AT_DELTA_230 = ("phase-treading for psi_bar in 0.44-0.58 (fig. 9b), with S_C = 120 at psi_bar = 0.44: "
+                            "PT at S = 40 and at 160 there")
+
+
+def _numerics_table(rows_by_numerics: dict) -> list[str]:
+    """A row per point: what each numerics reached there (regime, mean theta or period, the pattern)."""
+    points = sorted({(r["shear_rate"], r["psi_bar"]) for rows in rows_by_numerics.values() for r in rows})
+    head = ["S", "psi_bar"] + [f"{name}: {what}" for name in rows_by_numerics for what in ("regime", "theta / period")]
+    body = []
+    for shear, psi in points:
+        cells = [f"{shear:g}", f"{psi:g}"]
+        for rows in rows_by_numerics.values():
+            row = next((r for r in rows if (r["shear_rate"], r["psi_bar"]) == (shear, psi)), None)
+            if row is None:
+                cells += ["not run", ""]
+                continue
+            value = (f"T = {_fmt(row['period'])}" if row["regime"] in ("PT", "TU") else
+                     f"{_fmt(row['theta_mean'])} rad" if math.isfinite(row["theta_mean"]) else "")
+            cells += [row["regime"] + (f" ({pattern_cell(row)})" if pattern_cell(row) else ""), value]
+        body.append(cells)
+    return [markdown_table(head, body, left=tuple(range(2, len(head)))), ""]
+
+
+def publication_mode_default_section(c: Context) -> list[str]:
+    return ["## The disputed Fig. 9b points in hpcves's numerics (Delta = 2.3, linear law, the authors' start)", "",
+            "The twin of the next section: the same physics in hpcves's converged numerics (adaptive SBDF2, "
+            "rtol = 1e-3, N adapting, rates on 2 N nodes).", ""] + _numerics_table(
+                {"hpcves": claims.points(c.report.rows)})
+
+
+def publication_mode_section(c: Context) -> list[str]:
+    twin = "publication_mode_default"
+    twin_output = load_study(JOBS[c.grid] / f"{twin}.toml").output
+    rows = claims.points(c.report.rows)
+    lines = ["## The disputed Fig. 9b points in the publication's numerics (`preset = \"publication\"`)", "",
+             "The authors' time integration as their code takes it (integrating factor and Adams-Bashforth for "
+             "the shape, 20 substeps of the phase field with the shape frozen), fixed dt = 1e-5, their filter, "
+             "the linear law and their start, N = 128 (docs/numerics.md, \"The publication's scheme\": checked "
+             "against the authors' code under Octave). The publication: " + PUBLICATION_AT_DELTA_230 + ".", ""]
+    if not Path(twin_output).exists():
+        return lines + _numerics_table({"publication's numerics": rows}) + [
+            f"Not compared: the campaign file of {twin} is not on this machine (`make reproduce "
+            f"STUDY={twin},{c.name}` draws it).", ""]
+    twin_rows = analyze(twin_output, c.out / twin, case_figures="none").rows
+    lines += _numerics_table({"hpcves's numerics": claims.points(twin_rows), "publication's numerics": rows})
+    names = ("hpcves's numerics", "publication's numerics")
+    compared = attractor_map.compare({names[0]: twin_rows, names[1]: c.report.rows}, values=False)
+    fig = attractor_map.figure(compared, names, "shear_rate", "psi_bar", "Delta = 2.3: the two numerics point by point")
+    path = c.directory / f"{c.name}_attractor_map.png"
+    fig.savefig(path, dpi=100)
+    pt = [r for r in rows if r["regime"] == "PT"]
+    return lines + ["Each point split between the regime in hpcves's numerics (left) and in the publication's "
+                    "(right), ringed where they reached different attractors (regime or pattern topology).", "",
+                    attractor_map.summary(compared, names), "",
+                    f"In the publication's numerics {len(pt)} of {len(rows)} points phase-tread"
+                    + (" (" + ", ".join(f"S = {r['shear_rate']:g}, psi_bar = {r['psi_bar']:g}" for r in pt) + ")"
+                       if pt else "") + "; the publication has PT at all of them.", ""] + _images([path])
+
+
 def _phase_section(c: Context) -> list[str]:
     repeated = superseded(c.report.source)
     latest = [r for r in c.report.rows if r["case"] not in repeated]
@@ -694,6 +754,8 @@ SECTIONS = {
     "delta230_S_psi_smoothed": s_psi_section,
     "delta230_chain": chain_section,
     "swinging": swinging_section,
+    "publication_mode_default": publication_mode_default_section,
+    "publication_mode": publication_mode_section,
     "contrast_lambda_S_D0194": contrast_section,
     "contrast_lambda_S_D094": contrast_section,
     "contrast_lambda_psi": contrast_section,
