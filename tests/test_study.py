@@ -127,7 +127,13 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
     contrast = ("contrast_lambda_S_D0194", "contrast_lambda_S_D094", "contrast_lambda_psi")    # make contrast
     assert {p.stem for p in coarse} == {"homogeneous", "periods", "sc_b2", "sc_psi", *deflated,
                                        *(f"{name}_smoothed" for name in deflated), "delta230_chain", *contrast,
-                                       "swinging"}
+                                       "swinging", "publication_mode", "publication_mode_default"}
+    # the publication's numerics and its twin in hpcves's: the same physics and points, only the numerics differ
+    for folder in (jobs, jobs / "fine"):
+        publication = load_study(folder / "publication_mode.toml")
+        default = load_study(folder / "publication_mode_default.toml")
+        assert publication.base.numerics.scheme == "ifab2" and default.base.numerics.adaptive
+        assert publication.base.physics == default.base.physics and publication.sweep == default.sweep
     for name in contrast:              # refined over lambda and one more axis, lambda from 0.1 to 62.5
         study = load_study(jobs / f"{name}.toml")
         assert "viscosity_ratio" in study.refine.axes and study.sweep["viscosity_ratio"][0] == 0.1
