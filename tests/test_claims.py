@@ -46,8 +46,8 @@ def test_the_delta_s_claims():
             _row(20, 2.3, regime="TT"), _row(40, 3.0, regime="TT")]
     found = claims.measure("psi048_delta_S_smoothed", SimpleNamespace(rows=rows, searches=()))
     assert found["fig7a_tu"]["verdict"] == claims.AGREES
-    assert found["fig7a_tu_onset"] == {"value": "smallest Delta of a TU case: 0.5; 1 TU cases below 0.8",
-                                       "verdict": claims.DIFFERS}
+    assert found["fig7a_tu_onset"] == {"value": "smallest Delta of a TU case: 0.5; 1 TU cases below 0.8; "
+                                                "least TU Delta by S: S = 2: 0.5", "verdict": claims.DIFFERS}
     assert found["fig7a_no_tt"] == {"value": "2 TT of 2 cases there", "verdict": claims.DIFFERS}
     assert found["fig7a_pt"]["verdict"] == claims.MOSTLY                   # 1 PT, 1 TT with S > 15, Delta < 3
 
@@ -89,3 +89,18 @@ def test_the_table_says_what_is_not_measured_yet():
     assert "predates" in rows["psi_bar = 0: theta settles at ~0.6 rad for every S in [2, 350]"][0]
     assert rows["S_C ~ B1 - B2"][0] == "not run yet (`make reproduce STUDY=sc_b2`)"
     assert len(claims.table(measured)) == len(claims.CLAIMS)
+
+
+def test_around_half_is_judged_where_the_publication_says_and_shows_the_band_found():
+    """"S < 4 and psi_bar around 0.5": judged at the psi_bar nearest 0.5 run below S = 4, with the band of
+    psi_bar where TU is found beside it (no window of the script's own choosing)."""
+    rows = [_row(2, psi_bar=p, regime=regime) for p, regime in
+            ((0.4, "TT"), (0.44, "TU"), (0.48, "TU"), (0.52, "TU"), (0.5625, "TT"))] + [_row(10, psi_bar=0.5)]
+    found = claims.around_half(rows)
+    assert found == {"value": "psi_bar = 0.48, 0.52: 2 cases: 2 TU; TU at S < 4 for psi_bar 0.44-0.52",
+                     "verdict": claims.AGREES}
+    rows[2]["regime"] = rows[3]["regime"] = "TT"
+    assert claims.around_half(rows)["verdict"] == claims.DIFFERS
+    assert claims.around_half([_row(10, psi_bar=0.5)])["verdict"] == claims.NO_CASES
+    assert claims.measure("delta230_S_psi", SimpleNamespace(rows=rows, searches=()))["fig10b_tu"] == \
+        claims.around_half(rows)
