@@ -76,6 +76,31 @@ CLAIMS = (
 )
 
 
+#: where a claim and the reproduction differ, what the difference comes from -- the start, the start-up
+#: transient, multistability, the integrator, or unexplained -- and the evidence (issue 65; the runs are in
+#: docs/numerics.md, "A start-up at a fixed step" and "The publication's scheme", and REPRODUCTION.md's
+#: sections "swinging" and "publication_mode")
+CAUSES = {
+    "fig7a_tu_onset": "the reading of a boundary: the TU edge runs diagonally (Delta ~ 0.37 at S = 1 to ~ 0.85 at "
+                      "S = 4-5, full flips at Delta = 0.6, S = 2, first after t = 8.4); read at S ~ 4, or from runs "
+                      "shorter than the first flip, it is the publication's 0.8",
+    "fig7a_no_tt": "multistability: at Delta = 2.3, S = 160, psi_bar = 0.48 a two-domain TT and a one-domain PT "
+                   "coexist. Ten fixed SBDF2 steps of 1e-5 select PT, the converged start-up TT -- and so does the "
+                   "authors' own integration at dt = 1e-5 (TT 0.2981, N = 128 and 256): which attractor the "
+                   "publication's runs reached is not explained by its integrator",
+    "fig10a_tu": "the extent only: TU for psi_bar ~ 0.43-0.52, TT at 0.5625 with one domain on a tip (robust to "
+                 "numerics, law, filter and three starts); the publication gives no numbers for \"around 0.5\"",
+    "fig10b_tu": "the criterion and an unexplained S: theta flips for S = 2-6 at psi_bar = 0.5 and swings below 0 "
+                 "without flipping for S = 8-13 (TU by the publication's criterion), against its S < 4; min theta "
+                 "did not move under any numerics, law, filter, dt or the authors' integration (S = 10: -0.0995)",
+    "fig10b_pt": "unexplained: at psi_bar = 0.5625 and 0.46875 (S = 40) every variant -- starts, carried states, "
+                 "fixed dt, the linear law and filter, the authors' integration with and without its area drift "
+                 "(to t = 2-3) -- settles to TT or one domain pinned on a tip",
+    "fig10b_sc": "unexplained, as fig10b_pt: at psi_bar = 0.44, S = 200 the authors' integration tank-treads "
+                 "(theta 0.2939) as the default does",
+}
+
+
 def points(rows: list[dict]) -> list[dict]:
     """One row per parameter point: its last run (the one at the largest N, for [refine] retries)."""
     return list(last_runs(rows).values())
@@ -332,7 +357,8 @@ def measure(study: str, report) -> dict:
 
 
 def table(measured: dict) -> list[list[str]]:
-    """Rows of the claims table: the claim, then each start's value and verdict. ``measured``:
+    """Rows of the claims table: the claim, each start's value and verdict, and where they differ why
+    (:data:`CAUSES`). ``measured``:
     {study: its recorded claims, or None where its section predates the claims}."""
     body = []
     for claim in CLAIMS:
@@ -349,5 +375,5 @@ def table(measured: dict) -> list[list[str]]:
                 cells.append(f"not measured: its section predates this table (`make reproduce STUDY={study}`)")
             else:
                 cells.append(f"**{found[claim.key]['verdict']}**: {found[claim.key]['value']}")
-        body.append([claim.where, claim.says] + cells)
+        body.append([claim.where, claim.says] + cells + [CAUSES.get(claim.key, "")])
     return body

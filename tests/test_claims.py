@@ -82,13 +82,16 @@ def test_the_table_says_what_is_not_measured_yet():
                                  "fig9": {"value": "TT", "verdict": claims.DIFFERS}},
                 "psi048_cases_smoothed": {"fig9": {"value": "PT, period 0.638", "verdict": claims.AGREES}},
                 "homogeneous": None}
-    rows = {row[1]: row[2:] for row in claims.table(measured)}
+    rows = {row[1]: row[2:4] for row in claims.table(measured)}
     assert rows["Delta = 2.3, S = 28, psi_bar = 0.48 phase-treads"] == ["**differs**: TT",
                                                                         "**agrees**: PT, period 0.638"]
     assert rows["Delta = 0.94, S = 4, psi_bar = 0.48 tumbles"][1].startswith("not measured")
     assert "predates" in rows["psi_bar = 0: theta settles at ~0.6 rad for every S in [2, 350]"][0]
     assert rows["S_C ~ B1 - B2"][0] == "not run yet (`make reproduce STUDY=sc_b2`)"
     assert len(claims.table(measured)) == len(claims.CLAIMS)
+    causes = {claim.key: row[4] for claim, row in zip(claims.CLAIMS, claims.table(measured))}
+    assert set(claims.CAUSES) <= set(causes) and causes["fig10b_pt"].startswith("unexplained")
+    assert causes["fig9"] == ""                        # an agreeing claim has no cause to give
 
 
 def test_around_half_is_judged_where_the_publication_says_and_shows_the_band_found():
