@@ -350,10 +350,16 @@ MEASURES = {"homogeneous": homogeneous, "periods": periods, "sc_psi": sc_psi, "s
             "delta230_S_psi": delta230}
 
 
+#: claims whose measure has changed since sections were first written: the rule's number, recorded with
+#: each value (a value without one was measured by rule 1, which a section written before shows as such)
+RULES = {"fig7a_tu_onset": 2, "fig10a_tu": 2, "fig10b_tu": 2}     # 2: the publication's words (issue 65)
+
+
 def measure(study: str, report) -> dict:
-    """The claims ``study`` measures, from its analysis report: {claim key: {value, verdict}}."""
+    """The claims ``study`` measures, from its analysis report: {claim key: {value, verdict[, rule]}}."""
     function = MEASURES.get(study.removesuffix("_smoothed"))
-    return function(report) if function else {}
+    found = function(report) if function else {}
+    return {key: value | ({"rule": RULES[key]} if key in RULES else {}) for key, value in found.items()}
 
 
 def table(measured: dict) -> list[list[str]]:
@@ -373,6 +379,9 @@ def table(measured: dict) -> list[list[str]]:
                 cells.append(f"not run yet (`make reproduce STUDY={study}`)")
             elif found is None or claim.key not in found:
                 cells.append(f"not measured: its section predates this table (`make reproduce STUDY={study}`)")
+            elif found[claim.key].get("rule", 1) < RULES.get(claim.key, 1):
+                cells.append(f"measured by an earlier rule (**{found[claim.key]['verdict']}**: "
+                             f"{found[claim.key]['value']}); `make reproduce STUDY={study}` measures it as stated")
             else:
                 cells.append(f"**{found[claim.key]['verdict']}**: {found[claim.key]['value']}")
         body.append([claim.where, claim.says] + cells + [CAUSES.get(claim.key, "")])

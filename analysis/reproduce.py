@@ -633,6 +633,21 @@ def publication_mode_section(c: Context) -> list[str]:
     path = c.directory / f"{c.name}_attractor_map.png"
     fig.savefig(path, dpi=100)
     pt = [r for r in rows if r["regime"] == "PT"]
+    twin_points = {(r["shear_rate"], r["psi_bar"]): r for r in claims.points(twin_rows)}
+    creeping = [r for r in rows if r["regime"] == "undecided" and math.isfinite(r.get("pattern_speed", math.nan))
+                and math.isfinite(r["theta_mean"])]
+    if creeping:
+        gaps = [abs(r["theta_mean"] - t["theta_mean"]) for r in creeping
+                if (t := twin_points.get((r["shear_rate"], r["psi_bar"]))) is not None and t["regime"] == "TT"]
+        speeds = [abs(r["pattern_speed"]) for r in creeping]
+        moving = [abs(r["pattern_speed"]) for r in pt if math.isfinite(r.get("pattern_speed", math.nan))]
+        lines += [f"{len(creeping)} points stay undecided in the publication's numerics: theta is steady"
+                  + (f" (within {max(gaps):.1g} rad of hpcves's TT there)" if gaps else "")
+                  + f" while the pattern creeps through the lab frame at {min(speeds):.2g}-{max(speeds):.2g} of "
+                  "the tank-treading speed" + (f", where phase-treading moves at {min(moving):.2g}-{max(moving):.2g}"
+                                               if moving else "")
+                  + ". That is not phase-treading; the runs (to t_end) do not tell whether the creep is the "
+                  "first-order scheme's or a slow drift towards another state.", ""]
     return lines + ["Each point split between the regime in hpcves's numerics (left) and in the publication's "
                     "(right), ringed where they reached different attractors (regime or pattern topology).", "",
                     attractor_map.summary(compared, names), "",

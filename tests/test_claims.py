@@ -47,7 +47,8 @@ def test_the_delta_s_claims():
     found = claims.measure("psi048_delta_S_smoothed", SimpleNamespace(rows=rows, searches=()))
     assert found["fig7a_tu"]["verdict"] == claims.AGREES
     assert found["fig7a_tu_onset"] == {"value": "smallest Delta of a TU case: 0.5; 1 TU cases below 0.8; "
-                                                "least TU Delta by S: S = 2: 0.5", "verdict": claims.DIFFERS}
+                                                "least TU Delta by S: S = 2: 0.5", "verdict": claims.DIFFERS,
+                                       "rule": 2}
     assert found["fig7a_no_tt"] == {"value": "2 TT of 2 cases there", "verdict": claims.DIFFERS}
     assert found["fig7a_pt"]["verdict"] == claims.MOSTLY                   # 1 PT, 1 TT with S > 15, Delta < 3
 
@@ -106,4 +107,15 @@ def test_around_half_is_judged_where_the_publication_says_and_shows_the_band_fou
     assert claims.around_half(rows)["verdict"] == claims.DIFFERS
     assert claims.around_half([_row(10, psi_bar=0.5)])["verdict"] == claims.NO_CASES
     assert claims.measure("delta230_S_psi", SimpleNamespace(rows=rows, searches=()))["fig10b_tu"] == \
-        claims.around_half(rows)
+        claims.around_half(rows) | {"rule": 2}
+
+
+def test_a_value_measured_by_an_earlier_rule_says_so():
+    old = {"delta230_S_psi": {"fig10b_tu": {"value": "1 cases: 1 TT", "verdict": claims.DIFFERS}}}
+    rows = {claim.key: row for claim, row in zip(claims.CLAIMS, claims.table(old))}
+    assert rows["fig10b_tu"][2].startswith("measured by an earlier rule (**differs**: 1 cases: 1 TT); `make "
+                                           "reproduce STUDY=delta230_S_psi`")
+    new = claims.measure("delta230_S_psi", SimpleNamespace(rows=[_row(2, psi_bar=0.5, regime="TU")], searches=()))
+    assert new["fig10b_tu"]["rule"] == claims.RULES["fig10b_tu"]
+    rows = {claim.key: row for claim, row in zip(claims.CLAIMS, claims.table({"delta230_S_psi": new}))}
+    assert rows["fig10b_tu"][2].startswith("**agrees**: psi_bar = 0.5: 1 cases: 1 TU")

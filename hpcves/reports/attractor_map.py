@@ -116,19 +116,27 @@ def figure(compared: list[dict], starts: tuple, x_key: str, y_key: str, title: s
             start = first if first in rows else second
             ax.plot([x], [y], marker=".", markersize=5, linestyle="none", color=colour.get(rows[start]["regime"], "k"),
                     zorder=2)
+    shown = {row["regime"] for c in compared for row in c["rows"].values()}
     handles = [Line2D([], [], marker="s", linestyle="none", markersize=9, color=colour[r], label=REGIME_STYLE[r][2])
-               for r in ("TT", "PT", "TU", "undecided", "failed")]
+               for r in REGIME_STYLE if r in ("TT", "PT", "TU", "undecided", "failed") or r in shown]
     handles += [Line2D([], [], marker="o", linestyle="none", markersize=9, fillstyle="left", markerfacecolor="w",
                        markerfacecoloralt="0.7", markeredgecolor="0.6", label=f"left: {first}, right: {second}"),
                 Line2D([], [], marker="o", linestyle="none", markersize=9, markerfacecolor="w", markeredgecolor="k",
                        markeredgewidth=2.0, label=f"two attractors ({differ} point{'s' * (differ != 1)})"),
                 Line2D([], [], marker=".", linestyle="none", color="0.4", label="run from one start only")]
-    _finish(ax, handles, x_key, y_key, title)
+    _finish(ax, handles, x_key, y_key, title, compared)
     return fig
 
 
-def _finish(ax, handles, x_key: str, y_key: str, title: str) -> None:
-    """The legend (``handles``) beside a map of the plane x_key x y_key, S on a log axis, labels, grid, title."""
+#: a log axis with at most this many distinct values gets a tick at each of them
+FEW_VALUES = 6
+
+
+def _finish(ax, handles, x_key: str, y_key: str, title: str, compared=()) -> None:
+    """The legend (``handles``) beside a map of the plane x_key x y_key, S on a log axis (ticked at the
+    values run where they are few), labels, grid, title."""
+    import matplotlib.ticker
+
     from hpcves.reports.diagrams import AXIS_LABELS, plain_log_ticks
 
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, fontsize=10)
@@ -136,6 +144,9 @@ def _finish(ax, handles, x_key: str, y_key: str, title: str) -> None:
         if key == "shear_rate":
             setter("log")
             plain_log_ticks(axis)
+            values = sorted({c[key] for c in compared})
+            if 0 < len(values) <= FEW_VALUES:
+                axis.set_major_locator(matplotlib.ticker.FixedLocator(values))
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)
