@@ -320,7 +320,7 @@ def numerics_line(toml: str) -> str:
     sampling = (f"samples every min({base.run.sample_interval:g}, 1/({rule.samples_per_shear_time:g} S))"
                 if rule.samples_per_shear_time is not None else f"samples every {base.run.sample_interval:g}")
     num = base.numerics
-    step = f"adaptive step, rtol = {num.rtol:g}" if num.adaptive else f"dt = {num.dt:g}"
+    step = f"adaptive step, rtol = {num.rtol:g}" if num.adaptive else num.step_text()
     mode = ""
     if study.refine:
         settings = study.refine_settings

@@ -47,8 +47,7 @@ def run_command(case_file, out, resume, overwrite, quiet):
         opened = create_case_file(path, load_case(case_file), overwrite)
         store = CaseStore(opened.h5)
     case = store.case
-    step = f"rtol = {case.numerics.rtol:g}" if case.numerics.adaptive else f"dt = {case.numerics.dt:g}"
-    click.echo(f"{path}: {case.numerics.grid()}, {step}, t_end = {case.run.t_end:g}, "
+    click.echo(f"{path}: {case.numerics.grid()}, {case.numerics.step_text()}, t_end = {case.run.t_end:g}, "
                f"S = {case.physics.shear_rate:g}, psi_bar = {case.physics.psi_bar:g}, "
                f"excess length = {case.physics.excess_length:g}"
                + (f", viscosity ratio = {case.physics.viscosity_ratio:g}" if case.physics.contrast else "")

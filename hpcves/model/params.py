@@ -371,6 +371,12 @@ class Numerics:
         """True when N adapts during the run, from N up to ``N_max`` (numerics.N = "auto")."""
         return self.N_max > 0
 
+    def step_text(self) -> str:
+        """How the step is taken, for a header line: ``rtol = 0.001`` or ``dt = 1e-05`` (with the scheme
+        where it is not SBDF2)."""
+        text = f"rtol = {self.rtol:g}" if self.adaptive else f"dt = {self.dt:g}"
+        return text + (", the publication's scheme (ifab2)" if self.scheme == "ifab2" else "")
+
     @property
     def adaptive(self) -> bool:
         """True when the step is chosen by error control (``rtol`` set)."""
