@@ -70,6 +70,9 @@ Richardson-extrapolated IMEX Euler (second order). After each step the tangent
 angle is projected onto resolved modes, closed curves and (by default) the
 initial area, and the mean of psi -- the mass int psi ds -- is carried over.
 
+numerics.scheme = "ifab2" takes the publication's own step instead (integrating factor and
+Adams-Bashforth, :meth:`Solver._ifab2`), for reproducing its figures as they were computed.
+
 A :class:`State` holds everything a step needs, including the previous level
 and the previous right-hand side, so a checkpoint of it resumes bit for bit.
 """
@@ -524,11 +527,12 @@ class Solver:
 
     # ------------------------------------------------------------------ stepping
     def step(self, state: State, rates: Rates | None = None, k: float | None = None
-             ) -> tuple[State, Rates, Estimate]:
+             ) -> tuple[State, Rates, Estimate | None]:
         """Advance one step of length ``k`` (default: the fixed ``numerics.dt``).
 
         Returns the new state, the rates at the *old* level and the local error
-        estimate. ``rates`` may be passed if already computed for ``state`` (they
+        estimate (None from the publication's scheme, :meth:`_ifab2`, which takes fixed
+        steps). ``rates`` may be passed if already computed for ``state`` (they
         are a pure function of it), so a rejected step retried with a smaller k
         costs no new flow solve. A state without history (step 0) is started
         by Richardson extrapolation of IMEX Euler, 2 E(k/2)E(k/2) - E(k), which
@@ -540,8 +544,8 @@ class Solver:
         fixed = k is None
         if fixed:
             k = self.dt
-        if self.case.numerics.scheme == "ifab2":
-            return self._ifab2(state, rates, k), rates, None
+        if self.case.numerics.scheme == "ifab2":     # fixed steps only (params.Numerics): no error estimate
+            return self._ifab2(state, rates, k, fixed), rates, None
         if state.prev_theta is None:
             theta, psi, center, shift, correction, estimate = self._start(state, rates, k)
         else:
@@ -561,7 +565,7 @@ class Solver:
     #: the phase field's substeps in one step of the publication's scheme (its code's nloop)
     PHASE_SUBSTEPS = 20
 
-    def _ifab2(self, state: State, rates: Rates, k: float) -> State:
+    def _ifab2(self, state: State, rates: Rates, k: float, fixed: bool = True) -> State:
         """One step of the publication's scheme, as its authors' code takes it (numerics.scheme = "ifab2").
 
         In the frame of the material (node alpha of this solver carries the label alpha - a: the
@@ -618,7 +622,7 @@ class Solver:
                      area_correction=state.area_correction + correction,
                      prev_theta=state.theta, prev_psi=state.psi, prev_center=state.center, prev_shift=state.shift,
                      prev_rate_theta=fft.irfft(G), prev_rate_psi=last_N, prev_rate_center=rates.center,
-                     prev_rate_shift=rates.shift, t=(state.step + 1) * self.dt, dt_prev=k,
+                     prev_rate_shift=rates.shift, t=(state.step + 1) * self.dt if fixed else state.t + k, dt_prev=k,
                      prev2_theta=state.prev_theta, prev2_psi=state.prev_psi, dt_prev2=state.dt_prev,
                      quiet_since=state.quiet_since)
 
