@@ -581,20 +581,39 @@ def swinging_section(c: Context) -> list[str]:
     return lines
 
 
-#: the publication's words at the points of publication_mode.toml (its fig. 9b and the text beside it)
-PUBLICATION_AT_DELTA_230 = ("phase-treading for psi_bar in 0.44-0.58 (fig. 9b), with S_C = 120 at psi_bar = 0.44: "
-                            "PT at S = 40 and at 160 there")
+@dataclass(frozen=True)
+class DisputedPoints:
+    """A campaign of points where hpcves and the publication differ, run in the publication's numerics
+    (``preset = "publication"``; its twin ``<name>_default`` in hpcves's): what to call it, the plane, and
+    what the publication says there, with the regime it gives every point."""
+
+    title: str
+    y_key: str
+    says: str
+    regime: str
 
 
-def _numerics_table(rows_by_numerics: dict) -> list[str]:
+DISPUTED = {
+    "publication_mode": DisputedPoints(
+        "The disputed Fig. 9b points (Delta = 2.3)", "psi_bar",
+        "phase-treading for psi_bar in 0.44-0.58 (fig. 9b), with S_C = 120 at psi_bar = 0.44: PT at S = 40 and at "
+        "160 there", "PT"),
+    "publication_mode_fig7a": DisputedPoints(
+        "The disputed Fig. 7a points (psi_bar = 0.48)", "excess_length",
+        "no tank-treading for Delta > 1.6, phase-treading for S > 15 and Delta < 3 (fig. 7a): PT at every point "
+        "here", "PT"),
+}
+
+
+def _numerics_table(rows_by_numerics: dict, y_key: str) -> list[str]:
     """A row per point: what each numerics reached there (regime, mean theta or period, the pattern)."""
-    points = sorted({(r["shear_rate"], r["psi_bar"]) for rows in rows_by_numerics.values() for r in rows})
-    head = ["S", "psi_bar"] + [f"{name}: {what}" for name in rows_by_numerics for what in ("regime", "theta / period")]
+    points = sorted({(r["shear_rate"], r[y_key]) for rows in rows_by_numerics.values() for r in rows})
+    head = ["S", y_key] + [f"{name}: {what}" for name in rows_by_numerics for what in ("regime", "theta / period")]
     body = []
-    for shear, psi in points:
-        cells = [f"{shear:g}", f"{psi:g}"]
+    for shear, y in points:
+        cells = [f"{shear:g}", f"{y:g}"]
         for rows in rows_by_numerics.values():
-            row = next((r for r in rows if (r["shear_rate"], r["psi_bar"]) == (shear, psi)), None)
+            row = next((r for r in rows if (r["shear_rate"], r[y_key]) == (shear, y)), None)
             if row is None:
                 cells += ["not run", ""]
                 continue
@@ -606,41 +625,45 @@ def _numerics_table(rows_by_numerics: dict) -> list[str]:
 
 
 def publication_mode_default_section(c: Context) -> list[str]:
-    return ["## The disputed Fig. 9b points in hpcves's numerics (Delta = 2.3, linear law, the authors' start)", "",
+    disputed = DISPUTED[c.name.removesuffix("_default")]
+    return [f"## {disputed.title} in hpcves's numerics (the linear law, the authors' start)", "",
             "The twin of the next section: the same physics in hpcves's converged numerics (adaptive SBDF2, "
             "rtol = 1e-3, N adapting, rates on 2 N nodes).", ""] + _numerics_table(
-                {"hpcves": claims.points(c.report.rows)})
+                {"hpcves": claims.points(c.report.rows)}, disputed.y_key)
 
 
 def publication_mode_section(c: Context) -> list[str]:
-    twin = "publication_mode_default"
+    disputed, twin = DISPUTED[c.name], f"{c.name}_default"
+    y_key = disputed.y_key
     twin_output = load_study(JOBS[c.grid] / f"{twin}.toml").output
     rows = claims.points(c.report.rows)
-    lines = ["## The disputed Fig. 9b points in the publication's numerics (`preset = \"publication\"`)", "",
+    lines = [f"## {disputed.title} in the publication's numerics (`preset = \"publication\"`)", "",
              "The authors' time integration as their code takes it (integrating factor and Adams-Bashforth for "
              "the shape, 20 substeps of the phase field with the shape frozen), fixed dt = 1e-5, their filter, "
-             "the linear law and their start, N = 128 (docs/numerics.md, \"The publication's scheme\": checked "
-             "against the authors' code under Octave). The publication: " + PUBLICATION_AT_DELTA_230 + ".", ""]
+             f"the linear law and their start, N = {c.study.base.numerics.N} (docs/numerics.md, \"The publication's "
+             "scheme\": checked against the authors' code under Octave). The publication: " + disputed.says + ".", ""]
     if not Path(twin_output).exists():
-        return lines + _numerics_table({"publication's numerics": rows}) + [
+        return lines + _numerics_table({"publication's numerics": rows}, y_key) + [
             f"Not compared: the campaign file of {twin} is not on this machine (`make reproduce "
             f"STUDY={twin},{c.name}` draws it).", ""]
     twin_rows = analyze(twin_output, c.out / twin, case_figures="none").rows
-    lines += _numerics_table({"hpcves's numerics": claims.points(twin_rows), "publication's numerics": rows})
+    lines += _numerics_table({"hpcves's numerics": claims.points(twin_rows), "publication's numerics": rows}, y_key)
     names = ("hpcves's numerics", "publication's numerics")
     compared = attractor_map.compare({names[0]: twin_rows, names[1]: c.report.rows}, values=False)
-    fig = attractor_map.figure(compared, names, "shear_rate", "psi_bar", "Delta = 2.3: the two numerics point by point")
+    fig = attractor_map.figure(compared, names, "shear_rate", y_key,
+                               f"{disputed.title}: the two numerics point by point")
     path = c.directory / f"{c.name}_attractor_map.png"
     fig.savefig(path, dpi=100)
-    pt = [r for r in rows if r["regime"] == "PT"]
-    twin_points = {(r["shear_rate"], r["psi_bar"]): r for r in claims.points(twin_rows)}
+    named = [r for r in rows if r["regime"] == disputed.regime]
+    twin_points = {(r["shear_rate"], r[y_key]): r for r in claims.points(twin_rows)}
     creeping = [r for r in rows if r["regime"] == "undecided" and math.isfinite(r.get("pattern_speed", math.nan))
                 and math.isfinite(r["theta_mean"])]
     if creeping:
         gaps = [abs(r["theta_mean"] - t["theta_mean"]) for r in creeping
-                if (t := twin_points.get((r["shear_rate"], r["psi_bar"]))) is not None and t["regime"] == "TT"]
+                if (t := twin_points.get((r["shear_rate"], r[y_key]))) is not None and t["regime"] == "TT"]
         speeds = [abs(r["pattern_speed"]) for r in creeping]
-        moving = [abs(r["pattern_speed"]) for r in pt if math.isfinite(r.get("pattern_speed", math.nan))]
+        moving = [abs(r["pattern_speed"]) for r in rows
+                  if r["regime"] == "PT" and math.isfinite(r.get("pattern_speed", math.nan))]
         lines += [f"{len(creeping)} points stay undecided in the publication's numerics: theta is steady"
                   + (f" (within {max(gaps):.1g} rad of hpcves's TT there)" if gaps else "")
                   + f" while the pattern creeps through the lab frame at {min(speeds):.2g}-{max(speeds):.2g} of "
@@ -651,9 +674,10 @@ def publication_mode_section(c: Context) -> list[str]:
     return lines + ["Each point split between the regime in hpcves's numerics (left) and in the publication's "
                     "(right), ringed where they reached different attractors (regime or pattern topology).", "",
                     attractor_map.summary(compared, names), "",
-                    f"In the publication's numerics {len(pt)} of {len(rows)} points phase-tread"
-                    + (" (" + ", ".join(f"S = {r['shear_rate']:g}, psi_bar = {r['psi_bar']:g}" for r in pt) + ")"
-                       if pt else "") + "; the publication has PT at all of them.", ""] + _images([path])
+                    f"In the publication's numerics {len(named)} of {len(rows)} points are {disputed.regime}"
+                    + (" (" + ", ".join(f"S = {r['shear_rate']:g}, {y_key} = {r[y_key]:g}" for r in named) + ")"
+                       if named else "") + f"; the publication has {disputed.regime} at all of them.", ""] \
+        + _images([path])
 
 
 def _phase_section(c: Context) -> list[str]:
@@ -771,6 +795,8 @@ SECTIONS = {
     "swinging": swinging_section,
     "publication_mode_default": publication_mode_default_section,
     "publication_mode": publication_mode_section,
+    "publication_mode_fig7a_default": publication_mode_default_section,
+    "publication_mode_fig7a": publication_mode_section,
     "contrast_lambda_S_D0194": contrast_section,
     "contrast_lambda_S_D094": contrast_section,
     "contrast_lambda_psi": contrast_section,

@@ -1,5 +1,6 @@
 """Campaign files: the grid of cases, end times, and the errors a user gets."""
 import dataclasses
+import itertools
 
 import pytest
 
@@ -127,11 +128,12 @@ def test_the_reproduction_studies_are_valid_and_the_fine_set_is_as_tight_or_tigh
     contrast = ("contrast_lambda_S_D0194", "contrast_lambda_S_D094", "contrast_lambda_psi")    # make contrast
     assert {p.stem for p in coarse} == {"homogeneous", "periods", "sc_b2", "sc_psi", *deflated,
                                        *(f"{name}_smoothed" for name in deflated), "delta230_chain", *contrast,
-                                       "swinging", "publication_mode", "publication_mode_default"}
+                                       "swinging", "publication_mode", "publication_mode_default",
+                                       "publication_mode_fig7a", "publication_mode_fig7a_default"}
     # the publication's numerics and its twin in hpcves's: the same physics and points, only the numerics differ
-    for folder in (jobs, jobs / "fine"):
-        publication = load_study(folder / "publication_mode.toml")
-        default = load_study(folder / "publication_mode_default.toml")
+    for folder, name in itertools.product((jobs, jobs / "fine"), ("publication_mode", "publication_mode_fig7a")):
+        publication = load_study(folder / f"{name}.toml")
+        default = load_study(folder / f"{name}_default.toml")
         assert publication.base.numerics.scheme == "ifab2" and default.base.numerics.adaptive
         assert publication.base.physics == default.base.physics and publication.sweep == default.sweep
     for name in contrast:              # refined over lambda and one more axis, lambda from 0.1 to 62.5
