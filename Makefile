@@ -75,7 +75,7 @@ contrast: setup
 # the fig. 9b points where hpcves and the publication differ, in the publication's own numerics
 # (preset = "publication") and in hpcves's: their sections of REPRODUCTION.md (about 25 min on 2 cores)
 publication-mode: setup
-	$(MAKE) reproduce STUDY=publication_mode_default,publication_mode
+	$(MAKE) reproduce STUDY=publication_mode_default,publication_mode,publication_mode_fig7a_default,publication_mode_fig7a
 
 clean:
 	rm -rf out .pytest_cache
