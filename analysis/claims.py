@@ -384,5 +384,6 @@ def table(measured: dict) -> list[list[str]]:
                              f"{found[claim.key]['value']}); `make reproduce STUDY={study}` measures it as stated")
             else:
                 cells.append(f"**{found[claim.key]['verdict']}**: {found[claim.key]['value']}")
-        body.append([claim.where, claim.says] + cells + [CAUSES.get(claim.key, "")])
+        agreed = all(cell.startswith(f"**{AGREES}**") or cell.startswith("not run:") or not cell for cell in cells)
+        body.append([claim.where, claim.says] + cells + ["" if agreed else CAUSES.get(claim.key, "")])
     return body

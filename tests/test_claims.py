@@ -119,3 +119,12 @@ def test_a_value_measured_by_an_earlier_rule_says_so():
     assert new["fig10b_tu"]["rule"] == claims.RULES["fig10b_tu"]
     rows = {claim.key: row for claim, row in zip(claims.CLAIMS, claims.table({"delta230_S_psi": new}))}
     assert rows["fig10b_tu"][2].startswith("**agrees**: psi_bar = 0.5: 1 cases: 1 TU")
+
+
+def test_a_cause_is_given_only_where_a_start_differs():
+    differs = {"delta094_S_psi": {"fig10a_tu": {"value": "x", "verdict": claims.DIFFERS, "rule": 2}},
+               "delta094_S_psi_smoothed": {"fig10a_tu": {"value": "x", "verdict": claims.AGREES, "rule": 2}}}
+    agrees = {name: {"fig10a_tu": {"value": "x", "verdict": claims.AGREES, "rule": 2}} for name in differs}
+    for measured, cause in ((differs, claims.CAUSES["fig10a_tu"]), (agrees, "")):
+        row = next(row for claim, row in zip(claims.CLAIMS, claims.table(measured)) if claim.key == "fig10a_tu")
+        assert row[4] == cause
