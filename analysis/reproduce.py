@@ -591,17 +591,18 @@ class DisputedPoints:
     y_key: str
     says: str
     regime: str
+    short: str          # the figure's title
 
 
 DISPUTED = {
     "publication_mode": DisputedPoints(
         "The disputed Fig. 9b points (Delta = 2.3)", "psi_bar",
         "phase-treading for psi_bar in 0.44-0.58 (fig. 9b), with S_C = 120 at psi_bar = 0.44: PT at S = 40 and at "
-        "160 there", "PT"),
+        "160 there", "PT", "Fig. 9b, Delta = 2.3"),
     "publication_mode_fig7a": DisputedPoints(
         "The disputed Fig. 7a points (psi_bar = 0.48)", "excess_length",
         "no tank-treading for Delta > 1.6, phase-treading for S > 15 and Delta < 3 (fig. 7a): PT at every point "
-        "here", "PT"),
+        "here", "PT", "Fig. 7a, psi_bar = 0.48"),
 }
 
 
@@ -651,7 +652,7 @@ def publication_mode_section(c: Context) -> list[str]:
     names = ("hpcves's numerics", "publication's numerics")
     compared = attractor_map.compare({names[0]: twin_rows, names[1]: c.report.rows}, values=False)
     fig = attractor_map.figure(compared, names, "shear_rate", y_key,
-                               f"{disputed.title}: the two numerics point by point")
+                               f"{disputed.short}: the two numerics point by point")
     path = c.directory / f"{c.name}_attractor_map.png"
     fig.savefig(path, dpi=100)
     named = [r for r in rows if r["regime"] == disputed.regime]
