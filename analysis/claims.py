@@ -285,13 +285,23 @@ def around_half(rows: list[dict], below: float = 4.0) -> dict:
             "verdict": found["verdict"]}
 
 
+#: the shear rates at which :func:`tumbling_edge` reads the boundary (the run's nearest, within 25 %)
+EDGE_AT = (1.0, 2.0, 4.0, 8.0, 16.0)
+
+
 def tumbling_edge(rows: list[dict]) -> str:
-    """The least Delta of a TU case at each shear rate that has one: the boundary the publication puts at 0.8."""
+    """The least Delta of a TU case at the shear rates run nearest to :data:`EDGE_AT`: the boundary the
+    publication puts at 0.8."""
     edge: dict = {}
     for r in points(rows):
         if r["status"] == "finished" and r["regime"] == "TU":
             edge[r["shear_rate"]] = min(edge.get(r["shear_rate"], math.inf), r["excess_length"])
-    return ", ".join(f"S = {S:g}: {d:.3g}" for S, d in sorted(edge.items())) or "no TU case"
+    shown = {}
+    for target in EDGE_AT:
+        near = min(edge, key=lambda S: abs(math.log(S / target)), default=None)
+        if near is not None and abs(math.log(near / target)) <= math.log(1.25):
+            shown[near] = edge[near]
+    return ", ".join(f"S = {S:.3g}: {d:.3g}" for S, d in sorted(shown.items())) or "no TU case"
 
 
 def _absent(rows, inside, regime: str) -> dict:
