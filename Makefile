@@ -72,8 +72,8 @@ CONTRAST := contrast_lambda_S_D0194,contrast_lambda_S_D094,contrast_lambda_psi
 contrast: setup
 	$(MAKE) reproduce STUDY=$(CONTRAST)
 
-# the fig. 9b points where hpcves and the publication differ, in the publication's own numerics
-# (preset = "publication") and in hpcves's: their sections of REPRODUCTION.md (about 25 min on 2 cores)
+# the fig. 7a and 9b points where hpcves and the publication differ, in the publication's own numerics
+# (preset = "publication") and in hpcves's: their sections of REPRODUCTION.md (about 50 min on 2 cores)
 publication-mode: setup
 	$(MAKE) reproduce STUDY=publication_mode_default,publication_mode,publication_mode_fig7a_default,publication_mode_fig7a
 
