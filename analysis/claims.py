@@ -87,10 +87,9 @@ CAUSES = {
     "fig7a_no_tt": "hpcves's tolerance, and unexplained at S = 160: at S = 40, Delta = 2.3 rtol = 1e-4 phase-treads "
                    "(period 0.415; S = 80: 0.192) as fixed steps of 1e-5 in either scheme do (0.409, 0.452), where "
                    "rtol = 1e-3 keeps one domain on a tip, theta wandering by 3e-3 for 800 shear times -- an "
-                   "under-resolved PT; at "
-                   "S = 160 both numerics tank-tread with two "
-                   "domains for Delta = 1.9-2.7, and a two-domain TT and a one-domain PT coexist at 2.3 (ten fixed "
-                   "SBDF2 steps select PT, the authors' integration TT) (section publication_mode_fig7a)",
+                   "under-resolved PT; at S = 160 both numerics tank-tread with two domains for Delta = 1.9-2.7, "
+                   "and a two-domain TT and a one-domain PT coexist at 2.3 (ten fixed SBDF2 steps select PT, the "
+                   "authors' integration TT) (section publication_mode_fig7a)",
     "fig10a_tu": "the extent only: TU for psi_bar ~ 0.43-0.52, TT at 0.5625 with one domain on a tip (robust to "
                  "numerics, law, filter and three starts); the publication gives no numbers for \"around 0.5\"",
     "fig10b_tu": "the criterion and an unexplained S: theta flips for S = 2-6 at psi_bar = 0.5 and swings below 0 "
@@ -278,10 +277,11 @@ def around_half(rows: list[dict], below: float = 4.0) -> dict:
     if not low:
         return {"value": "no cases there", "verdict": NO_CASES}
     nearest = min(abs(r["psi_bar"] - 0.5) for r in low)
-    found = region(low, lambda r: abs(abs(r["psi_bar"] - 0.5) - nearest) < 1e-9, "TU")
+    at = [r for r in low if abs(abs(r["psi_bar"] - 0.5) - nearest) < 1e-9]
+    found = region(at, lambda r: True, "TU")
     tu = sorted(r["psi_bar"] for r in low if r["status"] == "finished" and r["regime"] == "TU")
     band = f"TU at S < {below:g} for psi_bar {tu[0]:.3g}-{tu[-1]:.3g}" if tu else f"no TU at S < {below:g}"
-    where = sorted({round(r["psi_bar"], 9) for r in low if abs(abs(r["psi_bar"] - 0.5) - nearest) < 1e-9})
+    where = sorted({round(r["psi_bar"], 9) for r in at})
     return {"value": f"psi_bar = {', '.join(f'{p:g}' for p in where)}: {found['value']}; {band}",
             "verdict": found["verdict"]}
 
@@ -381,22 +381,24 @@ def table(measured: dict) -> list[list[str]]:
     {study: its recorded claims, or None where its section predates the claims}."""
     body = []
     for claim in CLAIMS:
-        cells = []
+        cells, agreed = [], True
         for column, study in enumerate(claim.studies + ("",) * (2 - len(claim.studies))):
             if not study:
                 cells.append("not run: at Delta = 0.194 both starts give the same regimes and periods "
                              "(docs/numerics.md, \"Initial shape\")" if column else "")
                 continue
             found = measured.get(study, "missing")
+            current = isinstance(found, dict) and claim.key in found \
+                and found[claim.key].get("rule", 1) >= RULES.get(claim.key, 1)
+            agreed = agreed and current and found[claim.key]["verdict"] == AGREES   # else the cause is shown
             if found == "missing":
                 cells.append(f"not run yet (`make reproduce STUDY={study}`)")
             elif found is None or claim.key not in found:
                 cells.append(f"not measured: its section predates this table (`make reproduce STUDY={study}`)")
-            elif found[claim.key].get("rule", 1) < RULES.get(claim.key, 1):
+            elif not current:
                 cells.append(f"measured by an earlier rule (**{found[claim.key]['verdict']}**: "
                              f"{found[claim.key]['value']}); `make reproduce STUDY={study}` measures it as stated")
             else:
                 cells.append(f"**{found[claim.key]['verdict']}**: {found[claim.key]['value']}")
-        agreed = all(cell.startswith(f"**{AGREES}**") or cell.startswith("not run:") or not cell for cell in cells)
         body.append([claim.where, claim.says] + cells + ["" if agreed else CAUSES.get(claim.key, "")])
     return body

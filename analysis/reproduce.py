@@ -648,7 +648,8 @@ def publication_mode_section(c: Context) -> list[str]:
             f"Not compared: the campaign file of {twin} is not on this machine (`make reproduce "
             f"STUDY={twin},{c.name}` draws it).", ""]
     twin_rows = analyze(twin_output, c.out / twin, case_figures="none").rows
-    lines += _numerics_table({"hpcves's numerics": claims.points(twin_rows), "publication's numerics": rows}, y_key)
+    twin_points = claims.points(twin_rows)
+    lines += _numerics_table({"hpcves's numerics": twin_points, "publication's numerics": rows}, y_key)
     names = ("hpcves's numerics", "publication's numerics")
     compared = attractor_map.compare({names[0]: twin_rows, names[1]: c.report.rows}, values=False)
     fig = attractor_map.figure(compared, names, "shear_rate", y_key,
@@ -656,12 +657,12 @@ def publication_mode_section(c: Context) -> list[str]:
     path = c.directory / f"{c.name}_attractor_map.png"
     fig.savefig(path, dpi=100)
     named = [r for r in rows if r["regime"] == disputed.regime]
-    twin_points = {(r["shear_rate"], r[y_key]): r for r in claims.points(twin_rows)}
+    twin_at = {(r["shear_rate"], r[y_key]): r for r in twin_points}
     creeping = [r for r in rows if r["regime"] == "undecided" and math.isfinite(r.get("pattern_speed", math.nan))
                 and math.isfinite(r["theta_mean"])]
     if creeping:
         gaps = [abs(r["theta_mean"] - t["theta_mean"]) for r in creeping
-                if (t := twin_points.get((r["shear_rate"], r[y_key]))) is not None and t["regime"] == "TT"]
+                if (t := twin_at.get((r["shear_rate"], r[y_key]))) is not None and t["regime"] == "TT"]
         speeds = [abs(r["pattern_speed"]) for r in creeping]
         moving = [abs(r["pattern_speed"]) for r in rows
                   if r["regime"] == "PT" and math.isfinite(r.get("pattern_speed", math.nan))]
