@@ -301,10 +301,48 @@ def test_the_next_checkpoint_overwrites_the_slot_passed_over_not_the_one_resumed
     assert problems(path) == []
 
 
+def without_rheology(g):
+    """Case or block ``g`` (an open group) as hpcves wrote it before format 7: no rheology series, and
+    their checksums out of the digests (a packed block's series array rewritten without their columns)."""
+    from hpcves.run.blocks import quantities
+    from hpcves.run.diagnostics import RHEOLOGY_SERIES
+    from hpcves.run.store import RECORDS_SINCE, SNAPSHOT_RECORDS, series_of
+    kept = len(series_of(RECORDS_SINCE))
+    assert all(n not in RHEOLOGY_SERIES for n in series_of(RECORDS_SINCE))
+    if "timeseries/series" in g:
+        old = g["timeseries/series"]
+        data, chunks, scales = old[()][..., :len(quantities(RECORDS_SINCE))], old.chunks, [d[0] for d in old.dims]
+        del g["timeseries/series"]
+        new = g["timeseries"].create_dataset("series", data=data, maxshape=(None, *data.shape[1:]),
+                                              chunks=(1, *chunks[1:2], data.shape[2]), fillvalue=np.nan)
+        for name in ("quantity", "long_name", "units"):
+            values = g[f"timeseries/{name}"][:len(data[0, 0])]
+            del g[f"timeseries/{name}"]
+            g["timeseries"].create_dataset(name, data=values, dtype=h5py.string_dtype())
+        g["timeseries/quantity"].make_scale("quantity")
+        for axis, scale in enumerate([scales[0], scales[1], g["timeseries/quantity"]]):
+            new.dims[axis].attach_scale(scale)
+    else:
+        for name in RHEOLOGY_SERIES:
+            del g[f"timeseries/{name}"]
+    digest = g["timeseries/digest"][..., :kept]
+    del g["timeseries/digest"]
+    g.create_dataset("timeseries/digest", data=digest, maxshape=(None, *digest.shape[1:]) if digest.ndim > 1 else None)
+    for slot in ("slot0", "slot1"):
+        if f"checkpoint/{slot}/records" in g:
+            records = g[f"checkpoint/{slot}/records"][()]
+            records = np.concatenate([records[..., :kept], records[..., -len(SNAPSHOT_RECORDS):]], axis=-1)
+            del g[f"checkpoint/{slot}/records"]
+            g.create_dataset(f"checkpoint/{slot}/records", data=records,
+                             maxshape=(None, *records.shape[1:]) if records.ndim > 1 else None)
+
+
 def downgrade_to_format_5(path, group="/"):
-    """A case (or a block: ``group``) as hpcves wrote it before format 6: no ``records`` in its slots."""
+    """A case (or a block: ``group``) as hpcves wrote it before format 6: no rheology series (format
+    7), no ``records`` in its slots."""
     with h5py.File(path, "r+") as f:
         g = f[group]
+        without_rheology(g)
         g.attrs["format_version"] = 5
         for slot in ("slot0", "slot1"):
             del g[f"checkpoint/{slot}/records"]

@@ -226,12 +226,16 @@ def test_the_start_up_of_a_deflated_vesicle_is_not_taken_for_divergence():
 
 def downgrade_to_format_2(path):
     """Rewrite a case file as the format before adaptive steps wrote it: checkpoints without the
-    time, the step controller and level n-2 (the layout of hpcves before format 3)."""
+    time, the step controller and level n-2, nor the rheology series (the layout of hpcves before
+    format 3)."""
+    from hpcves.run.diagnostics import RHEOLOGY_SERIES
     from hpcves.run.store import _SCALAR_LAYOUTS
     width = sum(n for _, n in _SCALAR_LAYOUTS[2])
     with h5py.File(path, "r+") as f:
         f.attrs["format_version"] = 2
         del f["timeseries/digest"], f["snapshots/digest"]
+        for name in RHEOLOGY_SERIES:
+            del f[f"timeseries/{name}"]
         for slot in ("slot0", "slot1"):
             g = f[f"checkpoint/{slot}"]
             for name in ("prev2_theta", "prev2_psi", "digest"):

@@ -59,7 +59,9 @@ SERIES_NAMES = {
     "phase_position": "phase position", "psi_min": "minimum of psi", "psi_max": "maximum of psi",
     "area_correction": "summed area correction", "tank_treading_velocity": "tank-treading velocity",
     "stretching": "stretching residual", "tail_theta": "spectral tail of theta", "tail_psi": "spectral tail of psi",
-    "N": "nodes N", "step": "time steps",
+    "N": "nodes N", "step": "time steps", "stresslet_xy": "stresslet Sigma_xy",
+    "stresslet_normal": "stresslet Sigma_xx - Sigma_yy", "intrinsic_viscosity": "intrinsic viscosity [eta]",
+    "normal_stress_coefficient": "normal-stress coefficient N1",
 }
 #: axis-length long_names of the snapshot fields (run/diagnostics.SNAPSHOT_ATTRS: their descriptions)
 SNAPSHOT_NAMES = {

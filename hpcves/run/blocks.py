@@ -34,7 +34,7 @@ import numpy as np
 
 from hpcves.files import faults
 from hpcves.model.params import Case
-from hpcves.run.diagnostics import SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
+from hpcves.run.diagnostics import SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.store import (
     _N_SCALARS,
     DIGESTS_SINCE,
@@ -52,6 +52,7 @@ from hpcves.run.store import (
     attr_integer,
     capacities,
     name_records,
+    series_of,
     stored_case,
     stored_N,
 )
@@ -61,8 +62,16 @@ from hpcves.version import __version__
 BLOCKS = "blocks"
 #: the campaign format whose blocks pack their records (:func:`packing`)
 PACKED_SINCE = 3
-#: the columns of timeseries/series (format 3)
-QUANTITIES = tuple(q for name in SERIES for q in ((f"{name}_x", f"{name}_y") if name == "centroid" else (name,)))
+
+
+def quantities(version: int = FORMAT_VERSION) -> tuple[str, ...]:
+    """The columns of timeseries/series (campaign format 3) in a block of case format ``version``."""
+    return tuple(q for name in series_of(version) for q in ((f"{name}_x", f"{name}_y") if name == "centroid"
+                                                            else (name,)))
+
+
+#: the columns of timeseries/series in a new block
+QUANTITIES = quantities()
 SLOTS = ("slot0", "slot1")
 #: the largest chunk of a packed array, in bytes (a case's rows split into chunks of at most this).
 #: hpcves opens files without a chunk cache (store.CHUNK_CACHE_BYTES): its reads and writes go to the
@@ -71,10 +80,11 @@ SLOTS = ("slot0", "slot1")
 CHUNK_BYTES = 256 * 1024
 
 
-def packing() -> dict[str, Column]:
-    """{record: where it lies in its packed array} of a block of campaign format 3."""
+def packing(version: int = FORMAT_VERSION) -> dict[str, Column]:
+    """{record: where it lies in its packed array} of a block of campaign format 3 whose rows are of
+    case format ``version``."""
     out, first = {}, 0
-    for name in SERIES:
+    for name in series_of(version):
         width = 2 if name == "centroid" else 1
         out[f"timeseries/{name}"] = Column("timeseries/series", 1, first, width, squeezed=width == 1)
         first += width
@@ -86,8 +96,9 @@ def packing() -> dict[str, Column]:
     return out
 
 
-PACKING = packing()
-PACKED_ARRAYS = frozenset(column.array for column in PACKING.values())
+#: :func:`packing` of every case format a block may be of
+PACKINGS = {}
+PACKED_ARRAYS = frozenset(column.array for column in packing().values())
 
 
 def block_shape(case: Case) -> tuple[int, int, int]:
@@ -96,25 +107,26 @@ def block_shape(case: Case) -> tuple[int, int, int]:
 
 
 #: the case formats of a block's rows this hpcves reads and extends (a block keeps the one it was made in)
-BLOCK_VERSIONS = (DIGESTS_SINCE, FORMAT_VERSION)
+BLOCK_VERSIONS = (DIGESTS_SINCE, RECORDS_SINCE, FORMAT_VERSION)
+PACKINGS.update({version: packing(version) for version in BLOCK_VERSIONS})
 
 
 def row_layout(shape: tuple[int, int, int], packed: bool = False, version: int = FORMAT_VERSION) -> dict:
     """Every dataset of a row: name -> (shape of one case's array, dtype, fill value); ``packed``: of
     campaign format 3 (:func:`packing`); ``version``: the case format of the block's rows."""
     N, n_samples, n_snapshots = shape
-    nan = np.nan
+    nan, series = np.nan, series_of(version)
     out = {"status": ((), "i1", 0), "message": ((), f"S{MESSAGE_BYTES}", b""),
            "traceback": ((), f"S{TRACEBACK_BYTES}", b""), "decision": ((3,), "f8", nan),
            "progress": ((4,), "f8", nan),
-           "timeseries/length": ((), "i8", 0), "timeseries/digest": ((len(SERIES),), "u8", 0),
+           "timeseries/length": ((), "i8", 0), "timeseries/digest": ((len(series),), "u8", 0),
            "snapshots/length": ((), "i8", 0), "snapshots/digest": ((len(SNAPSHOT_RECORDS),), "u8", 0),
            "snapshots/t": ((n_snapshots,), "f8", nan), "snapshots/shift": ((n_snapshots,), "f8", nan)}
     if packed:
-        out["timeseries/series"] = ((n_samples, len(QUANTITIES)), "f8", nan)
+        out["timeseries/series"] = ((n_samples, len(quantities(version))), "f8", nan)
         out["snapshots/fields"] = ((n_snapshots, len(SNAPSHOT_FIELDS), N), "f8", nan)
     else:
-        for name in SERIES:
+        for name in series:
             out[f"timeseries/{name}"] = ((n_samples, 2) if name == "centroid" else (n_samples,), "f8", nan)
         for name in SNAPSHOT_FIELDS:
             out[f"snapshots/{name}"] = ((n_snapshots, N), "f8", nan)
@@ -122,7 +134,7 @@ def row_layout(shape: tuple[int, int, int], packed: bool = False, version: int =
         out[f"checkpoint/{slot}/meta"] = ((4,), "i8", 0)
         out[f"checkpoint/{slot}/digest"] = ((len(State.ARRAYS) + 2,), "u8", 0)
         if version >= RECORDS_SINCE:
-            out[f"checkpoint/{slot}/records"] = ((len(SERIES) + len(SNAPSHOT_RECORDS),), "u8", 0)
+            out[f"checkpoint/{slot}/records"] = ((len(series) + len(SNAPSHOT_RECORDS),), "u8", 0)
         out[f"checkpoint/{slot}/scalars"] = ((_N_SCALARS,), "f8", nan)
         if packed:
             out[f"checkpoint/{slot}/arrays"] = ((len(State.ARRAYS), N), "f8", nan)
@@ -175,13 +187,14 @@ def _describe(group, shape: tuple[int, int, int]) -> None:
         _describe_packed(group, scales)
         return
     labelled = {"status", "message", "traceback", "timeseries/length", "snapshots/length",       # (netCDF readers
-                *(f"timeseries/{n}" for n in SERIES), *(f"snapshots/{n}" for n in SNAPSHOT_RECORDS),  # refuse arrays
+                *(f"timeseries/{n}" for n in series_of(FORMAT_VERSION)),                             # refuse arrays
+                *(f"snapshots/{n}" for n in SNAPSHOT_RECORDS),
                 *(f"checkpoint/{s}/{n}" for s in ("slot0", "slot1") for n in State.ARRAYS)}     # with some axes
     for name in labelled:                                                                       # unnamed)
         group[name].dims[0].attach_scale(scales["case"])
     axes = {"timeseries": ("sample", "xy"), "snapshots": ("snapshot", "alpha")}
     for sub, (rows, columns) in axes.items():
-        for name in SERIES if sub == "timeseries" else SNAPSHOT_RECORDS:
+        for name in series_of(FORMAT_VERSION) if sub == "timeseries" else SNAPSHOT_RECORDS:
             dataset = group[sub][name]
             dataset.dims[1].attach_scale(scales[rows])
             if dataset.ndim == 3:
@@ -384,8 +397,9 @@ class Blocks:
         if not 0 <= row < rows:
             raise FileFormatError(f"{where}: row {row} lies outside block {name}'s {rows}")
         attrs = RowAttrs(self._attrs[name], config, where, extra or {})
+        columns = PACKINGS[self._attrs[name]["format_version"]] if self.packed else None
         return CaseStore(place=RowPlace(group, row, attrs, where, self._ids.setdefault(name, {}), present,
-                                        PACKING if self.packed else None, self._plans.setdefault(name, {}), filename))
+                                        columns, self._plans.setdefault(name, {}), filename))
 
 
 def find_case(h5, case_id: str, where: str) -> CaseStore:

@@ -18,6 +18,10 @@ Conventions
 * ``N`` -- the nodes of the run at the sample (numerics.N, or where it adapts the
   N it has grown or shrunk to; resolution.py).
 * ``step`` -- the steps taken up to the sample (with ``N``: the steps each grid took).
+* ``stresslet_xy``, ``stresslet_normal`` -- Sigma_xy and Sigma_xx - Sigma_yy of the vesicle's
+  stresslet (model/rheology.py), from the force and velocity at the sample: no extra flow solve.
+* ``intrinsic_viscosity``, ``normal_stress_coefficient`` -- [eta] = Sigma_xy / (S A) and
+  N1 = (Sigma_xx - Sigma_yy) / (S A), A the enclosed area.
 * ``V_psi`` -- velocity (arclength per time) of the phase pattern relative to
   the material: L d(phase_position)/dt.
 * ``V_L`` -- velocity of the material point alpha = 0 relative to the point
@@ -33,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hpcves.model import geometry, phasefield
-from hpcves.model.forces import bending_energy, phase_energy
+from hpcves.model import geometry, phasefield, rheology
+from hpcves.model.forces import bending_energy, bending_force, phase_energy, tension_force
 from hpcves.numerics.spectral import resolution_needed, spectral_tail
 from hpcves.solver.timestepping import EMPTY, EMPTY_SPECTRUM, Rates, Solver, State, compiled_kernels
 
@@ -42,10 +46,14 @@ from hpcves.solver.timestepping import EMPTY, EMPTY_SPECTRUM, Rates, Solver, Sta
 SERIES = ("t", "theta", "area_error", "length_error", "E_bending", "E_phase", "centroid",
           "tension_min", "tension_mean", "tension_max", "V_psi", "V_L", "phase_position",
           "psi_min", "psi_max", "area_correction", "tank_treading_velocity", "stretching",
-          "tail_theta", "tail_psi", "N", "step")
+          "tail_theta", "tail_psi", "N", "step",
+          "stresslet_xy", "stresslet_normal", "intrinsic_viscosity", "normal_stress_coefficient")
+
+#: the stress the vesicle adds to the suspension (model/rheology.py): recorded since case format 7
+RHEOLOGY_SERIES = ("stresslet_xy", "stresslet_normal", "intrinsic_viscosity", "normal_stress_coefficient")
 
 #: series added after files of format 3 were first written: a case without them still reads
-OPTIONAL_SERIES = ("tail_theta", "tail_psi", "N", "step")
+OPTIONAL_SERIES = ("tail_theta", "tail_psi", "N", "step") + RHEOLOGY_SERIES
 
 #: Names of the snapshot fields (one value per node).
 SNAPSHOT_FIELDS = ("x", "y", "psi", "tension", "curvature", "velocity_x", "velocity_y")
@@ -76,6 +84,10 @@ SERIES_ATTRS = {
     "tail_psi": ("share of the top third of the Fourier modes in the variation of psi", "1"),
     "N": ("number of nodes the run had (numerics.N, or where N adapts the N it had grown or shrunk to)", "1"),
     "step": ("time steps taken from t = 0 up to the sample", "1"),
+    "stresslet_xy": ("shear component Sigma_xy of the vesicle's stresslet", "1"),
+    "stresslet_normal": ("normal-stress difference Sigma_xx - Sigma_yy of the vesicle's stresslet", "1"),
+    "intrinsic_viscosity": ("intrinsic viscosity [eta] = Sigma_xy / (S A)", "1"),
+    "normal_stress_coefficient": ("first normal-stress coefficient N1 = (Sigma_xx - Sigma_yy) / (S A)", "1"),
 }
 SNAPSHOT_ATTRS = {
     "t": ("time of the snapshot", "1"),
@@ -198,7 +210,21 @@ def sample(solver: Solver, state: State, rates: Rates) -> dict:
         "tail_psi": 0.0 if phys.homogeneous else spectral_tail(rates.psi_hat, sp.N),
         "N": float(sp.N),
         "step": float(state.step),
+        **stress(solver, state, rates, m.area),
     }
+
+
+def stress(solver: Solver, state: State, rates: Rates, area: float) -> dict:
+    """The rheology series (:data:`RHEOLOGY_SERIES`) at the sample: the stresslet of the force
+    f = f_b + d(Lambda~ s)/ds and the velocity the rates hold (model/rheology.py)."""
+    sp, phys, shape = solver.sp, solver.case.physics, rates.shape
+    force = bending_force(shape.curvature, state.psi, rates.psi_s, shape.tangent, phys, sp) \
+        + tension_force(rates.flow.tension_eff, shape.tangent, sp)
+    shear, normal = rheology.stresslet(shape.z, shape.normal, force, rates.flow.velocity, sp.length,
+                                       phys.viscosity_ratio)
+    eta, n1 = rheology.coefficients(shear, normal, phys.shear_rate, area)
+    return {"stresslet_xy": shear, "stresslet_normal": normal, "intrinsic_viscosity": eta,
+            "normal_stress_coefficient": n1}
 
 
 def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
@@ -235,6 +261,7 @@ def _compiled_sample(solver: Solver, state: State, rates: Rates) -> dict:
         "tail_psi": tail_psi,
         "N": float(solver.sp.N),
         "step": float(state.step),
+        **stress(solver, state, rates, area),
     }
 
 

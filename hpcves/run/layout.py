@@ -15,7 +15,7 @@ from hpcves.config import case_from_toml, case_to_toml
 from hpcves.errors import FileFormatError
 from hpcves.files.atomic import METADATA_BYTES_PER_CASE
 from hpcves.model.params import Case, ConfigError
-from hpcves.run.diagnostics import SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
+from hpcves.run.diagnostics import RHEOLOGY_SERIES, SERIES, SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.h5files import attr_text
 from hpcves.run.hyperslabs import Column
 from hpcves.run.schedule import clock
@@ -23,15 +23,17 @@ from hpcves.solver.timestepping import State
 from hpcves.version import __version__
 
 FORMAT = "hpcves-case"
-FORMAT_VERSION = 6                  # 6: a checkpoint's checksums of the rows it builds on; 5: checksums of
-                                    # the checkpoints and of an ended case's data
-READS_VERSIONS = (2, 3, 4, 5, 6)    # 4: checkpoints hold their N (N adapting) and the resize memory; 3: t,
+FORMAT_VERSION = 7                  # 7: the rheology series; 6: a checkpoint's checksums of the rows it
+                                    # builds on; 5: checksums of the checkpoints and of an ended case's data
+READS_VERSIONS = (2, 3, 4, 5, 6, 7)  # 4: checkpoints hold their N (N adapting) and the resize memory; 3: t,
                                     # the step controller and level n-2; 2: fixed-step checkpoints
                                     # (t = step dt); 1 held psi at material labels
 #: the first format whose cases carry checksums
 DIGESTS_SINCE = 5
 #: the first format whose checkpoints carry the checksums of the series and snapshots they build on
 RECORDS_SINCE = 6
+#: the first format whose cases record the rheology series (diagnostics.RHEOLOGY_SERIES)
+RHEOLOGY_SINCE = 7
 MESSAGE_BYTES = 4096
 TRACEBACK_BYTES = 16384
 
@@ -66,13 +68,19 @@ _SCALAR_LAYOUTS = {
 }
 _SCALAR_LAYOUTS[3] = _SCALAR_LAYOUTS[2] + (("t", 1), ("dt_prev", 1), ("dt_prev2", 1), ("error", 1), ("dt_next", 1))
 _SCALAR_LAYOUTS[4] = _SCALAR_LAYOUTS[3] + (("quiet_since", 1), ("N", 1))
-_SCALAR_LAYOUTS[5] = _SCALAR_LAYOUTS[6] = _SCALAR_LAYOUTS[4]
-_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS, 5: State.ARRAYS, 6: State.ARRAYS}
+_SCALAR_LAYOUTS[5] = _SCALAR_LAYOUTS[6] = _SCALAR_LAYOUTS[7] = _SCALAR_LAYOUTS[4]
+_ARRAYS = {2: State.ARRAYS[:6], 3: State.ARRAYS, 4: State.ARRAYS, 5: State.ARRAYS, 6: State.ARRAYS, 7: State.ARRAYS}
 assert _ARRAYS[2] == ("theta", "psi", "prev_theta", "prev_psi", "prev_rate_theta", "prev_rate_psi")
 _SCALAR_LAYOUT = _SCALAR_LAYOUTS[FORMAT_VERSION]
 #: the per-snapshot records, in the order of snapshots/digest
 SNAPSHOT_RECORDS = ("t", "shift") + SNAPSHOT_FIELDS
 _N_SCALARS = sum(n for _, n in _SCALAR_LAYOUT)
+
+
+def series_of(version: int) -> tuple[str, ...]:
+    """The series a case of format ``version`` may record (a group's case made before a series existed
+    lacks it; store.CaseStore.series_names): a block's packed columns are these."""
+    return SERIES if version >= RHEOLOGY_SINCE else tuple(n for n in SERIES if n not in RHEOLOGY_SERIES)
 
 
 def stored_case(config: str, where: str) -> Case:

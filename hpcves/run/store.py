@@ -53,7 +53,7 @@ from hpcves.model.params import Case
 from hpcves.run.checkpoints import CaseCheckpoints
 from hpcves.run.checksums import digest
 from hpcves.run.decision import REGIMES_BY_CODE
-from hpcves.run.diagnostics import OPTIONAL_SERIES, SERIES, SNAPSHOT_FIELDS
+from hpcves.run.diagnostics import OPTIONAL_SERIES, SNAPSHOT_FIELDS
 from hpcves.run.h5files import (
     HDF5_ERRORS,
     OBJECT_FORMAT,
@@ -101,6 +101,7 @@ from hpcves.run.layout import (
     capacities,
     create_layout,
     name_records,
+    series_of,
     storage_bytes,
     stored_case,
     stored_N,
@@ -116,7 +117,7 @@ __all__ = ["CaseStore", "HDF5_ERRORS", "OBJECT_FORMAT", "_first_line", "attr_int
            "_SCALAR_LAYOUTS", "DIGESTS_SINCE", "ENDED", "ENDED_NAMES", "FAILED", "FINISHED", "FORMAT",
            "FORMAT_VERSION", "INTERRUPTED", "MESSAGE_BYTES", "MODEL_LIMIT", "NOT_DECIDED", "PENDING", "RECORDS_SINCE",
            "RUNNING", "SNAPSHOT_RECORDS", "STATUS_NAMES", "TRACEBACK_BYTES", "CaseRecord", "GroupPlace", "Status",
-           "_early", "capacities", "name_records", "storage_bytes", "stored_case", "stored_N", "digest",
+           "_early", "capacities", "name_records", "series_of", "storage_bytes", "stored_case", "stored_N", "digest",
            "FileFormatError"]
 
 
@@ -151,7 +152,8 @@ class CaseStore(CaseRecords, CaseCheckpoints):
         #: (config text, the Case parsed from it): :attr:`case` parses a text once
         self._parsed = None
         #: the series this case records (files written before OPTIONAL_SERIES existed lack those)
-        self.series_names = tuple(n for n in SERIES if n not in OPTIONAL_SERIES or self._place.has(f"timeseries/{n}"))
+        self.series_names = tuple(n for n in series_of(self.version)
+                                  if n not in OPTIONAL_SERIES or self._place.has(f"timeseries/{n}"))
 
     # ------------------------------------------------------------------ creation
     @classmethod
