@@ -61,10 +61,17 @@ def test_a_tiny_campaign_is_classified_tabulated_drawn_and_stored(campaign, tmp_
     assert "dt n/e" in tag
     assert f"{pt['period']:.4g} +- {error:.1g} [{tag}]" in periods
     assert "| n/e |" in (out / "regimes.md").read_text()
-    for name in ("phase_diagram", "periods"):
+    for name in ("phase_diagram", "periods", "intrinsic_viscosity", "normal_stress"):
         for ext in ("png", "pdf"):
             assert (out / f"{name}.{ext}").stat().st_size > 1000
     assert sorted(p.name for p in (out / "cases").iterdir()) == [f"000{i}.png" for i in range(4)]
+    # the stress the vesicles add: settled means near the rigid disk's [eta] = 2 for this near-circle,
+    # each with its statistical bar, a phase-treading case's [eta] oscillating with theta
+    for row in report.rows:
+        assert 1.5 < row["intrinsic_viscosity"] < 2.0 and 0.5 < row["normal_stress_coefficient"] < 1.5, row
+        assert 0 <= row["intrinsic_viscosity_err"] < 1e-3 * row["intrinsic_viscosity"]
+    assert pt["intrinsic_viscosity_amplitude"] > 10 * rows[(40, 0.3)]["intrinsic_viscosity_amplitude"]
+    assert "[eta]" in (out / "regimes.md").read_text()
 
     assert report.wrote_back
     stored = read_back(campaign)

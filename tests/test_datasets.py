@@ -69,7 +69,12 @@ def test_a_campaign_opens_in_xarray_trimmed_with_parameters_and_regimes_as_h5py_
     few = hpcves.open_campaign(campaign, variables=["theta"])
     assert list(few.data_vars) == ["t", "theta", "regime", "period", "period_err", "period_dt_err", "period_N_err",
                                    "theta_mean", "theta_mean_err", "theta_mean_dt_err", "theta_mean_N_err",
-                                   "t_settle", "cycles", "bending_gap", "reason", "regime_flag"]
+                                   "t_settle", "cycles", "bending_gap", *(f"{name}{part}" for name in (
+                                       "intrinsic_viscosity", "normal_stress_coefficient")
+                                       for part in ("", "_err", "_dt_err", "_N_err")), "reason", "regime_flag"]
+    assert few["intrinsic_viscosity"].attrs["long_name"] == "intrinsic viscosity [eta]"
+    undecided = few["regime"] == "undecided"                  # runs this short settle nowhere: no settled mean
+    assert undecided.all() and np.isnan(few["intrinsic_viscosity"]).all()
     with pytest.raises(FileFormatError, match="no series thetta"):
         hpcves.open_campaign(campaign, variables=["thetta"])
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from conftest import advance, make_solver
+from hpcves.analysis.stress import settled_mean
 from hpcves.model import flowfield, geometry, rheology
 from hpcves.model.forces import bending_force, tension_force
 from hpcves.run import diagnostics
@@ -100,3 +101,30 @@ def test_the_series_are_recorded_in_both_engines_and_agree():
         assert abs(rows["numpy"][name] - rows["compiled"][name]) <= 1e-9 * abs(rows["numpy"][name]), name
     area = rows["numpy"]["stresslet_xy"] / rows["numpy"]["intrinsic_viscosity"] / 20.0
     assert abs(area - np.pi * 0.5 / 3) < 1e-4 * area            # A = pi a b of the initial ellipse
+
+
+def test_a_settled_mean_is_taken_over_whole_periods_and_its_bar_covers_the_truth():
+    """A periodic series averaged over the last whole periods of theta's period: no bias from a
+    fraction of one; a steady one over the settled part; the bar covers the true mean."""
+    T = 0.37
+    t = np.arange(0.0, 5.0, T / 40.3)                         # the samples do not divide the period
+    x = 1.8 + 0.05 * np.sin(2 * np.pi * t / T + 0.4) + 0.3 * np.exp(-t / 0.2)   # a transient, then periodic
+    found = settled_mean(t, x, 1.5, T, 1e-6)
+    assert abs(found.mean - 1.8) <= found.error and found.error < 2e-3
+    assert found.amplitude == pytest.approx(0.05, rel=0.01)
+    naive = x[t >= 1.5].mean()                               # every settled sample: a part period biases it
+    assert abs(naive - 1.8) > abs(found.mean - 1.8)
+    steady = settled_mean(t, 1.9 + 1e-9 * np.random.default_rng(1).normal(size=t.size), 1.0)
+    assert abs(steady.mean - 1.9) <= steady.error < 1e-7 and steady.amplitude < 1e-8
+    assert np.isnan(settled_mean(t[:5], x[:5], 0.0).mean)        # too few samples: none
+
+
+def test_the_stress_error_bars_follow_the_measured_rule_and_are_absent_where_it_does_not_hold():
+    from hpcves.analysis import accuracy
+    eta = "intrinsic_viscosity"
+    assert accuracy.stress_error(eta, rtol=1e-3) == pytest.approx(accuracy.STRESS_PER_RTOL[eta] * 1e-3)
+    assert accuracy.stress_error(eta, tail=1e-4) == pytest.approx(accuracy.STRESS_PER_TAIL[eta] * 1e-4)
+    assert np.isnan(accuracy.stress_error(eta, rtol=None))                        # a fixed step
+    assert np.isnan(accuracy.stress_error(eta, rtol=1e-3, flips=True))           # tumbling
+    assert np.isnan(accuracy.stress_error(eta, tail=2 * accuracy.TAIL_RULED_UP_TO))   # beyond the watch
+    assert np.isnan(accuracy.stress_error(eta, tail=float("nan")))               # a record without the tails

@@ -110,6 +110,32 @@ def inclination_error(theta_mean: float, rtol: float | None, flips: bool = False
     return INCLINATION_PER_RTOL * rtol
 
 
+#: error of the settled mean [eta] / N1 per unit rtol and per unit spectral tail: 2 x the largest ratios
+#: measured over the TT and PT cases of theta's rules (docs/stress_error.md, analysis/stress_error.py):
+#: per rtol 0.0227 and 0.0234 (PT at psi_bar = 0.5, S = 80), per tail 1.69 and 5.39 (TT at Delta = 2.3)
+STRESS_PER_RTOL = {"intrinsic_viscosity": 0.046, "normal_stress_coefficient": 0.047}
+STRESS_PER_TAIL = {"intrinsic_viscosity": 3.4, "normal_stress_coefficient": 11.0}
+
+
+def stress_error(quantity: str, rtol: float | None = None, tail: float | None = None, flips: bool = False) -> float:
+    """Discretisation error bar of the settled mean of a rheology series (``quantity``: "intrinsic_viscosity"
+    or "normal_stress_coefficient"): STRESS_PER_RTOL rtol where ``rtol`` is given (the time step), plus
+    STRESS_PER_TAIL tail where ``tail`` is (the grid; none beyond TAIL_RULED_UP_TO); nan as for theta's
+    (a fixed step, no tails, tumbling)."""
+    if flips:
+        return math.nan
+    total = 0.0
+    if rtol is not None or tail is None:
+        if rtol is None or not math.isfinite(rtol):
+            return math.nan
+        total += STRESS_PER_RTOL[quantity] * rtol
+    if tail is not None:
+        if not math.isfinite(tail) or tail > TAIL_RULED_UP_TO:
+            return math.nan
+        total += STRESS_PER_TAIL[quantity] * tail
+    return total
+
+
 def error_bar(row: dict, quantity: str) -> tuple[float, str]:
     """(statistical + time-step + spatial error of ``quantity`` ("period" or "theta_mean"), which dominates).
 

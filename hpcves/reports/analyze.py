@@ -36,7 +36,16 @@ from hpcves.reports.critical import critical_markdown, critical_rows, write_crit
 from hpcves.reports.tables import cell, fmt, markdown_table, write_rows
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
-from hpcves.run.verdict import DAMAGED, PARAMETERS, TOPOLOGY_COLUMNS, CaseData, analyze_case, case_data, mark
+from hpcves.run.verdict import (
+    DAMAGED,
+    PARAMETERS,
+    STRESS_COLUMNS,
+    TOPOLOGY_COLUMNS,
+    CaseData,
+    analyze_case,
+    case_data,
+    mark,
+)
 from hpcves.version import __version__
 
 #: the columns of regimes.csv and of the file's analysis/ group, in order
@@ -47,7 +56,7 @@ COLUMNS = ("case",) + PARAMETERS + ("status", "t", "t_end", "rtol", "N", "regime
                                      "theta_mean_dt_err", "theta_mean_N_err",
                                      "theta_min", "theta_amplitude", "t_settle", "cycles", "pattern_speed",
                                      "theta_drift", "period_crossings", "bending_gap", "bending_gap_err", "flips") \
-    + TOPOLOGY_COLUMNS + ("reason",)
+    + STRESS_COLUMNS + TOPOLOGY_COLUMNS + ("reason",)
 TEXT_COLUMNS = ("case", "status", "regime", "reason")
 
 
@@ -262,13 +271,16 @@ def write_csv(rows: list[dict], path: Path) -> None:
 def regimes_markdown(source: Source, rows: list[dict]) -> str:
     keys = list(source.sweep_keys) or list(PARAMETERS)
     header = ["case"] + keys + ["regime", "period", "+- stat", "+- dt", "+- N", "mean theta", "+- stat", "+- dt",
-                                "+- N", "min theta", "amplitude", "Delta E_b", "+-", "pattern", "t settle", "evidence"]
+                                "+- N", "min theta", "amplitude", "Delta E_b", "+-", "[eta]", "N1", "pattern",
+                                "t settle", "evidence"]
     body = [[row["case"]] + [cell(row[k]) for k in keys]
             + [row["regime"], fmt(row["period"], ".6g"), fmt(row["period_err"], ".2g"),
                _dt_cell(row, "period"), _dt_cell(row, "period", "N"), fmt(row["theta_mean"], ".4f"),
                fmt(row["theta_mean_err"], ".2g"), _dt_cell(row, "theta_mean"), _dt_cell(row, "theta_mean", "N"),
                fmt(row["theta_min"], ".4f"), fmt(row["theta_amplitude"], ".3g"),
-               fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"), pattern_cell(row),
+               fmt(row["bending_gap"], ".4g"), fmt(row["bending_gap_err"], ".2g"),
+               stress_cell(row, "intrinsic_viscosity"), stress_cell(row, "normal_stress_coefficient"),
+               pattern_cell(row),
                fmt(row["t_settle"], ".4g"), row["reason"]] for row in rows]
     summary = ", ".join(f"{n} {r}" for r, n in regime_counts(rows).items())
     left = (0, len(keys) + 1, header.index("pattern"), len(header) - 1)
@@ -295,7 +307,10 @@ ERROR_BARS = ("+- stat: the statistical uncertainty (period: the standard error 
               "measured against the spectral tail of the settled run (docs/spatial_error.md); n/e for tumbling "
               "and for records without the tails. Delta E_b: max - min of the bending energy over a "
               "period of a phase-treading case, averaged over its whole settled periods, +- their standard "
-              "error and what the sampling can miss of the extremes (the time step's error not included).")
+              "error and what the sampling can miss of the extremes (the time step's error not included). "
+              "[eta], N1: the intrinsic viscosity Sigma_xy / (S A) and first normal-stress coefficient "
+              "(Sigma_xx - Sigma_yy) / (S A) of the vesicle's stresslet (docs/numerics.md, \"Rheology\"), "
+              "averaged as theta is, +- statistical + time-step + grid error (docs/stress_error.md).")
 
 
 def pattern_cell(row: dict) -> str:
@@ -304,6 +319,15 @@ def pattern_cell(row: dict) -> str:
         return ""
     found = Topology(int(row["soft_domains"]), int(row["domains_on_tips"]), bool(row["two_fold"]))
     return found.text() + ("" if row["topology_steady"] else " (most snapshots; it changes)")
+
+
+def stress_cell(row: dict, quantity: str) -> str:
+    """The settled mean of a rheology series +- its whole error bar [the part that dominates]
+    (accuracy.error_bar); "" where there is none (not settled, or a file without the series)."""
+    if not math.isfinite(row.get(quantity, math.nan)):
+        return ""
+    error, dominant = accuracy.error_bar(row, quantity)
+    return f"{row[quantity]:.5g} +- {error:.1g} [{dominant}]"
 
 
 def _dt_cell(row: dict, quantity: str, part: str = "dt") -> str:
@@ -619,6 +643,34 @@ def phase_diagrams(f: Findings, out: Path) -> list[Path]:
     return written
 
 
+def stress_figures(f: Findings, out: Path) -> list[Path]:
+    """The vesicles' stress over the plane (diagrams.stress_diagram: ``intrinsic_viscosity{suffix}`` and
+    ``normal_stress{suffix}``, a colour map under the cases), or, where one parameter alone is swept,
+    [eta] and N1 against it (diagrams.stress_curves: ``stress{suffix}``); nothing where no case has them
+    (files of case format 6 and before)."""
+    from hpcves.reports import diagrams
+
+    if not f.diagrams or not any(math.isfinite(r.get("intrinsic_viscosity", math.nan)) for r in f.rows):
+        return []
+    written = []
+    repeated = rc.superseded(f.source)
+    plane = len({r[f.y_key] for r in f.rows}) > 1
+    log_keys = f.study.refine_settings.log_keys() if f.refined else None
+    for fixed, subset in facets([r for r in f.rows if r["case"] not in repeated], f.others):
+        suffix = facet_suffix(fixed)
+        if not plane:
+            title = diagrams.parameter_text(shared_parameters(subset, (f.x_key,)))
+            written += _save(diagrams.stress_curves(subset, f.x_key, title=title, log_keys=log_keys),
+                             out / f"stress{suffix}")
+            continue
+        title = diagrams.parameter_text(shared_parameters(subset, (f.x_key, f.y_key)))
+        for quantity, stem in (("intrinsic_viscosity", "intrinsic_viscosity"), ("normal_stress_coefficient",
+                                                                                 "normal_stress")):
+            written += _save(diagrams.stress_diagram(subset, f.x_key, f.y_key, quantity, title=title,
+                                                     log_keys=log_keys), out / f"{stem}{suffix}")
+    return written
+
+
 def _oriented(regions, settings, x_key: str):
     """A refinement's regions with x the diagram's x (its axes may be the other way round)."""
     if settings.x.key == x_key:
@@ -757,7 +809,7 @@ def _continuation_figures(f: Findings, labels: list[str], others: list[str], out
 #: the writers of an analysis, in the order they run: each writes its artefacts (or none) into the
 #: output folder and returns their paths
 WRITERS = (regime_tables, refinement_tables, critical_shear_tables, critical_shear_figures, period_table,
-           phase_diagrams, attractor_maps)
+           phase_diagrams, stress_figures, attractor_maps)
 
 
 def _write_outputs(source: Source, rows: list[dict], out: Path, axes, case_figures, progress,

@@ -40,7 +40,9 @@ from hpcves.run.verdict import PARAMETERS
 
 #: analysis/ columns carried per case by open_campaign (the rest are in regimes.csv)
 RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
-           "theta_mean_dt_err", "theta_mean_N_err", "t_settle", "cycles", "bending_gap", "reason")
+           "theta_mean_dt_err", "theta_mean_N_err", "t_settle", "cycles", "bending_gap",
+           *(f"{name}{part}" for name in ("intrinsic_viscosity", "normal_stress_coefficient")
+             for part in ("", "_err", "_dt_err", "_N_err")), "reason")
 
 
 def _attrs(table: dict, name: str) -> dict:

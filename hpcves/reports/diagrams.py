@@ -389,3 +389,111 @@ def critical_shear_figure(searches: list[dict], x_key: str, title: str = "", alo
     if title:
         ax.set_title(title, fontsize=13)
     return fig
+
+
+#: the rheology columns a figure draws: (column, axis label)
+STRESS_LABELS = {"intrinsic_viscosity": r"intrinsic viscosity $[\eta]$",
+                 "normal_stress_coefficient": r"normal-stress coefficient $N_1$"}
+
+
+def _axis_scales(ax, rows: list[dict], keys: tuple, log_keys=None) -> tuple[bool, ...]:
+    """Log axes as :func:`phase_diagram` chooses them (ticks at the swept values where few); which are log."""
+    logs = []
+    for axis, key in zip((ax.xaxis, ax.yaxis), keys):
+        values = sorted({r[key] for r in rows})
+        log = (key in log_keys) if log_keys is not None else _log_scale(values, key)
+        if log:
+            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
+            if len(values) <= MAX_SWEEP_TICKS:
+                axis.set_ticks(values, [f"{v:g}" for v in values])
+            else:
+                plain_log_ticks(axis)
+            axis.set_minor_locator(matplotlib.ticker.NullLocator())
+        logs.append(log)
+    return tuple(logs)
+
+
+@matplotlib.rc_context({"font.size": 14})
+def stress_diagram(rows: list[dict], x_key: str, y_key: str, quantity: str = "intrinsic_viscosity",
+                   title: str = "", log_keys=None):
+    """The settled mean of a rheology column (``quantity``) over two swept parameters: a colour map
+    interpolated between the cases that have it (linear on triangles, in the axes' own scales) with
+    the cases on it as white markers shaped by regime (those without the value grey)."""
+    import matplotlib.tri
+
+    fig = Figure(figsize=(10, 6), constrained_layout=True)
+    ax = fig.subplots()
+    logs = _axis_scales(ax, rows, (x_key, y_key), log_keys)
+    have = [r for r in rows if math.isfinite(r.get(quantity, math.nan))]
+    values = np.array([r[quantity] for r in have])
+    mapped = None
+    if have:
+        x = np.array([r[x_key] for r in have], dtype=float)
+        y = np.array([r[y_key] for r in have], dtype=float)
+        u, v = (np.log(x) if logs[0] else x), (np.log(y) if logs[1] else y)
+        levels = np.linspace(values.min(), values.max(), 13) if np.ptp(values) > 0 else None
+        try:
+            if levels is None or len(have) < 3:
+                raise ValueError("too few values for a map")
+            mesh = matplotlib.tri.Triangulation(u, v)
+            mapped = ax.tricontourf(matplotlib.tri.Triangulation(x, y, mesh.triangles), values, levels=levels,
+                                    cmap="viridis", zorder=0)
+        except (ValueError, RuntimeError):             # collinear or too few points: the markers alone
+            mapped = ax.scatter(x, y, c=values, cmap="viridis", s=400, marker="s", zorder=0)
+    for regime, (colour, marker, label) in REGIME_STYLE.items():
+        chosen = [r for r in rows if r["regime"] == regime]
+        if not chosen:
+            continue
+        shown = [math.isfinite(r.get(quantity, math.nan)) for r in chosen]
+        ax.scatter([r[x_key] for r in chosen], [r[y_key] for r in chosen], s=90, marker=marker,
+                   c=["white" if s else "0.55" for s in shown], edgecolors="k" if marker not in "xX" else None,
+                   linewidths=0.8, label=f"{label} ({len(chosen)})", zorder=3, clip_on=False)
+    if len(have) <= 60:                                # few enough to read each value off the figure
+        for r in have:
+            ax.annotate(f"{r[quantity]:.4g}", (r[x_key], r[y_key]), textcoords="offset points", xytext=(0, 10),
+                        ha="center", fontsize=9, zorder=4,
+                        bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.7})
+    ax.use_sticky_edges = False                        # the filled map would pin the limits to the cases
+    ax.margins(0.08)
+    if mapped is not None:
+        bar = fig.colorbar(mapped, ax=ax, location="left", pad=0.02)
+        bar.set_label(STRESS_LABELS.get(quantity, quantity))
+        bar.ax.yaxis.set_major_locator(matplotlib.ticker.MaxNLocator(7))
+        bar.ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%.4g"))
+    ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
+    ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
+    _legend_outside(ax)
+    shown_title = STRESS_LABELS.get(quantity, quantity) + (f"; {title}" if title else "")
+    if not have:
+        shown_title += " (no case has it)"
+    ax.set_title(shown_title, fontsize=13)
+    return fig
+
+
+@matplotlib.rc_context({"font.size": 14})
+def stress_curves(rows: list[dict], x_key: str, title: str = "", log_keys=None):
+    """[eta] and N1 (settled means) against one swept parameter, a panel each: markers by regime with
+    their whole error bars (statistical + time step + grid, accuracy.error_bar), joined in order."""
+    fig = Figure(figsize=(9, 7), constrained_layout=True)
+    axes = fig.subplots(2, 1, sharex=True)
+    for ax, quantity in zip(axes, STRESS_LABELS):
+        have = sorted((r for r in rows if math.isfinite(r.get(quantity, math.nan))), key=lambda r: r[x_key])
+        ax.plot([r[x_key] for r in have], [r[quantity] for r in have], color="0.6", lw=1, zorder=1)
+        for regime, (colour, marker, label) in REGIME_STYLE.items():
+            chosen = [r for r in have if r["regime"] == regime]
+            if chosen:
+                bars = [accuracy.error_bar(r, quantity)[0] for r in chosen]
+                ax.errorbar([r[x_key] for r in chosen], [r[quantity] for r in chosen], yerr=bars, fmt=marker,
+                            color=colour, mec="k", mew=0.6, ms=8, capsize=3, label=f"{label} ({len(chosen)})",
+                            zorder=3)
+        ax.set_ylabel(STRESS_LABELS[quantity])
+        ax.grid(alpha=0.3)
+        values = [r[quantity] for r in have]
+        if values and min(values) < 0 < max(values):      # a sign change: where it happens matters
+            ax.axhline(0.0, color="k", lw=0.6)
+    _axis_scales(axes[1], rows, (x_key,), log_keys)
+    axes[1].set_xlabel(AXIS_LABELS.get(x_key, x_key))
+    _legend_outside(axes[0])
+    if title:
+        axes[0].set_title(title, fontsize=13)
+    return fig

@@ -18,6 +18,7 @@ from hpcves.analysis.pattern import common_topology
 from hpcves.analysis.regimes import CREEPING, UNDECIDED, AnalysisSettings, Classification, classify
 from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
 from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
+from hpcves.analysis.stress import SettledMean, settled_mean
 from hpcves.model.params import SWEEPABLE as PARAMETERS  # the columns of a case's parameters in a row
 from hpcves.model.params import parameter_of
 from hpcves.run.decision import REGIMES_BY_CODE
@@ -53,6 +54,12 @@ PATTERN_SNAPSHOTS = 16
 #: the columns a row gets from them (nan without snapshots): soft domains, how many sit on the tips,
 #: two-fold symmetry (1/0), and whether every snapshot read had the same topology (1/0)
 TOPOLOGY_COLUMNS = ("soft_domains", "domains_on_tips", "two_fold", "topology_steady")
+#: the rheology series (model/rheology.py) a row gives the settled mean of, and the columns of each: the
+#: mean, its statistical, time-step and grid errors (as theta_mean's), and the amplitude (nan for a case
+#: of a format before them, or not settled)
+STRESS_SERIES = ("intrinsic_viscosity", "normal_stress_coefficient")
+STRESS_COLUMNS = tuple(f"{name}{suffix}" for name in STRESS_SERIES
+                       for suffix in ("", "_err", "_dt_err", "_N_err", "_amplitude"))
 
 
 def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
@@ -171,7 +178,7 @@ def analyze_case(case: CaseData, settings: AnalysisSettings) -> dict:
         empty = Classification(regime, reason, *([math.nan] * (len(fields(Classification)) - 2)))
         return {**base, **empty.row(), "period_dt_err": math.nan, "theta_mean_dt_err": math.nan,
                 "period_N_err": math.nan, "theta_mean_N_err": math.nan,
-                **dict.fromkeys(TOPOLOGY_COLUMNS, math.nan)}
+                **dict.fromkeys(STRESS_COLUMNS, math.nan), **dict.fromkeys(TOPOLOGY_COLUMNS, math.nan)}
     found = classify(case.series, settings)
     if case.status != STATUS_NAMES[FINISHED]:
         found = replace(found, reason=f"{case.status} at t = {case.t:.4g} of {case.t_end:.4g}: {found.reason}")
@@ -189,7 +196,26 @@ def analyze_case(case: CaseData, settings: AnalysisSettings) -> dict:
             "theta_mean_dt_err": accuracy.inclination_error(found.theta_mean, rtol, flips),
             "period_N_err": accuracy.spatial_period_error(found.period, tail, flips),
             "theta_mean_N_err": accuracy.spatial_inclination_error(found.theta_mean, tail, flips),
-            **pattern_columns(case.patterns, found.t_settle)}
+            **stress_columns(series, found, rtol, tail, flips), **pattern_columns(case.patterns, found.t_settle)}
+
+
+def stress_columns(series: dict, found: Classification, rtol: float | None, tail: float, flips: bool) -> dict:
+    """The rheology columns of a row: each series' settled mean over theta's settled part and whole periods
+    (analysis/stress.py), with the error bars of accuracy.stress_error; nan where the case is not settled
+    (undecided) or its file has no such series."""
+    out = {}
+    settled = found.regime != UNDECIDED and math.isfinite(found.t_settle)
+    for name in STRESS_SERIES:
+        values = series.get(name)
+        mean = settled_mean(series["t"], values, found.t_settle, found.period, found.period_err) \
+            if settled and values is not None and len(values) else SettledMean.none()
+        out |= {name: mean.mean, f"{name}_err": mean.error,
+                f"{name}_dt_err": accuracy.stress_error(name, rtol=rtol, flips=flips) if math.isfinite(mean.mean)
+                else math.nan,
+                f"{name}_N_err": accuracy.stress_error(name, tail=tail, flips=flips) if math.isfinite(mean.mean)
+                else math.nan,
+                f"{name}_amplitude": mean.amplitude}
+    return out
 
 
 def pattern_columns(patterns: dict, t_settle: float) -> dict:
