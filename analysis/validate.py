@@ -493,6 +493,146 @@ def contrast(lines):
     lines += ["![inclination and tumbling period against lambda](docs/validation/contrast.png)", ""]
 
 
+def _settled_stress(series) -> tuple:
+    """(classification, [eta], N1) of a run: its settled means as hpcves analyze reads them (analysis/stress.py)."""
+    from hpcves.analysis.stress import settled_mean
+
+    c = classify(series)
+    means = [settled_mean(series["t"], series[q], c.t_settle, c.period, c.period_err)
+             for q in ("intrinsic_viscosity", "normal_stress_coefficient")]
+    return c, *means
+
+
+def rheology(lines):
+    """The stress a vesicle adds (issue 66): the rigid limit against the analytic rigid ellipse, [eta] and
+    N1 of homogeneous vesicles against lambda beside lambda_C, and [eta] as the vesicle becomes a circle."""
+    from hpcves.api import analyze
+    from hpcves.model import rheology as rh
+
+    lines += ["## 8. Rheology: the stress a vesicle adds (issue 66)", "",
+              "[eta] = Sigma_xy / (S A) and N1 = (Sigma_xx - Sigma_yy) / (S A) from the stresslet recorded at every "
+              "sample (docs/numerics.md, \"Rheology\": definition, sign, the rigid ellipse's formula and its "
+              "derivation); settled means over theta's settled part and whole periods, as `hpcves analyze` reads "
+              "them, +- their statistical error (fixed steps: the time step's part is shown by the finer runs).", ""]
+    # --- the rigid limit over a Jeffery orbit
+    rows = []
+    for nu, d in REDUCED_AREAS.items():
+        _, r = _jeffery_half_period(d)
+        for lam in (1e2, 1e3, 1e4):
+            c = Case(Physics(psi_bar=0.0, excess_length=d, shear_rate=CONTRAST_S, viscosity_ratio=lam),
+                     Numerics(N=128, dt=5e-4), RunControl(t_end=3.0, sample_interval=0.002, snapshot_interval=0.5,
+                                                         checkpoint_interval=1.0))
+            series, _, _ = run_case(f"jeffery_D{d:.4f}_l{lam:g}", c)
+            p = crossing_period(series["t"], np.sin(2.0 * series["theta"]), t_start=0.3)
+            window = (series["t"] >= p.start) & (series["t"] <= p.end)      # whole half-orbits
+            first = rh.rigid_ellipse(r, 1.0, series["theta"][0])     # K_n, K_s depend on the axis ratio alone
+            rows.append((nu, r, lam, series["intrinsic_viscosity"][0], first[0], series["normal_stress_coefficient"][0],
+                         first[1], float(np.mean(series["intrinsic_viscosity"][window])),
+                         float(np.mean(series["normal_stress_coefficient"][window])), p.cycles))
+    lines += ["### The rigid limit", "",
+              "A vesicle whose inside is ever more viscous moves as a rigid body (section 6), and its stresslet tends "
+              "to the rigid ellipse's: [eta](theta) = K_n sin^2 2theta + K_s cos^2 2theta, N1 = (K_n - K_s) sin "
+              "4theta, whose average over a Jeffery orbit is [eta] = 2 and N1 = 0 at any axis ratio. The runs of "
+              "section 6's Jeffery table (N = 128, dt = 5e-4, S = 10): at t = 0 against the formula at the "
+              "start's ellipse, and the mean over the whole half-orbits between the first and last upward "
+              "crossings of sin 2 theta after t = 0.3 (a mean of samples: sampled every 0.002, a half-orbit "
+              "holds 900-1600 samples).", "",
+              "| nu | r | lambda | [eta](t = 0) | rigid ellipse | N1(t = 0) | rigid ellipse | <[eta]> over "
+              "the orbit | <N1> | half-orbits |", "|" + " ---: |" * 10]
+    lines += [f"| {nu:g} | {r:.4f} | {lam:g} | {e0:.6f} | {re:.6f} | {n0:.2e} | {rn:.2e} | {em:.5f} | {nm:+.1e} | "
+              f"{k} |" for nu, r, lam, e0, re, n0, rn, em, nm, k in rows]
+    gaps = [abs(e0 - re) for _, _, _, e0, re, *_ in rows]
+    shrinks = all(gaps[i + 1] < 0.2 * gaps[i] for i in (0, 1, 3, 4))
+    lines += ["", "The gap at t = 0 " + ("falls tenfold per tenfold lambda" if shrinks else "does NOT fall as 1/lambda")
+              + " (tests/test_rheology.py extrapolates it to 3e-7 at four orientations), and the orbit's mean tends to "
+              "2 (N1 to 0) as lambda grows: what is left at lambda = 100 is the membrane's own motion and the drift "
+              "of the shape from the start's ellipse (section 6).", ""]
+    # --- [eta] and N1 against lambda
+    ratios = (0.25, 1.0, 2.0, 3.0, 4.0, 6.0, 10.0, 20.0, 100.0)
+    found = {(nu, lam): _settled_stress(run_case(f"contrast_D{d:.4f}_l{lam:g}", contrast_case(d, lam))[0])
+             for nu, d in REDUCED_AREAS.items() for lam in ratios}
+    report = analyze(WORK / "lambda_c.h5", WORK / "lambda_c_analysis", write_to_file=False, case_figures="none") \
+        if (WORK / "lambda_c.h5").exists() else None
+    brackets = {nu: (row["bracket_low"], row["bracket_high"]) for nu, row in zip(REDUCED_AREAS, report.searches)} \
+        if report is not None else {}
+    lines += ["### Homogeneous vesicles against lambda", "",
+              f"The runs of section 6 (psi_bar = 0, S = {CONTRAST_S:g}, N = 64, dt = 5e-4). Ghigliotti, Biben & "
+              "Misbah (J. Fluid Mech. 2010) find, for two-dimensional vesicles, [eta] falling with lambda along "
+              "tank-treading and a minimum at the tank-treading -> tumbling transition; here:", "",
+              "| lambda | " + " | ".join(f"nu = {nu:g}: regime | [eta] | N1" for nu in REDUCED_AREAS) + " |",
+              "| ---: | " + " | ".join("--- | ---: | ---:" for _ in REDUCED_AREAS) + " |"]
+
+    def cells(c, eta, n1):
+        return f"{c.regime} | {eta.mean:.4f} +- {eta.error:.1g} | {n1.mean:.4f} +- {n1.error:.1g}"
+
+    for lam in ratios:
+        lines.append(f"| {lam:g} | " + " | ".join(cells(*found[(nu, lam)]) for nu in REDUCED_AREAS) + " |")
+    words = []
+    for nu in REDUCED_AREAS:
+        etas = [(lam, found[(nu, lam)][1].mean) for lam in ratios if np.isfinite(found[(nu, lam)][1].mean)]
+        least = min(etas, key=lambda e: e[1])
+        low, high = brackets.get(nu, (np.nan, np.nan))
+        tt = [lam for lam in ratios if found[(nu, lam)][0].regime == "TT"]
+        tu = [lam for lam in ratios if found[(nu, lam)][0].regime == "TU"]
+        where = (f"the last tank-treading lambda of the table ({max(tt):g})" if least[0] == max(tt, default=None)
+                 else f"the first tumbling one ({min(tu):g})" if least[0] == min(tu, default=None)
+                 else f"lambda = {least[0]:g}")
+        words.append(f"at nu = {nu:g} the least [eta] of the table, {least[1]:.4f}, is at {where}; lambda_C lies in "
+                     f"[{low:.4g}, {high:.4g}] (section 6)")
+    text = "; ".join(words)
+    lines += ["", text[0].upper() + text[1:] + ". Read between the table's points, so the minimum is placed "
+              "only to the spacing of its lambdas. Tumbling takes [eta] back up towards the rigid body's 2 as "
+              "lambda grows, and N1, large along tank-treading, averages to about 0 over a tumbling orbit.", ""]
+    # --- towards a circle
+    deltas = (0.05, 0.1, 0.2, 0.4)
+    circle = {d: _settled_stress(run_case(f"circle_D{d:g}", contrast_case(d, 1.0))[0]) for d in deltas}
+    lines += ["### Tank-treading as the vesicle becomes a circle", "",
+              f"lambda = 1, S = {CONTRAST_S:g}, psi_bar = 0, N = 64, dt = 5e-4. An exact circle is not a rigid "
+              "body -- its inextensible membrane can still deform it to first order -- but a tank-treading vesicle "
+              "holds its shape while the membrane turns, and as Delta -> 0 that motion becomes a disk's rigid "
+              "rotation, so [eta] should tend to the rigid disk's 2 and N1 (made by the deformation) to 0:", "",
+              "| Delta | regime | [eta] | 2 - [eta] | (2 - [eta]) / Delta | N1 |",
+              "| ---: | --- | ---: | ---: | ---: | ---: |"]
+    for d in deltas:
+        c, eta, n1 = circle[d]
+        lines.append(f"| {d:g} | {c.regime} | {eta.mean:.5f} +- {eta.error:.1g} | {2 - eta.mean:.2e} | "
+                     f"{(2 - eta.mean) / d:.3f} | {n1.mean:.4f} |")
+    (_, e1, n1a), (_, e2, n1b) = circle[deltas[0]], circle[deltas[1]]
+    lines += ["", f"2 - [eta] falls in proportion to Delta, ({2 - e1.mean:.3g} / {2 - e2.mean:.3g} = "
+              f"{(2 - e1.mean) / (2 - e2.mean):.3f} for a halving of Delta), and N1 as its square root -- as the "
+              f"deformation's amplitude does -- ({n1a.mean:.4g} / {n1b.mean:.4g} = {n1a.mean / n1b.mean:.3f}; "
+              f"sqrt(1/2) = {np.sqrt(0.5):.3f}): the limit is the rigid disk's.", ""]
+    # --- the figure
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 7), sharex=True, constrained_layout=True)
+    for i, nu in enumerate(REDUCED_AREAS):
+        for ax, k in ((top, 1), (bottom, 2)):
+            for regime, marker in (("TT", "o"), ("TU", "^")):
+                pts = [(lam, found[(nu, lam)][k].mean, found[(nu, lam)][k].error) for lam in ratios
+                       if found[(nu, lam)][0].regime == regime]
+                if pts:
+                    x, y, e = zip(*pts)
+                    ax.errorbar(x, y, yerr=e, fmt=marker, color=f"C{i}", mfc="white" if regime == "TU" else f"C{i}",
+                                capsize=2, label=rf"$\nu$ = {nu:g}, {regime}")
+            ax.plot([lam for lam in ratios], [found[(nu, lam)][k].mean for lam in ratios], color=f"C{i}", lw=0.8)
+            low, high = brackets.get(nu, (np.nan, np.nan))
+            if np.isfinite(low) and np.isfinite(high):
+                ax.axvspan(low, high, color=f"C{i}", alpha=0.2, lw=0)
+    top.axhline(2.0, color="k", lw=0.6, ls="--")
+    top.set_ylabel(r"intrinsic viscosity $[\eta]$")
+    bottom.set_ylabel(r"normal-stress coefficient $N_1$")
+    bottom.set_xscale("log")
+    bottom.set_xticks([0.25, 1, 2, 4, 10, 20, 100])
+    bottom.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    bottom.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    bottom.set_xlabel(r"viscosity ratio $\lambda$")
+    top.set_title(r"homogeneous vesicles, S = 10 (shaded: the $\lambda_C$ brackets; dashed: the rigid disk)",
+                  fontsize=10)
+    top.legend(frameon=False, fontsize=8)
+    fig.savefig(FIGURES / "rheology_lambda.png", dpi=110)
+    plt.close(fig)
+    lines += ["![[eta] and N1 against lambda](docs/validation/rheology_lambda.png)", ""]
+
+
 def estimates(lines):
     """A search's best estimate of S_C inside its bracket, tested by two cases 1 % either side of it."""
     from hpcves.api import analyze, run_campaign
@@ -563,7 +703,7 @@ def main(argv=None):
 
 
 PARTS = {part.__name__: part for part in (homogeneous, two_phase, separation, convergence, deflated, contrast,
-                                          estimates)}
+                                          estimates, rheology)}
 
 if __name__ == "__main__":
     main()
