@@ -34,6 +34,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 import claims
 from hpcves.analysis import accuracy, grids
 from hpcves.campaign.file import read_table
@@ -415,7 +417,7 @@ def sc_b2_section(c: Context) -> list[str]:
 def sc_psi_section(c: Context) -> list[str]:
     lines = ["## Critical shear rate against psi_bar, with the bending-energy gap, at B2 = 0.1 and 0.8 "
              "(Delta = 0.194)", "", CRITICAL_NOTE, "", critical_table(list(c.report.searches), ["psi_bar", "B2"]), ""]
-    return lines + _images([p for p in c.figures if "critical" in p.name])
+    return lines + _images([p for p in c.figures if "critical" in p.name]) + stress_lines(c)
 
 
 def attractor_lines(c: Context, x_key: str, y_key: str) -> list[str]:
@@ -690,7 +692,64 @@ def _phase_section(c: Context) -> list[str]:
              f"{len(c.report.rows)} cases, {len(latest)} points: {counts} (the point's last run where a refinement "
              f"ran {len(repeated)} again).", ""]
     lines += _images([p for p in c.figures if "phase_diagram" in p.name])
-    return lines + refinement_text(c.out, c.name) + [""]
+    return lines + refinement_text(c.out, c.name) + [""] + stress_lines(c)
+
+
+def _spread(values: list[float]) -> str:
+    return f"{min(values):.4g}-{max(values):.4g} (median {float(np.median(values)):.4g})"
+
+
+def stress_lines(c: Context) -> list[str]:
+    """Beyond the publication: the stress the vesicles add (issue 66) -- [eta] and N1 of the settled cases by
+    regime, where the extremes lie, and the maps analyze drew; for a campaign file made before the rheology
+    series (case format 7), how to get them."""
+    repeated = superseded(c.report.source)
+    rows = [r for r in c.report.rows if r["case"] not in repeated]
+    have = [r for r in rows if math.isfinite(r.get("intrinsic_viscosity", math.nan))]
+    lines = ["### Beyond the publication: the stress the vesicles add", ""]
+    if not have:
+        return lines + [f"Its campaign file predates the rheology series (case format 7, issue 66): move "
+                        f"`{c.study.output}` away and `make reproduce STUDY={c.name}` runs it again with them "
+                        "(docs/numerics.md, \"Rheology\").", ""]
+    by_regime = {}
+    for r in have:
+        by_regime.setdefault(r["regime"], []).append(r)
+    parts = [f"{regime} ({len(group)}): [eta] {_spread([r['intrinsic_viscosity'] for r in group])}, N1 "
+             f"{_spread([r['normal_stress_coefficient'] for r in group])}" for regime, group in by_regime.items()]
+    keys = [k for k in ("shear_rate", "psi_bar", "excess_length", "viscosity_ratio") if len({r[k] for r in rows}) > 1]
+
+    def where(r):
+        return ", ".join(f"{LABELS.get(k, k)} = {r[k]:.4g}" for k in keys)
+
+    low, high = min(have, key=lambda r: r["intrinsic_viscosity"]), max(have, key=lambda r: r["intrinsic_viscosity"])
+    bars = [accuracy.error_bar(r, "intrinsic_viscosity")[0] for r in have]
+    lines += [f"The intrinsic viscosity [eta] = Sigma_xy / (S A) and first normal-stress coefficient N1 = "
+              f"(Sigma_xx - Sigma_yy) / (S A) of the {len(have)} settled cases (a dilute suspension's viscosity is "
+              f"eta (1 + [eta] phi); the rigid disk has [eta] = 2, N1 = 0), by regime: " + "; ".join(parts) + ". "
+              f"Least [eta] {low['intrinsic_viscosity']:.4g} ({low['regime']}, {where(low)}), largest "
+              f"{high['intrinsic_viscosity']:.4g} ({high['regime']}, {where(high)}); each mean's whole error bar is "
+              f"at most {max(bars):.1g} (median {float(np.median(bars)):.1g}; n/e parts left out: "
+              "regimes.csv has each).", ""]
+    jumps = stress_jumps(have, [k for k in keys if k != "shear_rate"]) if "shear_rate" in keys else []
+    if jumps:
+        lines[-2] += (f" Along S, where a tank-treading case is followed by a phase-treading or tumbling one "
+                      f"({len(jumps)} such neighbours), [eta] changes across the transition by "
+                      f"{min(jumps):+.2%} to {max(jumps):+.2%} (median {float(np.median(jumps)):+.2%}).")
+    return lines + _images([p for p in c.figures if "intrinsic_viscosity" in p.stem or "normal_stress" in p.stem])
+
+
+def stress_jumps(rows: list[dict], others: list[str]) -> list[float]:
+    """The relative change of [eta] from a TT case to the next case along S (same other parameters) where that
+    one is PT or TU: what the transition does to the suspension's viscosity."""
+    lines = {}
+    for r in rows:
+        lines.setdefault(tuple(r[k] for k in others), []).append(r)
+    out = []
+    for line in lines.values():
+        line.sort(key=lambda r: r["shear_rate"])
+        out += [b["intrinsic_viscosity"] / a["intrinsic_viscosity"] - 1 for a, b in zip(line, line[1:])
+                if a["regime"] == "TT" and b["regime"] in ("PT", "TU")]
+    return out
 
 
 GERA = ("Gera, Salac & Spagnolie (J. Fluid Mech. 2022; arXiv:2108.10671) give a small-deformation theory of a "

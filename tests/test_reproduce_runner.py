@@ -196,3 +196,31 @@ def test_a_regime_sequence_merges_neighbours_of_one_regime():
     pairs = [(0.1, "TT"), (0.5, "PT"), (1.0, "PT"), (2.5, "PT"), (12.5, "TU"), (62.5, "TU")]
     assert reproduce._runs(pairs) == "TT (0.1) -> PT (0.5 - 2.5) -> TU (12.5 - 62.5)"
     assert reproduce._runs([]) == ""
+
+
+def test_a_section_says_what_the_vesicles_add_to_the_stress_or_how_to_get_it(monkeypatch, tmp_path):
+    """reproduce.stress_lines (issue 66): [eta] and N1 of the settled cases by regime with where the extremes
+    lie and the maps; for a campaign file without the rheology series, how to run it again with them."""
+    from types import SimpleNamespace
+
+    monkeypatch.setattr(reproduce, "superseded", lambda source: set())
+    nan = float("nan")
+
+    def row(case, S, psi, regime, eta, n1):
+        return {"case": case, "shear_rate": S, "psi_bar": psi, "excess_length": 0.94, "viscosity_ratio": 1.0,
+                "regime": regime, "intrinsic_viscosity": eta, "normal_stress_coefficient": n1,
+                "intrinsic_viscosity_err": 1e-5, "intrinsic_viscosity_dt_err": 2e-5, "intrinsic_viscosity_N_err": nan}
+    rows = [row("0000", 10, 0.3, "TT", 1.52, 2.0), row("0001", 40, 0.3, "PT", 1.61, 1.9),
+            row("0002", 40, 0.5, "undecided", nan, nan)]
+    figures = [tmp_path / "delta094_S_psi_intrinsic_viscosity.png", tmp_path / "delta094_S_psi_phase_diagram.png"]
+    c = SimpleNamespace(report=SimpleNamespace(rows=rows, source=None), figures=figures, name="delta094_S_psi",
+                        study=SimpleNamespace(output="out/reproduce/delta094_S_psi.h5"))
+    text = "\n".join(reproduce.stress_lines(c))
+    assert "of the 2 settled cases" in text and "TT (1): [eta] 1.52-1.52" in text and "PT (1)" in text
+    assert "Least [eta] 1.52 (TT, S = 10, psi_bar = 0.3), largest 1.61 (PT, S = 40, psi_bar = 0.3)" in text
+    assert "at most 3e-05" in text and "intrinsic_viscosity.png" in text and "phase_diagram" not in text
+    assert "(1 such neighbours), [eta] changes across the transition by +5.92% to +5.92%" in text
+    for r in rows:
+        r["intrinsic_viscosity"] = nan
+    text = "\n".join(reproduce.stress_lines(c))
+    assert "predates the rheology series" in text and "make reproduce STUDY=delta094_S_psi" in text
