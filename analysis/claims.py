@@ -85,9 +85,11 @@ CAUSES = {
                       "S = 4-5, full flips at Delta = 0.6, S = 2, first after t = 8.4); read at S ~ 4, or from runs "
                       "shorter than the first flip, it is the publication's 0.8",
     "fig7a_no_tt": "hpcves's tolerance, and unexplained at S = 160: at S = 40, Delta = 2.3 rtol = 1e-4 phase-treads "
-                   "(period 0.415; S = 80: 0.192) as fixed steps of 1e-5 in either scheme do (0.409, 0.452), where "
-                   "rtol = 1e-3 keeps one domain on a tip, theta wandering by 3e-3 for 800 shear times -- an "
-                   "under-resolved PT; at S = 160 both numerics tank-tread with two domains for Delta = 1.9-2.7, "
+                   "(period 0.415, 0.413 at rtol = 1e-5, 0.415 in the studies' numerics; S = 80: 0.192) as fixed "
+                   "steps of 1e-5 in either scheme do (0.409, 0.452), where rtol = 1e-3 keeps one domain on a tip, "
+                   "theta wandering by 3e-3 for 800 shear times -- an under-resolved PT, which the refinements now "
+                   "run again at rtol = 1e-4 (min_rtol); at S = 160 both numerics tank-tread with two domains for "
+                   "Delta = 1.9-2.7, "
                    "and a two-domain TT and a one-domain PT coexist at 2.3 (ten fixed SBDF2 steps select PT, the "
                    "authors' integration TT) (section publication_mode_fig7a)",
     "fig10a_tu": "the extent only: TU for psi_bar ~ 0.43-0.52, TT at 0.5625 with one domain on a tip (robust to "

@@ -224,11 +224,12 @@ def test_verdict_codes_name_every_regime_and_reason_to_run_again():
     from hpcves.run.verdict import VERDICT_REGIMES, Verdict
 
     for regime in VERDICT_REGIMES:
-        for under, crept in ((False, False), (True, False), (False, True)):
-            verdict = Verdict(regime, under, crept)
+        for under, crept, unsettled in ((False, False, False), (True, False, False), (False, True, False),
+                                        (False, False, True)):
+            verdict = Verdict(regime, under, crept, unsettled)
             assert Verdict.from_code(verdict.code) == verdict
     assert Verdict("PT+TT").code == -1
-    assert [Verdict.from_code(c) for c in (-1.0, float("nan"), 1.5, 4 * len(VERDICT_REGIMES))] == [None] * 4
+    assert [Verdict.from_code(c) for c in (-1.0, float("nan"), 1.5, 8 * len(VERDICT_REGIMES))] == [None] * 4
 
 
 def test_a_refinement_grows_by_a_new_value_of_a_key_that_is_not_an_axis(refined, tmp_path):

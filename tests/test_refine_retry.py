@@ -167,13 +167,13 @@ def test_a_creeping_point_runs_again_with_resize_tail_over_100_down_to_min_resiz
     # the retry changes resize_tail only, by 100
     numerics = study.refine_case(0, 1.0, 2.3, "0000").case.numerics
     changes = study.retry_numerics(numerics, False, True)
-    assert changes == {"N_max": 256, "resize_tail": pytest.approx(1e-6, rel=1e-12)}
+    assert changes == {"N_max": 256, "resize_tail": pytest.approx(1e-6, rel=1e-12), "rtol": 1e-3}
     again = study.refine_case(0, 1.0, 2.3, "0001", changes).case.numerics
     assert (again.N, again.N_max, again.dealias) == (numerics.N, numerics.N_max, numerics.dealias)
     assert study.retry_numerics(again, False, True) is None                 # 1e-8 < min_resize_tail
     # an under-resolved run again keeps the tighter tail, and doubles N_max (with max_N)
     retry = study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\nmax_N = 512\n")
-    assert retry.retry_numerics(again, True, False) == {"N_max": 512, "resize_tail": again.resize_tail}
+    assert retry.retry_numerics(again, True, False) == {"N_max": 512, "resize_tail": again.resize_tail, "rtol": 1e-3}
 
 
 def test_a_finished_refinement_continued_with_min_resize_tail_runs_every_creeping_point_again():
@@ -204,10 +204,69 @@ def test_bad_min_resize_tail_is_refused(plane, extra, message):
         study_from_toml(plane + extra)
 
 
+def unsettling(S, delta):
+    """TT everywhere but in Delta 2-2.5 x S 30-90, PT there; its PT stays unsettled unless rtol <= 1e-4 (a
+    synthetic map of the Delta = 2.3, psi_bar = 0.48, S = 40-80 phase-treading that rtol = 1e-3 misses)."""
+    if 2.0 <= delta <= 2.5 and 30 <= S <= 90:
+        return "PT", lambda rtol: rtol <= 1e-4 * (1 + 1e-9)
+    return "TT", None
+
+
+def trace_rtol(study, truth, max_stages=60):
+    """As :func:`trace`, for a map whose points stay unsettled above an rtol."""
+    found = []
+    for _ in range(max_stages):
+        (outcome,) = outcomes(study, found)
+        if outcome.state.status != refine.RUNNING:
+            return found, outcome
+        for x, y in outcome.state.next_points:
+            _, changes = outcome.retries.get((x, y, None), (0, None))
+            numerics = study.refine_case(0, x, y, "0000", changes).case.numerics
+            regime, settles = truth(x, y)
+            unsettled = settles is not None and not settles(numerics.rtol)
+            found.append((0, x, y, "undecided" if unsettled else regime,
+                          study.retry_numerics(numerics, False, False, unsettled), None))
+    raise AssertionError("no end")
+
+
+def test_an_unsettled_point_runs_again_with_rtol_over_10_down_to_min_rtol():
+    """The deflated studies' case (issue 65): rtol = 1e-3 leaves a phase-treading point unsettled, rtol =
+    1e-4 decides it; with min_rtol = 1e-4 the refinement runs such points once more and traces the PT patch."""
+    _, outcome_0 = trace_rtol(study_from_toml(PLANE), unsettling)
+    study = study_from_toml(PLANE + "min_rtol = 1e-4\n")
+    found, outcome = trace_rtol(study, unsettling)
+    stuck_0 = {p for p, r in outcome_0.regimes.items() if r == "undecided"}
+    assert stuck_0 and outcome_0.spent == len(outcome_0.regimes)                 # no retries without the key
+    assert "PT" not in outcome_0.regimes.values()
+    assert all(r == unsettling(*p)[0] for p, r in outcome.regimes.items())      # the true map, PT patch included
+    assert "PT" in outcome.regimes.values() and all(unsettling(*p)[0] == "PT" for p in stuck_0)
+    assert outcome.spent == len(found) > len(outcome.regimes)
+    numerics = study.refine_case(0, 40.0, 2.3, "0000").case.numerics
+    changes = study.retry_numerics(numerics, False, False, True)
+    assert changes == {"N": 128, "resize_tail": numerics.resize_tail, "rtol": pytest.approx(1e-4, rel=1e-12)}
+    again = study.refine_case(0, 40.0, 2.3, "0001", changes).case.numerics
+    assert again.rtol == pytest.approx(1e-4) and study.retry_numerics(again, False, False, True) is None
+    # an under-resolved run again keeps the tighter rtol
+    retry = study_from_toml(PLANE + "min_rtol = 1e-4\nmax_N = 256\n")
+    assert retry.retry_numerics(again, True, False)["rtol"] == again.rtol
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("min_rtol = 1e-3\n", "min_rtol = 0.001: .* give at most 0.0001"),
+    ("min_rtol = 1.5\n", r"must lie in \[0, 1\)"),
+])
+def test_bad_min_rtol_is_refused(extra, message):
+    with pytest.raises(ConfigError, match=message):
+        study_from_toml(PLANE + extra)
+    with pytest.raises(ConfigError, match="only an adaptive step"):
+        study_from_toml(PLANE.replace("rtol = 1e-3\n", "dt = 1e-3\n") + "min_rtol = 1e-5\n")
+
+
 def test_min_resize_tail_is_not_in_the_fingerprint():
     """Lowered on a finished study, its creeping points run again; the cases run so far stay valid."""
     assert (study_from_toml(AUTO_PLANE).fingerprint
-            == study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n").fingerprint)
+            == study_from_toml(AUTO_PLANE + "min_resize_tail = 1e-6\n").fingerprint
+            == study_from_toml(AUTO_PLANE + "min_rtol = 1e-4\n").fingerprint)
 
 
 TINY = """

@@ -32,7 +32,11 @@ asks for the same points in every run.
   adapts, with ``min_resize_tail`` a point whose theta settled steady while its
   pattern kept moving (the creep of a tank-treading pattern on too coarse a grid,
   regimes.CREEPING) runs again with numerics.resize_tail / 100 (and again, while
-  that is >= min_resize_tail). Every run of a point counts against ``max_cases``.
+  that is >= min_resize_tail); with ``min_rtol`` a point left unsettled at the end of
+  its run -- theta neither steady nor periodic, or its periodic mean still drifting
+  (regimes.UNSETTLED), which a step too loose for the motion can do -- runs again
+  with numerics.rtol / 10 (and again, while that is >= min_rtol). Every run of a
+  point counts against ``max_cases``.
 * Stop when no mixed cell needs a split (``converged``: every crossing
   bracketed to the tolerances), or when ``max_cases`` points are spent (``budget
   spent``: the widest mixed cells are split first, so the budget goes where
@@ -64,6 +68,8 @@ CONVERGED, RUNNING, BUDGET = "converged", "running", "budget spent"
 #: a creeping point runs again with its numerics.resize_tail divided by this: its creep falls as the
 #: tail to a power 0.6-0.9 (docs/numerics.md), so by 16-60 times
 CREEP_TIGHTENING = 100.0
+#: what an unsettled case's numerics.rtol is divided by when it runs again (``min_rtol``): a tenth, ~3x the steps
+RTOL_TIGHTENING = 10.0
 DECIDED = (TT, PT, TU)
 #: an outcome of several regimes at one point (a refinement of attractors: its starts reached them all)
 JOINT = "+"
@@ -130,6 +136,7 @@ class RefineSettings:
     straight_span: float = 4.0    # widest a cell stays along a boundary that crosses it, in tolerances
     max_N: int = 0                # an under-resolved case runs again at 2 N while that is at most max_N (0: never)
     min_resize_tail: float = 0.0  # a creeping case runs again at resize_tail / 100 while that is at least this
+    min_rtol: float = 0.0         # an unsettled case runs again at rtol / 10 while that is at least this
 
     def __post_init__(self):
         if self.x.key == self.y.key:
@@ -152,6 +159,13 @@ class RefineSettings:
         resize_tail / CREEP_TIGHTENING, while that is at least ``min_resize_tail`` (None: it stays undecided)."""
         tighter = resize_tail / CREEP_TIGHTENING
         return tighter if self.min_resize_tail > 0 and tighter >= self.min_resize_tail * (1 - 1e-9) else None
+
+    def retry_rtol(self, rtol: float) -> float | None:
+        """The numerics.rtol with which a point runs again after its case stayed unsettled at ``rtol``
+        (regimes.UNSETTLED): rtol / RTOL_TIGHTENING, while that is at least ``min_rtol`` (None: it stays
+        undecided)."""
+        tighter = rtol / RTOL_TIGHTENING
+        return tighter if self.min_rtol > 0 and tighter >= self.min_rtol * (1 - 1e-9) else None
 
     def log_keys(self) -> tuple:
         """The parameters of the plane on a log scale."""
@@ -221,6 +235,9 @@ class RefinePlan:
         max_N = 256             # an under-resolved case runs again at 2 N, up to N = 256 (default: never)
         min_resize_tail = 1e-6  # N = "auto": a creeping case runs again with resize_tail / 100, down to
                                 # 1e-6 (default: never)
+        min_rtol = 1e-4         # an adaptive step: a case left unsettled (theta neither steady nor
+                                # periodic, or still drifting, at its end) runs again with rtol / 10,
+                                # down to 1e-4 (default: never)
         attractors = true       # with [starts]: every point runs from every start, and a cell is mixed
                                 # where the sets of regimes they reach differ (coexistence is traced)
 
@@ -235,6 +252,7 @@ class RefinePlan:
     max_N: int = 0            # 0: an under-resolved case is not run again
     attractors: bool = False  # with [starts]: a point's outcome is the set of regimes its starts reach
     min_resize_tail: float = 0.0   # 0: a creeping case is not run again
+    min_rtol: float = 0.0          # 0: an unsettled case is not run again
 
     def settings(self, sweep: dict) -> RefineSettings:
         """The RefineSettings of one refinement over the ``sweep`` values of the axes."""
@@ -245,13 +263,13 @@ class RefinePlan:
             return Axis(key, tuple(sorted(sweep[key])), math.log1p(tolerance[key]) if log else tolerance[key], log)
 
         return RefineSettings(axis(self.axes[0]), axis(self.axes[1]), self.max_cases, self.straight_span,
-                              self.max_N, self.min_resize_tail)
+                              self.max_N, self.min_resize_tail, self.min_rtol)
 
     @classmethod
     def from_dict(cls, values: dict, sweep: dict, where: str = "[refine]") -> "RefinePlan":
         """From the TOML table and the study's ``{key: values}`` sweep (validated against each other)."""
         refuse_unknown(values, ("axes", "tolerance", "max_cases", "straight_span", "max_N", "attractors",
-                                "min_resize_tail"), where)
+                                "min_resize_tail", "min_rtol"), where)
         swept = [k for k, v in sweep.items() if len(v) > 1]
         axes = values.get("axes", swept[:2])
         if (not isinstance(axes, list | tuple) or len(axes) != 2
@@ -290,7 +308,12 @@ class RefinePlan:
         if not 0 <= min_resize_tail < 1:
             raise ConfigError(f"{where}: min_resize_tail = {min_resize_tail:g}: must lie in [0, 1) (0: a creeping "
                               "case is not run again)")
-        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N, attractors, min_resize_tail)
+        min_rtol = check_type("refine.min_rtol", values.get("min_rtol", 0.0), float)
+        if not 0 <= min_rtol < 1:
+            raise ConfigError(f"{where}: min_rtol = {min_rtol:g}: must lie in [0, 1) (0: an unsettled case is not "
+                              "run again)")
+        plan = cls(tuple(axes), tuple(tolerance), max_cases, straight_span, max_N, attractors, min_resize_tail,
+                   min_rtol)
         try:
             plan.settings(sweep)
         except ConfigError as exc:

@@ -66,6 +66,12 @@ SWINGING = ("swinging: the inclination oscillates about a positive mean and dips
 #: physics, the creep of a tank-treading pattern on too coarse a grid (docs/numerics.md), which a
 #: refinement runs again with a tighter numerics.resize_tail (``[refine] min_resize_tail``)
 CREEPING = re.compile(r"theta steady at -?[0-9.]+ but the pattern moves")
+#: the reason of an undecided case whose theta neither settled nor repeated, or whose periodic mean still
+#: drifted, to the end of its run: where it is not physics, a motion the step's tolerance does not resolve --
+#: at Delta = 2.3, psi_bar = 0.48, S = 40 rtol = 1e-3 wandered for 800 shear times where rtol = 1e-4
+#: phase-treads (docs/numerics.md) -- which a refinement runs again with a tighter numerics.rtol
+#: (``[refine] min_rtol``)
+UNSETTLED = re.compile(r"not settled: theta still changes|theta still drifting")
 
 
 @dataclass(frozen=True)

@@ -65,8 +65,8 @@ def outcomes(study: Study, found: list[tuple]) -> list[RefineOutcome]:
     ended cases, in case order (retry: what the point's next run changes, :meth:`Study.retry_numerics`,
     None when it runs no more; start: None, or which of [starts] in a refinement of attractors).
 
-    A point's last run gives its regime. A point whose last run stopped as under-resolved, or crept,
-    runs again while ``max_N`` or ``min_resize_tail`` allow; until then the
+    A point's last run gives its regime. A point whose last run stopped as under-resolved, crept, or
+    stayed unsettled, runs again while ``max_N``, ``min_resize_tail`` or ``min_rtol`` allow; until then the
     refinement takes it as not yet run (:func:`hpcves.analysis.refine.step`), and it runs again even
     where no cell needs it any more (:func:`again`). In a refinement of
     attractors each point runs from every start; its outcome is the set of regimes they reached
@@ -128,7 +128,7 @@ def run_key(study: Study, c) -> tuple:
 
 
 def run_again(study: Study) -> frozenset:
-    """The ids of the cases whose point a later case runs again (at a larger N, or a tighter resize_tail):
+    """The ids of the cases whose point a later case runs again (at a larger N, a tighter resize_tail or rtol):
     their failures are taken care of (none outside a refine study)."""
     if not study.refine:
         return frozenset()
@@ -162,7 +162,7 @@ class RefineDriver(StageDriver):
             if verdict is not None:
                 r, x, y, start = run_key(study, c)
                 found.append((r, x, y, verdict.regime, study.retry_numerics(c.case.numerics, verdict.under_resolved,
-                                                                            verdict.crept), start))
+                                                                            verdict.crept, verdict.unsettled), start))
         states = outcomes(study, found)
         taken = {run_key(study, c) for c in study.cases}
         new = []

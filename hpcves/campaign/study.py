@@ -92,7 +92,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hpcves.analysis.refine import CREEP_TIGHTENING, RefinePlan, RefineSettings
+from hpcves.analysis.refine import CREEP_TIGHTENING, RTOL_TIGHTENING, RefinePlan, RefineSettings
 from hpcves.analysis.regimes import AnalysisSettings
 from hpcves.analysis.search import SearchSettings
 from hpcves.config import Problems, case_from_dict, check_type, clean_number, read_settings, refuse_unknown, with_prefix
@@ -188,11 +188,12 @@ class Study:
         the classification thresholds (which decide where the search goes next).
         A grid study's covers the thresholds when its cases run until decided. A refine study's leaves
         out its budget (max_cases): raised, it continues the refinement where it stopped; and
-        min_resize_tail: lowered, its creeping points run again (the cases run so far stay what they are).
+        min_resize_tail and min_rtol: lowered, its creeping or unsettled points run again (the cases run so
+        far stay what they are).
         """
         if self.refine is not None:
             plan = {k: v for k, v in dataclasses.asdict(self.refine).items()
-                    if k not in ("max_cases", "min_resize_tail")}
+                    if k not in ("max_cases", "min_resize_tail", "min_rtol")}
             if plan["straight_span"] == 1:   # the quadtree: as files made before the key existed
                 del plan["straight_span"]
             if not plan["max_N"]:            # no retries: as files made before the key existed
@@ -284,18 +285,25 @@ class Study:
         swept = {k: x if k == x_key else y if k == y_key else fixed[k] for k in self.sweep}
         return self.make_case(case_id, swept, refinement, numerics)
 
-    def retry_numerics(self, numerics: Numerics, unresolved: bool, crept: bool) -> dict | None:
+    def retry_numerics(self, numerics: Numerics, unresolved: bool, crept: bool, unsettled: bool = False) -> dict | None:
         """What a refinement point's next run changes after a run with ``numerics`` that stopped as
-        under-resolved (N, or N_max where N adapts, doubled: RefineSettings.retry_N) or crept where N adapts
-        (resize_tail tightened: RefineSettings.retry_tail); None: it runs no more."""
+        under-resolved (N, or N_max where N adapts, doubled: RefineSettings.retry_N), crept where N adapts
+        (resize_tail tightened: RefineSettings.retry_tail) or stayed unsettled with an adaptive step (rtol
+        tightened: RefineSettings.retry_rtol); None: it runs no more. The run again keeps what the run
+        before changed."""
         settings = self.refine_settings
         key = "N_max" if numerics.adaptive_N else "N"
+        kept = {key: getattr(numerics, key), "resize_tail": numerics.resize_tail,
+                **({"rtol": numerics.rtol} if numerics.adaptive else {})}
         if unresolved:
             N = settings.retry_N(getattr(numerics, key))
-            return None if N is None else {key: N, "resize_tail": numerics.resize_tail}
+            return None if N is None else {**kept, key: N}
         if crept and numerics.adaptive_N:
             tail = settings.retry_tail(numerics.resize_tail)
-            return None if tail is None else {key: getattr(numerics, key), "resize_tail": tail}
+            return None if tail is None else {**kept, "resize_tail": tail}
+        if unsettled and numerics.adaptive:
+            rtol = settings.retry_rtol(numerics.rtol)
+            return None if rtol is None else {**kept, "rtol": rtol}
         return None
 
     def with_cases(self, new) -> "Study":
@@ -473,6 +481,15 @@ def _study_from_dict(data: dict, default_name: str, text: str) -> Study:
             raise ConfigError(f"[refine]: min_resize_tail = {refine.min_resize_tail:g}: a creeping case runs again "
                               f"with numerics.resize_tail / {CREEP_TIGHTENING:g} = {first:g}, below it, so none "
                               f"would; give at most {first:g} (0: never)")
+    if refine is not None and refine.min_rtol:
+        if not base.numerics.adaptive:
+            raise ConfigError(f"[refine]: min_rtol = {refine.min_rtol:g} runs an unsettled case again with a tighter "
+                              "numerics.rtol, which only an adaptive step has (give numerics.rtol)")
+        first = base.numerics.rtol / RTOL_TIGHTENING
+        if refine.min_rtol > first * (1 + 1e-9):
+            raise ConfigError(f"[refine]: min_rtol = {refine.min_rtol:g}: an unsettled case runs again with "
+                              f"numerics.rtol / {RTOL_TIGHTENING:g} = {first:g}, below it, so none would; give at "
+                              f"most {first:g} (0: never)")
     if refine is not None and refine.attractors:
         if not starts or len(starts) < 2:
             raise ConfigError("[refine]: attractors = true runs every point from every start: name at least two "

@@ -12,7 +12,7 @@ from hpcves.campaign.study import Study, study_from_toml
 from hpcves.model.params import LABELS
 from hpcves.reports.tables import markdown_table
 from hpcves.run.store import ENDED_NAMES
-from hpcves.run.verdict import DAMAGED, crept, under_resolved
+from hpcves.run.verdict import DAMAGED, crept, under_resolved, unsettled
 
 
 def _run_keys(source, study: Study) -> list[tuple]:
@@ -42,7 +42,7 @@ def source_outcomes(source, rows: list[dict]) -> tuple[Study, list[RefineOutcome
     study = study_from_toml(source.toml, source=f"{source.path}: campaign_toml")
     found = [(r, x, y, row["regime"],
               study.retry_numerics(dataclasses.replace(study.base.numerics, **case.resolution), under_resolved(row),
-                                   crept(row)), start)
+                                   crept(row), unsettled(row)), start)
              for (r, x, y, start), case, row in zip(_run_keys(source, study), source.cases, rows)
              if row["status"] in ENDED_NAMES or row["status"] == DAMAGED]   # damaged: ended for the campaign
     return study, outcomes(study, found)

@@ -15,7 +15,7 @@ import numpy as np
 
 from hpcves.analysis import accuracy
 from hpcves.analysis.pattern import common_topology
-from hpcves.analysis.regimes import CREEPING, UNDECIDED, AnalysisSettings, Classification, classify
+from hpcves.analysis.regimes import CREEPING, UNDECIDED, UNSETTLED, AnalysisSettings, Classification, classify
 from hpcves.analysis.regimes import FAILED as FAILED_OUTCOME
 from hpcves.analysis.regimes import MODEL_LIMIT as MODEL_LIMIT_OUTCOME
 from hpcves.analysis.stress import SettledMean, settled_mean
@@ -78,9 +78,12 @@ def case_data(store: CaseStore, case_id: str, search: int = -1) -> CaseData:
 
 def resolution(attrs) -> dict:
     """The numerics a refinement's run again may change (campaign.study.Study.retry_numerics: N, N_max,
-    resize_tail), as a case's attributes hold them."""
-    kinds = {"N": int, "N_max": int, "resize_tail": float}
-    return {k: kind(attrs[f"numerics.{k}"]) for k, kind in kinds.items() if f"numerics.{k}" in attrs}
+    resize_tail, rtol), as a case's attributes hold them (rtol: an adaptive run's)."""
+    kinds = {"N": int, "N_max": int, "resize_tail": float, "rtol": float}
+    out = {k: kind(attrs[f"numerics.{k}"]) for k, kind in kinds.items() if f"numerics.{k}" in attrs}
+    if not math.isfinite(out.get("rtol", 0.0)):          # a fixed-step run: none to change (NaN is no value)
+        del out["rtol"]
+    return out
 
 
 def mark(store: CaseStore) -> tuple:
@@ -95,31 +98,33 @@ FAILED_PREFIX = "case failed: "
 @dataclass(frozen=True)
 class Verdict:
     """What a staged campaign decides on for one ended case: its regime (regimes.csv's) and whether it
-    failed as under-resolved or crept (the two reasons a refinement runs a point again)."""
+    failed as under-resolved, crept, or stayed unsettled (the three reasons a refinement runs a point
+    again)."""
 
     regime: str
     under_resolved: bool = False
     crept: bool = False
+    unsettled: bool = False
 
     @classmethod
     def of(cls, row: dict) -> "Verdict":
-        return cls(row["regime"], under_resolved(row), crept(row))
+        return cls(row["regime"], under_resolved(row), crept(row), unsettled(row))
 
     @property
     def code(self) -> int:
-        """4 x its regime's place in VERDICT_REGIMES + 2 under_resolved + crept; -1 for a regime not
-        there (never stored)."""
+        """8 x its regime's place in VERDICT_REGIMES + 4 unsettled + 2 under_resolved + crept; -1 for a
+        regime not there (never stored)."""
         if self.regime not in VERDICT_REGIMES:
             return -1
-        return 4 * VERDICT_REGIMES.index(self.regime) + 2 * self.under_resolved + self.crept
+        return 8 * VERDICT_REGIMES.index(self.regime) + 4 * self.unsettled + 2 * self.under_resolved + self.crept
 
     @classmethod
     def from_code(cls, code) -> "Verdict | None":
         """The verdict of a stored code; None for -1 (none stored) or a code that is none."""
-        if not np.isfinite(code) or code != int(code) or not 0 <= code < 4 * len(VERDICT_REGIMES):
+        if not np.isfinite(code) or code != int(code) or not 0 <= code < 8 * len(VERDICT_REGIMES):
             return None
-        regime, flags = divmod(int(code), 4)
-        return cls(VERDICT_REGIMES[regime], bool(flags & 2), bool(flags & 1))
+        regime, flags = divmod(int(code), 8)
+        return cls(VERDICT_REGIMES[regime], bool(flags & 2), bool(flags & 1), bool(flags & 4))
 
 
 #: the regimes a stored verdict may hold, in the order of their codes
@@ -155,6 +160,12 @@ def verdict_of(data: CaseData, settings: AnalysisSettings) -> tuple[Verdict, flo
 def under_resolved(row: dict) -> bool:
     """Whether a regimes.csv row is a case that failed because its N did not resolve it."""
     return row["regime"] == FAILED_OUTCOME and row["reason"].startswith(f"{FAILED_PREFIX}{UNDER_RESOLVED}")
+
+
+def unsettled(row: dict) -> bool:
+    """Whether a regimes.csv row is an undecided case whose theta neither settled nor repeated, or kept
+    drifting, to the end of its run (regimes.UNSETTLED): possibly a motion its step's tolerance misses."""
+    return row["regime"] == UNDECIDED and UNSETTLED.search(row["reason"]) is not None
 
 
 def crept(row: dict) -> bool:
