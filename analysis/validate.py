@@ -331,6 +331,19 @@ def _jeffery_half_period(delta, S=CONTRAST_S):
     return np.pi * (r + 1.0 / r) / S, r
 
 
+def _jeffery_runs():
+    """(nu, axis ratio r, lambda, Jeffery's half period, series, the crossing period of sin 2 theta after
+    t = 0.3) of the very viscous vesicles (N = 128, dt = 5e-4, t = 3; lambda = 1e2, 1e3, 1e4)."""
+    for nu, d in REDUCED_AREAS.items():
+        half, r = _jeffery_half_period(d)
+        for lam in (1e2, 1e3, 1e4):
+            c = Case(Physics(psi_bar=0.0, excess_length=d, shear_rate=CONTRAST_S, viscosity_ratio=lam),
+                     Numerics(N=128, dt=5e-4), RunControl(t_end=3.0, sample_interval=0.002, snapshot_interval=0.5,
+                                                         checkpoint_interval=1.0))
+            series, _, _ = run_case(f"jeffery_D{d:.4f}_l{lam:g}", c)
+            yield nu, r, lam, half, series, crossing_period(series["t"], np.sin(2.0 * series["theta"]), t_start=0.3)
+
+
 def contrast(lines):
     from hpcves.api import run_campaign
     from hpcves.campaign.study import study_from_toml
@@ -434,16 +447,7 @@ def contrast(lines):
               "brackets above are what to compare them with.", ""]
 
     # --- the tumbling period against Jeffery's
-    rows = []
-    for nu, d in REDUCED_AREAS.items():
-        half, r = _jeffery_half_period(d)
-        for lam in (1e2, 1e3, 1e4):
-            c = Case(Physics(psi_bar=0.0, excess_length=d, shear_rate=CONTRAST_S, viscosity_ratio=lam),
-                     Numerics(N=128, dt=5e-4), RunControl(t_end=3.0, sample_interval=0.002, snapshot_interval=0.5,
-                                                         checkpoint_interval=1.0))
-            series, _, _ = run_case(f"jeffery_D{d:.4f}_l{lam:g}", c)
-            p = crossing_period(series["t"], np.sin(2.0 * series["theta"]), t_start=0.3)
-            rows.append((nu, r, lam, p.period, half))
+    rows = [(nu, r, lam, p.period, half) for nu, r, lam, half, _, p in _jeffery_runs()]
     lines += ["### The tumbling period as lambda grows: Jeffery's rigid ellipse", "",
               "With the inside ever more viscous the membrane can only move rigidly, and the start's ellipse "
               "(axis ratio r) turns like Jeffery's rigid one, which looks the same again after turning by pi: "
@@ -516,19 +520,12 @@ def rheology(lines):
               "them, +- their statistical error (fixed steps: the time step's part is shown by the finer runs).", ""]
     # --- the rigid limit over a Jeffery orbit
     rows = []
-    for nu, d in REDUCED_AREAS.items():
-        _, r = _jeffery_half_period(d)
-        for lam in (1e2, 1e3, 1e4):
-            c = Case(Physics(psi_bar=0.0, excess_length=d, shear_rate=CONTRAST_S, viscosity_ratio=lam),
-                     Numerics(N=128, dt=5e-4), RunControl(t_end=3.0, sample_interval=0.002, snapshot_interval=0.5,
-                                                         checkpoint_interval=1.0))
-            series, _, _ = run_case(f"jeffery_D{d:.4f}_l{lam:g}", c)
-            p = crossing_period(series["t"], np.sin(2.0 * series["theta"]), t_start=0.3)
-            window = (series["t"] >= p.start) & (series["t"] <= p.end)      # whole half-orbits
-            first = rh.rigid_ellipse(r, 1.0, series["theta"][0])     # K_n, K_s depend on the axis ratio alone
-            rows.append((nu, r, lam, series["intrinsic_viscosity"][0], first[0], series["normal_stress_coefficient"][0],
-                         first[1], float(np.mean(series["intrinsic_viscosity"][window])),
-                         float(np.mean(series["normal_stress_coefficient"][window])), p.cycles))
+    for nu, r, lam, _, series, p in _jeffery_runs():
+        window = (series["t"] >= p.start) & (series["t"] <= p.end)      # whole half-orbits
+        first = rh.rigid_ellipse(r, 1.0, series["theta"][0])     # K_n, K_s depend on the axis ratio alone
+        rows.append((nu, r, lam, series["intrinsic_viscosity"][0], first[0], series["normal_stress_coefficient"][0],
+                     first[1], float(np.mean(series["intrinsic_viscosity"][window])),
+                     float(np.mean(series["normal_stress_coefficient"][window])), p.cycles))
     lines += ["### The rigid limit", "",
               "A vesicle whose inside is ever more viscous moves as a rigid body (section 6), and its stresslet tends "
               "to the rigid ellipse's: [eta](theta) = K_n sin^2 2theta + K_s cos^2 2theta, N1 = (K_n - K_s) sin "
