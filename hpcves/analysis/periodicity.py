@@ -344,17 +344,28 @@ def analyze(t: np.ndarray, x: np.ndarray, *, abs_tol: float = 1e-4, rel_tol: flo
     drift = period_trend(settled, int(round(lag))) * (settled.size - 1)
     amplitude = float(0.5 * (settled.max() - settled.min()))
     mean, mean_error = float(settled.mean()), (tol if steady else float("nan"))
-    whole = int((t[-1] - t[start]) // period.period) if np.isfinite(period.period) and period.period > 0 else 0
-    if whole >= 1:
-        # the mean over the last `whole` periods: no bias from a fraction of a period. What is left:
-        # the samples at the window's ends (h), the period's own error (m dT), and the drift.
-        span = whole * period.period
-        window = x[t >= t[-1] - span - 1e-9 * h]
-        mean = float(np.mean(window))
-        ends = 2.0 * amplitude * (h + whole * (period.error if np.isfinite(period.error) else 0.0)) / span
-        mean_error = float(max(abs(drift), ends + 2.0 * noise / np.sqrt(window.size)))
+    over_periods = whole_period_mean(t, x, float(t[start]), h, period.period, period.error, amplitude, noise, drift)
+    if over_periods is not None:
+        mean, mean_error = over_periods
     return SignalAnalysis(float(t[start]), float(t[-1] - t[start]), steady, tol, noise, mean,
                           float(settled.min()), float(settled.max()), amplitude, drift, period, mean_error)
+
+
+def whole_period_mean(t: np.ndarray, x: np.ndarray, t_start: float, h: float, period: float, period_error: float,
+                      amplitude: float, noise: float, drift: float) -> tuple[float, float] | None:
+    """(mean, its error) of x(t), uniform samples h apart, over the last whole periods after t_start
+    (item 7 of the module docstring); None where no whole period fits. No bias from a fraction of a
+    period; what is left: the samples at the window's ends (h), the period's own error (m dT), the
+    noise, and the drift."""
+    if not (np.isfinite(period) and period > 0):
+        return None
+    whole = int((t[-1] - t_start) // period)
+    if whole < 1:
+        return None
+    span = whole * period
+    window = x[t >= t[-1] - span - 1e-9 * h]
+    ends = 2.0 * amplitude * (h + whole * (period_error if np.isfinite(period_error) else 0.0)) / span
+    return float(np.mean(window)), float(max(abs(drift), ends + 2.0 * noise / np.sqrt(window.size)))
 
 
 @dataclass(frozen=True)

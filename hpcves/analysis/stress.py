@@ -4,10 +4,8 @@ A series is read over the part of the run the classification found settled (regi
 t_settle on, theta's period), as theta's mean is (periodicity.analyze, item 7):
 
 * periodic (PT, TU): the mean over the last m whole periods of theta -- a whole number of the series'
-  periods too, so no bias from a fraction of one -- uncertain by
-  max(|drift|, 2 A (h + m dT) / (m T) + 2 sigma / sqrt(k)): the window's ends fall between samples h
-  apart and move with the period's error dT, k samples of noise sigma, the drift over a period of the
-  settled part times its length;
+  periods too, so no bias from a fraction of one -- with theta's mean's error
+  (periodicity.whole_period_mean: the window's ends, the period's error, the noise, the drift);
 * steady (TT): the mean over the settled part, uncertain by max(|drift|, 5 sigma) (the part from
   t_settle on changes by the drift; 5 sigma: the band periodicity.analyze calls steady).
 
@@ -20,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hpcves.analysis.periodicity import noise_level, period_trend
+from hpcves.analysis.periodicity import noise_level, period_trend, whole_period_mean
 
 
 @dataclass(frozen=True)
@@ -46,14 +44,9 @@ def settled_mean(t, x, t_settle: float, period: float = math.nan, period_error: 
     h = (t[-1] - t[0]) / (x.size - 1)
     noise = noise_level(x)
     amplitude = float(0.5 * (x.max() - x.min()))
-    periodic = math.isfinite(period) and period > 0
-    lag = int(round(period / h)) if periodic else 1
+    lag = int(round(period / h)) if math.isfinite(period) and period > 0 else 1
     drift = period_trend(x, lag) * (x.size - 1)
-    whole = int((t[-1] - t[0]) // period) if periodic else 0
-    if whole < 1:
+    over_periods = whole_period_mean(t, x, float(t[0]), h, period, period_error, amplitude, noise, drift)
+    if over_periods is None:
         return SettledMean(float(x.mean()), amplitude, float(max(abs(drift), 5.0 * noise)))
-    span = whole * period
-    window = x[t >= t[-1] - span - 1e-9 * h]
-    ends = 2.0 * amplitude * (h + whole * (period_error if math.isfinite(period_error) else 0.0)) / span
-    return SettledMean(float(window.mean()), amplitude,
-                       float(max(abs(drift), ends + 2.0 * noise / math.sqrt(window.size))))
+    return SettledMean(over_periods[0], amplitude, over_periods[1])
