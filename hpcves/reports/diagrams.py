@@ -78,15 +78,7 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
                 if np.isfinite(r["period"]):
                     ax.annotate(f"{r['period']:.3g}", (r[x_key], r[y_key]), textcoords="offset points",
                                 xytext=(0, 9), ha="center", fontsize=9)
-    for axis, key in ((ax.xaxis, x_key), (ax.yaxis, y_key)):
-        values = sorted({r[key] for r in rows})
-        if (key in log_keys) if log_keys is not None else _log_scale(values, key):
-            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
-            if log_keys is None and len(values) <= MAX_SWEEP_TICKS:   # ticks at the swept values
-                axis.set_ticks(values, [f"{v:g}" for v in values])
-            else:
-                plain_log_ticks(axis)
-            axis.set_minor_locator(matplotlib.ticker.NullLocator())
+    log_axes(ax, rows, (x_key, y_key), log_keys)
     ax.set_xlabel(AXIS_LABELS.get(x_key, x_key))
     ax.set_ylabel(AXIS_LABELS.get(y_key, y_key))
     ax.grid(alpha=0.3)
@@ -95,6 +87,25 @@ def phase_diagram(rows: list[dict], x_key: str, y_key: str, title: str = "", ann
     if title:
         ax.set_title(title, fontsize=13)
     return fig
+
+
+def log_axes(ax, rows: list[dict], keys: tuple, log_keys=None) -> tuple[bool, ...]:
+    """Put the x (and y) axis of ``keys`` on a log scale where ``log_keys`` names it (default: the shear
+    rate and the viscosity ratio, and any other swept over a factor of 20 or more); ticks at the swept
+    values where they are few and no ``log_keys`` were given, else at 1, 2, 3, 5, 10, ... Which are log."""
+    logs = []
+    for axis, key in zip((ax.xaxis, ax.yaxis), keys):
+        values = sorted({r[key] for r in rows})
+        log = (key in log_keys) if log_keys is not None else _log_scale(values, key)
+        if log:
+            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
+            if log_keys is None and len(values) <= MAX_SWEEP_TICKS:   # ticks at the swept values
+                axis.set_ticks(values, [f"{v:g}" for v in values])
+            else:
+                plain_log_ticks(axis)
+            axis.set_minor_locator(matplotlib.ticker.NullLocator())
+        logs.append(log)
+    return tuple(logs)
 
 
 def plain_log_ticks(axis) -> None:
@@ -396,23 +407,6 @@ STRESS_LABELS = {"intrinsic_viscosity": r"intrinsic viscosity $[\eta]$",
                  "normal_stress_coefficient": r"normal-stress coefficient $N_1$"}
 
 
-def _axis_scales(ax, rows: list[dict], keys: tuple, log_keys=None) -> tuple[bool, ...]:
-    """Log axes as :func:`phase_diagram` chooses them (ticks at the swept values where few); which are log."""
-    logs = []
-    for axis, key in zip((ax.xaxis, ax.yaxis), keys):
-        values = sorted({r[key] for r in rows})
-        log = (key in log_keys) if log_keys is not None else _log_scale(values, key)
-        if log:
-            (ax.set_xscale if axis is ax.xaxis else ax.set_yscale)("log")
-            if len(values) <= MAX_SWEEP_TICKS:
-                axis.set_ticks(values, [f"{v:g}" for v in values])
-            else:
-                plain_log_ticks(axis)
-            axis.set_minor_locator(matplotlib.ticker.NullLocator())
-        logs.append(log)
-    return tuple(logs)
-
-
 @matplotlib.rc_context({"font.size": 14})
 def stress_diagram(rows: list[dict], x_key: str, y_key: str, quantity: str = "intrinsic_viscosity",
                    title: str = "", log_keys=None):
@@ -423,7 +417,7 @@ def stress_diagram(rows: list[dict], x_key: str, y_key: str, quantity: str = "in
 
     fig = Figure(figsize=(10, 6), constrained_layout=True)
     ax = fig.subplots()
-    logs = _axis_scales(ax, rows, (x_key, y_key), log_keys)
+    logs = log_axes(ax, rows, (x_key, y_key), log_keys)
     have = [r for r in rows if math.isfinite(r.get(quantity, math.nan))]
     values = np.array([r[quantity] for r in have])
     mapped = None
@@ -491,7 +485,7 @@ def stress_curves(rows: list[dict], x_key: str, title: str = "", log_keys=None):
         values = [r[quantity] for r in have]
         if values and min(values) < 0 < max(values):      # a sign change: where it happens matters
             ax.axhline(0.0, color="k", lw=0.6)
-    _axis_scales(axes[1], rows, (x_key,), log_keys)
+    log_axes(axes[1], rows, (x_key,), log_keys)
     axes[1].set_xlabel(AXIS_LABELS.get(x_key, x_key))
     _legend_outside(axes[0])
     if title:
