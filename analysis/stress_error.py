@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import sys
 import time
 from pathlib import Path
@@ -141,8 +140,8 @@ def render(results: dict) -> tuple[list[str], dict, bool]:
                     if ruled:
                         worst[(name, "rtol" if kind == "step" else "tail")] = max(
                             worst[(name, "rtol" if kind == "step" else "tail")], excess)
-                        bar = accuracy.stress_error(name, rtol=v) if kind == "step" else \
-                            accuracy.stress_error(name, tail=r["tail"])
+                        bar = accuracy.stress_step_error(name, v) if kind == "step" else \
+                            accuracy.stress_grid_error(name, r["tail"])
                         covered &= bool(d <= stat + bar)
                     cells += [f"{r[name]:.6f}", f"{d:.1e}", f"{stat:.1e}", f"{excess:.3g}"]
                 shown = f"{v:g}" + ("" if kind == "step" else f" (tail {r['tail']:.1e}{'' if ruled else ' *'})")
@@ -173,13 +172,7 @@ def main(argv=None):
     tasks = [("step", c[0], c[5], r) for c in STEP_CASES for r in (REFERENCE_RTOL,) + RTOLS] \
         + [("grid", c[0], N, spatial_error.RTOL) for c in GRID_CASES for N in (REFERENCE_N,) + NS]
     tasks = [t for t in tasks if f"{t[0]}|{t[1]}|{t[2]}|{t[3]:g}" not in results]
-    print(f"{len(tasks)} runs ({len(results)} cached), {args.jobs} at a time ...", file=sys.stderr)
-    with multiprocessing.Pool(args.jobs) as pool:
-        for i, r in enumerate(pool.imap_unordered(_task, tasks)):
-            results[key(r)] = r
-            print(f"  {i + 1}/{len(tasks)}: {key(r)} {r.get('failed', '')} {r['seconds']:.0f} s", file=sys.stderr)
-            cache.parent.mkdir(parents=True, exist_ok=True)
-            cache.write_text(json.dumps(results, indent=1))
+    spatial_error.run_cached(_task, tasks, key, results, cache, args.jobs)
     lines, _, covered = render(results)
     Path(args.out).write_text("\n".join(lines))
     print("\n".join(lines))

@@ -122,9 +122,9 @@ def test_a_settled_mean_is_taken_over_whole_periods_and_its_bar_covers_the_truth
 def test_the_stress_error_bars_follow_the_measured_rule_and_are_absent_where_it_does_not_hold():
     from hpcves.analysis import accuracy
     eta = "intrinsic_viscosity"
-    assert accuracy.stress_error(eta, rtol=1e-3) == pytest.approx(accuracy.STRESS_PER_RTOL[eta] * 1e-3)
-    assert accuracy.stress_error(eta, tail=1e-4) == pytest.approx(accuracy.STRESS_PER_TAIL[eta] * 1e-4)
-    assert np.isnan(accuracy.stress_error(eta, rtol=None))                        # a fixed step
-    assert np.isnan(accuracy.stress_error(eta, rtol=1e-3, flips=True))           # tumbling
-    assert np.isnan(accuracy.stress_error(eta, tail=2 * accuracy.TAIL_RULED_UP_TO))   # beyond the watch
-    assert np.isnan(accuracy.stress_error(eta, tail=float("nan")))               # a record without the tails
+    assert accuracy.stress_step_error(eta, 1e-3) == pytest.approx(accuracy.STRESS_PER_RTOL[eta] * 1e-3)
+    assert accuracy.stress_grid_error(eta, 1e-4) == pytest.approx(accuracy.STRESS_PER_TAIL[eta] * 1e-4)
+    assert np.isnan(accuracy.stress_step_error(eta, None))                        # a fixed step
+    assert np.isnan(accuracy.stress_step_error(eta, 1e-3, flips=True))            # tumbling
+    assert np.isnan(accuracy.stress_grid_error(eta, 2 * accuracy.TAIL_RULED_UP_TO))   # beyond the watch
+    assert np.isnan(accuracy.stress_grid_error(eta, float("nan")))               # a record without the tails

@@ -117,23 +117,21 @@ STRESS_PER_RTOL = {"intrinsic_viscosity": 0.046, "normal_stress_coefficient": 0.
 STRESS_PER_TAIL = {"intrinsic_viscosity": 3.4, "normal_stress_coefficient": 11.0}
 
 
-def stress_error(quantity: str, rtol: float | None = None, tail: float | None = None, flips: bool = False) -> float:
-    """Discretisation error bar of the settled mean of a rheology series (``quantity``: "intrinsic_viscosity"
-    or "normal_stress_coefficient"): STRESS_PER_RTOL rtol where ``rtol`` is given (the time step), plus
-    STRESS_PER_TAIL tail where ``tail`` is (the grid; none beyond TAIL_RULED_UP_TO); nan as for theta's
-    (a fixed step, no tails, tumbling)."""
-    if flips:
+def stress_step_error(quantity: str, rtol: float | None, flips: bool = False) -> float:
+    """Time-step error bar of the settled mean of a rheology series (``quantity``: "intrinsic_viscosity" or
+    "normal_stress_coefficient"): STRESS_PER_RTOL rtol; nan as :func:`inclination_error` (a fixed step,
+    tumbling)."""
+    if rtol is None or not math.isfinite(rtol) or flips:
         return math.nan
-    total = 0.0
-    if rtol is not None or tail is None:
-        if rtol is None or not math.isfinite(rtol):
-            return math.nan
-        total += STRESS_PER_RTOL[quantity] * rtol
-    if tail is not None:
-        if not math.isfinite(tail) or tail > TAIL_RULED_UP_TO:
-            return math.nan
-        total += STRESS_PER_TAIL[quantity] * tail
-    return total
+    return STRESS_PER_RTOL[quantity] * rtol
+
+
+def stress_grid_error(quantity: str, tail: float, flips: bool = False) -> float:
+    """Grid error bar of the settled mean of a rheology series: STRESS_PER_TAIL tail; nan as
+    :func:`spatial_inclination_error` (no tails, a tail beyond TAIL_RULED_UP_TO, tumbling)."""
+    if not math.isfinite(tail) or tail > TAIL_RULED_UP_TO or flips:
+        return math.nan
+    return STRESS_PER_TAIL[quantity] * tail
 
 
 def error_bar(row: dict, quantity: str) -> tuple[float, str]:

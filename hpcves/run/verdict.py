@@ -212,8 +212,8 @@ def analyze_case(case: CaseData, settings: AnalysisSettings) -> dict:
 
 def stress_columns(series: dict, found: Classification, rtol: float | None, tail: float, flips: bool) -> dict:
     """The rheology columns of a row: each series' settled mean over theta's settled part and whole periods
-    (analysis/stress.py), with the error bars of accuracy.stress_error; nan where the case is not settled
-    (undecided) or its file has no such series."""
+    (analysis/stress.py), with the error bars of accuracy.stress_step_error and stress_grid_error; nan where
+    the case is not settled (undecided) or its file has no such series."""
     out = {}
     settled = found.regime != UNDECIDED and math.isfinite(found.t_settle)
     for name in STRESS_SERIES:
@@ -221,9 +221,9 @@ def stress_columns(series: dict, found: Classification, rtol: float | None, tail
         mean = settled_mean(series["t"], values, found.t_settle, found.period, found.period_err) \
             if settled and values is not None and len(values) else SettledMean.none()
         out |= {name: mean.mean, f"{name}_err": mean.error,
-                f"{name}_dt_err": accuracy.stress_error(name, rtol=rtol, flips=flips) if math.isfinite(mean.mean)
+                f"{name}_dt_err": accuracy.stress_step_error(name, rtol, flips) if math.isfinite(mean.mean)
                 else math.nan,
-                f"{name}_N_err": accuracy.stress_error(name, tail=tail, flips=flips) if math.isfinite(mean.mean)
+                f"{name}_N_err": accuracy.stress_grid_error(name, tail, flips) if math.isfinite(mean.mean)
                 else math.nan,
                 f"{name}_amplitude": mean.amplitude}
     return out
