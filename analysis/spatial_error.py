@@ -161,6 +161,18 @@ def _task(task):
     return run(*task)
 
 
+def run_cached(task, tasks: list, key, results: dict, cache: Path, jobs: int) -> None:
+    """Run ``task`` (a module-level function) on each of ``tasks``, ``jobs`` at a time, into
+    ``results[key(result)]``, the JSON ``cache`` rewritten after each (a stopped call resumes from it)."""
+    print(f"{len(tasks)} runs ({len(results)} cached), {jobs} at a time ...", file=sys.stderr)
+    with multiprocessing.Pool(jobs) as pool:
+        for i, r in enumerate(pool.imap_unordered(task, tasks)):
+            results[key(r)] = r
+            print(f"  {i + 1}/{len(tasks)}: {key(r)} {r.get('failed', '')} {r['seconds']:.0f} s", file=sys.stderr)
+            cache.parent.mkdir(parents=True, exist_ok=True)
+            cache.write_text(json.dumps(results, indent=1))
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="docs/spatial_error.md")
@@ -170,14 +182,7 @@ def main(argv=None):
     cache = Path(args.cache)
     results = json.loads(cache.read_text()) if cache.exists() else {}
     tasks = [(c[0], N) for N in (REFERENCE_N,) + NS[::-1] for c in CASES if f"{c[0]}|{N}" not in results]
-    print(f"{len(tasks)} runs ({len(results)} cached), {args.jobs} at a time ...", file=sys.stderr)
-    with multiprocessing.Pool(args.jobs) as pool:
-        for i, r in enumerate(pool.imap_unordered(_task, tasks)):
-            results[f"{r['label']}|{r['N']}"] = r
-            print(f"  {i + 1}/{len(tasks)}: {r['label']} N = {r['N']}: {r.get('failed', '')} {r['seconds']:.0f} s",
-                  file=sys.stderr)
-            cache.parent.mkdir(parents=True, exist_ok=True)
-            cache.write_text(json.dumps(results, indent=1))
+    run_cached(_task, tasks, lambda r: f"{r['label']}|{r['N']}", results, cache, args.jobs)
     lines, _, covered = render(results)
     Path(args.out).write_text("\n".join(lines))
     print("\n".join(lines))

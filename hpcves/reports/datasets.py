@@ -36,13 +36,12 @@ from hpcves.reports.conventions import (
 from hpcves.run.diagnostics import SERIES_ATTRS, SNAPSHOT_ATTRS, SNAPSHOT_FIELDS
 from hpcves.run.store import FORMAT as CASE_FORMAT
 from hpcves.run.store import HDF5_ERRORS, STATUS_NAMES, CaseStore, FileFormatError, attr_text, open_file, reading
-from hpcves.run.verdict import PARAMETERS
+from hpcves.run.verdict import PARAMETERS, STRESS_SERIES
 
 #: analysis/ columns carried per case by open_campaign (the rest are in regimes.csv)
 RESULTS = ("regime", "period", "period_err", "period_dt_err", "period_N_err", "theta_mean", "theta_mean_err",
            "theta_mean_dt_err", "theta_mean_N_err", "t_settle", "cycles", "bending_gap",
-           *(f"{name}{part}" for name in ("intrinsic_viscosity", "normal_stress_coefficient")
-             for part in ("", "_err", "_dt_err", "_N_err")), "reason")
+           *(f"{name}{part}" for name in STRESS_SERIES for part in ("", "_err", "_dt_err", "_N_err")), "reason")
 
 
 def _attrs(table: dict, name: str) -> dict:

@@ -96,8 +96,6 @@ def packing(version: int = FORMAT_VERSION) -> dict[str, Column]:
     return out
 
 
-#: :func:`packing` of every case format a block may be of
-PACKINGS = {}
 PACKED_ARRAYS = frozenset(column.array for column in packing().values())
 
 
@@ -108,7 +106,8 @@ def block_shape(case: Case) -> tuple[int, int, int]:
 
 #: the case formats of a block's rows this hpcves reads and extends (a block keeps the one it was made in)
 BLOCK_VERSIONS = (DIGESTS_SINCE, RECORDS_SINCE, FORMAT_VERSION)
-PACKINGS.update({version: packing(version) for version in BLOCK_VERSIONS})
+#: :func:`packing` of every case format a block may be of
+PACKINGS = {version: packing(version) for version in BLOCK_VERSIONS}
 
 
 def row_layout(shape: tuple[int, int, int], packed: bool = False, version: int = FORMAT_VERSION) -> dict:
